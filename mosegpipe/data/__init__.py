@@ -1,0 +1,1 @@
+"""Dataset readers and synthetic generators. Readers take a root folder and never download."""

@@ -1,0 +1,168 @@
+"""Stage contracts: the dataclasses that travel between the stages of the pipeline.
+
+Shape letters: T frames, N points, H/W image height/width, D = 2F trajectory dimension,
+E embedding dimension, K clusters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+
+@dataclass(frozen=True)
+class Frames:
+    """A short stack of video frames held in memory.
+
+    Attributes:
+        images: (T, H, W, 3) uint8 RGB frames.
+        fps: frames per second of the source (0.0 when unknown, e.g. a folder of images).
+        source: path or name the frames came from.
+        start: index of images[0] in the source video.
+    """
+
+    images: npt.NDArray[np.uint8]
+    fps: float = 0.0
+    source: str = ""
+    start: int = 0
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.images.shape[0])
+
+    @property
+    def size_hw(self) -> tuple[int, int]:
+        return int(self.images.shape[1]), int(self.images.shape[2])
+
+
+@dataclass(frozen=True)
+class Tracks:
+    """Point tracks over T frames.
+
+    Attributes:
+        xy: (N, T, 2) float32 pixel coordinates (x right, y down); undefined where not visible.
+        visible: (N, T) bool, True where the point was tracked in that frame.
+        size_hw: (H, W) of the frames, pixels.
+    """
+
+    xy: npt.NDArray[np.float32]
+    visible: npt.NDArray[np.bool_]
+    size_hw: tuple[int, int]
+
+    @property
+    def num_tracks(self) -> int:
+        return int(self.xy.shape[0])
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.xy.shape[1])
+
+
+@dataclass(frozen=True)
+class Matches:
+    """Two-view point correspondences.
+
+    Attributes:
+        xy1: (N, 2) float32 pixel coordinates in image 1.
+        xy2: (N, 2) float32 pixel coordinates in image 2.
+        score: (N,) float32 matching score (lower is better for SIFT ratio; see match.py).
+        size1_hw: (H, W) of image 1.
+        size2_hw: (H, W) of image 2.
+    """
+
+    xy1: npt.NDArray[np.float32]
+    xy2: npt.NDArray[np.float32]
+    score: npt.NDArray[np.float32]
+    size1_hw: tuple[int, int]
+    size2_hw: tuple[int, int]
+
+    @property
+    def num_matches(self) -> int:
+        return int(self.xy1.shape[0])
+
+
+@dataclass(frozen=True)
+class Trajectories:
+    """The trajectory matrix that SubspaceNet embeds.
+
+    Attributes:
+        data: (N, 2F) float32 pixel coordinates, columns ordered x_1, y_1, x_2, y_2, ..., x_F, y_F.
+        track_ids: (N,) int64 row index of each trajectory in the Tracks/Matches it came from.
+    """
+
+    data: npt.NDArray[np.float32]
+    track_ids: npt.NDArray[np.int64]
+
+    @property
+    def num_points(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.data.shape[1] // 2)
+
+
+@dataclass(frozen=True)
+class Clustering:
+    """Cluster labels with the evidence for the chosen K.
+
+    Attributes:
+        labels: (N,) int64 in 0..k-1.
+        k: number of clusters chosen (or forced).
+        scores: criterion value per candidate K (method-specific; empty when K was forced).
+        method: "residual", "silhouette" or "fixed".
+    """
+
+    labels: npt.NDArray[np.int64]
+    k: int
+    scores: dict[int, float] = field(default_factory=dict)
+    method: str = "fixed"
+
+
+@dataclass(frozen=True)
+class LabeledClip:
+    """One labelled sample of a benchmark or generator: trajectories with ground-truth groups.
+
+    Attributes:
+        name: unique name within its dataset, e.g. "Seq005_Clip01/f1-5".
+        traj: (N, 2F) float32, same column order as Trajectories.data (pixels or dataset units).
+        labels: (N,) int64 in 0..K-1. Datasets with outliers give them their own group.
+        dataset: dataset name, e.g. "kt3dmoseg", "hopkins155", "adelaidermf", "lce", "synthetic".
+        meta: free-form details (frame range, source file, outlier label, ...).
+    """
+
+    name: str
+    traj: npt.NDArray[np.float32]
+    labels: npt.NDArray[np.int64]
+    dataset: str
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def k(self) -> int:
+        return int(np.unique(self.labels).size)
+
+    @property
+    def num_points(self) -> int:
+        return int(self.traj.shape[0])
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.traj.shape[1] // 2)
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """Dense per-frame masks derived from track labels.
+
+    Attributes:
+        masks: (T, H, W) uint8; 0 = no track close enough, k+1 = cluster k.
+        labels: (N,) int64 cluster of each track used (see Trajectories.track_ids).
+        k: number of clusters.
+    """
+
+    masks: npt.NDArray[np.uint8]
+    labels: npt.NDArray[np.int64]
+    k: int
