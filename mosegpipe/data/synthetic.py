@@ -1,0 +1,762 @@
+"""Synthetic multi-body point trajectories, generated on the fly for training.
+
+The real benchmarks are small (22 KT3DMoSeg clips, 155 Hopkins sequences, 19 AdelaideRMF pairs),
+so training mixes in clips drawn from a simple 3-D world:
+
+* a perspective pinhole camera (focal length from a sampled field of view, principal point at the
+  image centre) with one of four ego-motions: "driving" (forward along the optical axis with a
+  slow yaw, as on KITTI), "handheld" (small rotation and translation plus jitter), "static" and
+  "pan" (rotation only);
+* one to six bodies: the static background seen by the moving camera (a road-and-walls corridor, a
+  depth-varied surface, or a nearly planar wall) and objects with their own motion: rigid
+  boxes/ellipsoids, near-planar slabs, non-rigid bodies (a rigid motion plus a smooth per-point
+  deformation) and articulated ones (two rigid parts joined by a hinge);
+* tracking errors: Gaussian noise, a small random-walk drift per point, gross outliers.
+
+Each object's motion is scaled so that its points move a sampled number of pixels (mean over the
+points, at the last frame) away from where they would be if the object stood still. Small values
+(a few pixels over five frames) are what make KT3DMoSeg hard: KITTI cars move slowly relative to
+the camera, so the range reaches down to 1 px.
+
+Everything is vectorised over points; loops run over the (at most six) bodies only. One 5-frame
+clip of 500 points takes about a millisecond.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any, overload
+
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.errors import InputError
+from mosegpipe.types import LabeledClip
+
+logger = logging.getLogger(__name__)
+
+CAMERA_MOTIONS: tuple[str, ...] = ("driving", "handheld", "static", "pan")
+"""Camera ego-motions the generator knows."""
+
+OBJECT_KINDS: tuple[str, ...] = ("rigid", "planar", "nonrigid", "articulated")
+"""Kinds of moving objects the generator knows."""
+
+_MAX_TRIES = 100
+# Points are drawn with this margin so that culling (leaving the image, occlusion) still leaves
+# about the requested number; each body is then cut back to its target count.
+_OVERSAMPLE = 1.4
+# Points closer than this to the camera (metres) are treated as behind it.
+_NEAR_M = 0.2
+
+
+@dataclass(frozen=True)
+class SyntheticConfig:
+    """What the generator samples from. Ranges are (low, high) and inclusive.
+
+    Attributes:
+        frames: F, frames per clip (>= 2); trajectories have 2F columns.
+        num_bodies: range of the number of independently moving bodies, the background included
+            when present (see background_prob). Bodies left with fewer than min_points_per_group
+            visible points are dropped, so a clip can hold fewer.
+        num_points: range of the number of points requested, outliers included. Points that
+            leave the image or get occluded are culled, so a clip can hold fewer.
+        noise_px: range of the per-clip standard deviation of Gaussian tracking noise, pixels.
+        drift_px: range of the per-clip standard deviation of one step of the per-point random
+            walk (tracker drift), pixels per frame; the first frame has no drift.
+        outlier_ratio: range of the fraction of gross outliers among all points, in [0, 1).
+        outliers_as_group: True: outliers get their own label (the last one, recorded in
+            meta["outlier_label"]). False: each outlier is a failed track of an inlier point -- it
+            starts on that point and wanders off -- and keeps that point's label.
+        camera_motions: camera ego-motions to sample from, see CAMERA_MOTIONS.
+        image_sizes: (H, W) image sizes to sample from, pixels.
+        random_size_prob: probability of a random size between the listed ones instead (width
+            and aspect ratio uniform within the listed ranges).
+        object_kinds: kinds of moving objects to sample from, see OBJECT_KINDS.
+        relative_motion_px: range (sampled log-uniformly) of an object's motion relative to the
+            static scene: mean distance, at the last frame, between its points and where they
+            would be had the object not moved, pixels.
+        background_prob: probability that the static background is one of the bodies.
+        object_weight: range (log-uniform) of an object's share of points relative to the
+            background's (relative to 1.0 when there is no background); small values give objects
+            of only min_points_per_group..20 points next to a background of hundreds.
+        min_points_per_group: bodies with fewer visible points than this are dropped.
+    """
+
+    frames: int = 5
+    num_bodies: tuple[int, int] = (1, 6)
+    num_points: tuple[int, int] = (150, 1000)
+    noise_px: tuple[float, float] = (0.0, 1.5)
+    drift_px: tuple[float, float] = (0.0, 0.3)
+    outlier_ratio: tuple[float, float] = (0.0, 0.0)
+    outliers_as_group: bool = True
+    camera_motions: tuple[str, ...] = CAMERA_MOTIONS
+    image_sizes: tuple[tuple[int, int], ...] = ((480, 640), (720, 1280), (1080, 1920), (375, 1242))
+    random_size_prob: float = 0.25
+    object_kinds: tuple[str, ...] = OBJECT_KINDS
+    relative_motion_px: tuple[float, float] = (1.0, 60.0)
+    background_prob: float = 1.0
+    object_weight: tuple[float, float] = (0.02, 0.6)
+    min_points_per_group: int = 8
+
+    def __post_init__(self) -> None:
+        if self.frames < 2:
+            raise InputError(f"SyntheticConfig.frames={self.frames}: need at least 2")
+        for name in ("num_bodies", "num_points", "noise_px", "drift_px", "outlier_ratio",
+                     "relative_motion_px", "object_weight"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo <= hi:
+                raise InputError(f"SyntheticConfig.{name}=({lo}, {hi}): need 0 <= low <= high")
+        if self.num_bodies[0] < 1 or self.num_bodies[1] > 32:
+            raise InputError(f"SyntheticConfig.num_bodies={self.num_bodies}: need 1..32")
+        if self.num_points[0] < 1:
+            raise InputError(f"SyntheticConfig.num_points={self.num_points}: need at least 1")
+        if self.outlier_ratio[1] >= 1.0:
+            raise InputError(f"SyntheticConfig.outlier_ratio={self.outlier_ratio}: need < 1")
+        if self.relative_motion_px[0] <= 0 or self.object_weight[0] <= 0:
+            raise InputError("SyntheticConfig.relative_motion_px and object_weight need low > 0")
+        if not self.camera_motions or set(self.camera_motions) - set(CAMERA_MOTIONS):
+            raise InputError(
+                f"SyntheticConfig.camera_motions={self.camera_motions}: choose from {CAMERA_MOTIONS}"
+            )
+        if not self.object_kinds or set(self.object_kinds) - set(OBJECT_KINDS):
+            raise InputError(
+                f"SyntheticConfig.object_kinds={self.object_kinds}: choose from {OBJECT_KINDS}"
+            )
+        if not self.image_sizes or any(h < 16 or w < 16 for h, w in self.image_sizes):
+            raise InputError(f"SyntheticConfig.image_sizes={self.image_sizes}: need (H, W) >= 16")
+        if self.min_points_per_group < 1:
+            raise InputError(
+                f"SyntheticConfig.min_points_per_group={self.min_points_per_group}: need >= 1"
+            )
+
+
+PAIR_CONFIG = SyntheticConfig(
+    frames=2,
+    num_bodies=(1, 4),
+    num_points=(100, 700),
+    noise_px=(0.0, 1.0),
+    drift_px=(0.0, 0.0),
+    # AdelaideRMF pairs hold 21-73 % gross outliers.
+    outlier_ratio=(0.1, 0.6),
+    camera_motions=("static", "handheld"),
+    image_sizes=((480, 640),),
+    random_size_prob=0.0,
+    object_kinds=("rigid",),
+    # Objects are moved by hand between the two shots: large displacements.
+    relative_motion_px=(10.0, 120.0),
+    background_prob=0.3,
+    object_weight=(0.3, 1.0),
+)
+"""AdelaideRMF-like two-view defaults for generate_pair: 1-4 rigid objects moved between two shots of
+a static or slightly moved 640x480 camera, sparse points, 10-60 % gross outliers."""
+
+
+def _rodrigues(rotvec: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Rotation matrices (M, 3, 3) from rotation vectors (M, 3) (axis * angle, radians).
+
+    A zero vector gives the identity exactly, which keeps static points exactly static.
+    """
+    theta = np.sqrt((rotvec * rotvec).sum(axis=-1))[:, None, None]
+    k = rotvec / np.maximum(theta[:, :, 0], 1e-300)
+    skew = np.zeros((len(k), 3, 3))
+    skew[:, 0, 1] = -k[:, 2]
+    skew[:, 0, 2] = k[:, 1]
+    skew[:, 1, 0] = k[:, 2]
+    skew[:, 1, 2] = -k[:, 0]
+    skew[:, 2, 0] = -k[:, 1]
+    skew[:, 2, 1] = k[:, 0]
+    c = np.cos(theta)
+    return c * np.eye(3) + np.sin(theta) * skew + (1.0 - c) * (k[:, :, None] * k[:, None, :])
+
+
+def _rotation(axis: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
+    """One rotation matrix (3, 3) about a unit axis (3,), angle in radians."""
+    return _rodrigues(np.asarray(axis, dtype=np.float64)[None] * angle)[0]
+
+
+def _unit(rng: np.random.Generator, n: int | None = None) -> npt.NDArray[np.float64]:
+    """Random unit vector(s), uniform on the sphere: (3,) or (n, 3)."""
+    g = rng.normal(size=(3,) if n is None else (n, 3))
+    return g / np.linalg.norm(g, axis=-1, keepdims=True)
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def _sample_image_size(rng: np.random.Generator, cfg: SyntheticConfig) -> tuple[int, int]:
+    if rng.random() >= cfg.random_size_prob:
+        h, w = cfg.image_sizes[rng.integers(len(cfg.image_sizes))]
+        return int(h), int(w)
+    widths = [w for _, w in cfg.image_sizes]
+    aspects = [w / h for h, w in cfg.image_sizes]
+    w = rng.uniform(min(widths), max(widths))
+    aspect = rng.uniform(min(aspects), max(aspects))
+    return max(16, round(w / aspect)), max(16, round(w))
+
+
+@dataclass
+class _Camera:
+    """Pinhole camera over F frames: x_cam = rot[t] @ (x_world - centre[t]); frame 0 is the world."""
+
+    f: float
+    cx: float
+    cy: float
+    h: int
+    w: int
+    rot: npt.NDArray[np.float64]  # (F, 3, 3) world -> camera
+    centre: npt.NDArray[np.float64]  # (F, 3) camera centre in the world, metres
+
+    def project(self, xyz: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """World points (F, N, 3) -> pixels (F, N, 2) and depth (F, N)."""
+        cam = (xyz - self.centre[:, None, :]) @ np.transpose(self.rot, (0, 2, 1))
+        z = cam[..., 2]
+        uv = cam[..., :2] * (self.f / np.maximum(z, _NEAR_M))[..., None] + np.array([self.cx, self.cy])
+        return uv, z
+
+    def rays(self, uv: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """Frame-0 rays (N, 3) with z = 1 through pixels (N, 2)."""
+        r = np.ones((len(uv), 3))
+        r[:, 0] = (uv[:, 0] - self.cx) / self.f
+        r[:, 1] = (uv[:, 1] - self.cy) / self.f
+        return r
+
+
+def _camera_poses(
+    rng: np.random.Generator, kind: str, frames: int, depth_m: float
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """World->camera rotations (F, 3, 3) and centres (F, 3) for one ego-motion kind.
+
+    depth_m is the typical scene depth; handheld translations scale with it.
+    """
+    t = np.arange(frames, dtype=np.float64)[:, None]
+    deg = math.pi / 180.0
+    if kind == "static":
+        rotvec = np.zeros((frames, 3))
+        centre = np.zeros((frames, 3))
+    elif kind == "pan":
+        axis = np.array([rng.normal(0, 0.3), 1.0, rng.normal(0, 0.1)])  # mostly yaw, some tilt
+        axis /= np.linalg.norm(axis)
+        rate = rng.uniform(0.2, 2.0) * deg * rng.choice([-1.0, 1.0])
+        rotvec = t * rate * axis
+        centre = np.zeros((frames, 3))
+    elif kind == "driving":
+        # KITTI at 10 fps: 0.2-1.5 m per frame, heading changes of at most ~1.5 deg per frame.
+        speed = rng.uniform(0.2, 1.5)
+        yaw = rng.uniform(-1.5, 1.5) * deg * t[:, 0]
+        pitch = rng.normal(0, 0.1 * deg, frames).cumsum()
+        roll = rng.normal(0, 0.05 * deg, frames).cumsum()
+        rotvec = np.stack([pitch - pitch[0], yaw, roll - roll[0]], axis=1)
+        heading = np.stack([np.sin(yaw), np.zeros(frames), np.cos(yaw)], axis=1)
+        steps = speed * heading[:-1]
+        centre = np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+        centre[:, 1] += np.concatenate([[0.0], rng.normal(0, 0.01, frames - 1).cumsum()])
+    elif kind == "handheld":
+        rot_rate = rng.uniform(0.0, 1.0) * deg * _unit(rng)
+        trans_rate = rng.uniform(0.002, 0.03) * depth_m * _unit(rng)
+        jitter_r = rng.normal(0, 0.15 * deg, (frames, 3)).cumsum(axis=0)
+        jitter_t = rng.normal(0, 0.3 * np.linalg.norm(trans_rate) + 1e-4, (frames, 3)).cumsum(axis=0)
+        rotvec = t * rot_rate + jitter_r - jitter_r[0]
+        centre = t * trans_rate + jitter_t - jitter_t[0]
+    else:
+        raise InputError(f"unknown camera motion {kind!r}; choose from {CAMERA_MOTIONS}")
+    # rotvec is the camera->world rotation; the projection needs world->camera.
+    return np.transpose(_rodrigues(rotvec), (0, 2, 1)), centre
+
+
+def _background_points(
+    rng: np.random.Generator, cam: _Camera, n: int, driving: bool, depth_m: float, ground_m: float
+) -> tuple[npt.NDArray[np.float64], str]:
+    """World points (n, 3) of the static scene, all visible in frame 0, and the scene kind.
+
+    ground_m is the camera height above the road in driving scenes.
+    """
+    uv = rng.uniform([0.0, 0.0], [cam.w - 1.0, cam.h - 1.0], (n, 2))
+    r = cam.rays(uv)
+    if driving:
+        kind = "road"
+        half_width = rng.uniform(4.0, 12.0)  # distance to walls / parked cars / buildings
+        far = rng.uniform(40.0, 100.0)
+        with np.errstate(divide="ignore"):
+            road = np.where(r[:, 1] > 0, ground_m / r[:, 1], np.inf)
+            wall = half_width / np.abs(r[:, 0])
+        depth = np.minimum(np.minimum(road, wall), far)
+        clutter = rng.random(n) < 0.25  # poles, trees, parked cars in front of the walls
+        depth = np.where(clutter, depth * rng.uniform(0.3, 1.0, n), depth)
+    elif rng.random() < 0.3:
+        kind = "plane"
+        tilt = rng.uniform(0.0, 50.0) * math.pi / 180.0
+        axis = np.array([*rng.normal(size=2), 0.0])
+        normal = _rotation(axis / np.linalg.norm(axis), tilt) @ np.array([0, 0, 1.0])
+        depth = depth_m / np.maximum(r @ normal, 0.1)
+        depth = np.minimum(depth, 10 * depth_m) * (1.0 + rng.normal(0, 0.005, n))
+    else:
+        kind = "surface"
+        # A smooth random depth map plus some points on nearer clutter: structured, not i.i.d.
+        freq = rng.normal(0, 3.0, (4, 2)) / cam.w
+        phase = rng.uniform(0, 2 * math.pi, 4)
+        amp = rng.uniform(0.1, 0.5, 4)
+        log_depth = np.sin(uv @ freq.T + phase) @ amp
+        depth = depth_m * np.exp(log_depth)
+        clutter = rng.random(n) < 0.2
+        depth = np.where(clutter, depth * rng.uniform(0.4, 1.0, n), depth)
+    return r * depth[:, None], kind
+
+
+@dataclass
+class _Body:
+    """One body in its own frame: world point x = centre + R(motion) @ orient @ q(local)."""
+
+    kind: str
+    local: npt.NDArray[np.float64]  # (n, 3) metres
+    centre: npt.NDArray[np.float64]  # (3,)
+    orient: npt.NDArray[np.float64]  # (3, 3)
+    vel: npt.NDArray[np.float64]  # (3,) translation over the clip, metres, at scale 1
+    acc: npt.NDArray[np.float64]  # (3,)
+    spin: npt.NDArray[np.float64]  # (3,) rotation vector over the clip, radians, at scale 1
+    spin_acc: npt.NDArray[np.float64]  # (3,)
+    deform: npt.NDArray[np.float64]  # (n, 3) per-point deformation over the clip, at scale 1
+    hinge_part: npt.NDArray[np.bool_]  # (n,) points on the hinged part
+    hinge_point: npt.NDArray[np.float64]  # (3,) local
+    hinge_rotvec: npt.NDArray[np.float64]  # (3,) local hinge rotation over the clip at scale 1
+    target_px: float
+
+
+def _shape_points(
+    rng: np.random.Generator, n: int, half: npt.NDArray[np.float64], box: bool
+) -> npt.NDArray[np.float64]:
+    """Points (n, 3) on the surface of a box or ellipsoid with half-extents half (3,)."""
+    if box:
+        p = rng.uniform(-1.0, 1.0, (n, 3))
+        area = np.array([half[1] * half[2], half[0] * half[2], half[0] * half[1]])
+        axis = rng.choice(3, n, p=area / area.sum())
+        p[np.arange(n), axis] = rng.choice([-1.0, 1.0], n)
+    else:
+        p = _unit(rng, n)
+    return p * half
+
+
+def _object_body(
+    rng: np.random.Generator,
+    cam: _Camera,
+    n: int,
+    kind: str,
+    driving: bool,
+    depth_m: float,
+    ground_m: float,
+    motion_range: tuple[float, float],
+) -> _Body:
+    """Sample one moving object of n points placed so that its centre is in view in frame 0."""
+    if driving:
+        # Cars, vans, cyclists, pedestrians on the road, heading along it (either way) or crossing.
+        depth = rng.uniform(5.0, 35.0)
+        if kind == "rigid" or kind == "planar":
+            half = np.array([rng.uniform(0.8, 1.0), rng.uniform(0.7, 1.2), rng.uniform(1.8, 3.0)])
+        else:
+            half = np.array([rng.uniform(0.25, 0.5), rng.uniform(0.8, 0.95), rng.uniform(0.25, 0.9)])
+        u = rng.uniform(0.1, 0.9) * cam.w
+        centre = np.array([(u - cam.cx) * depth / cam.f, ground_m - half[1], depth])
+        yaw = rng.choice([0.0, math.pi]) + rng.normal(0, 0.15)
+        if rng.random() < 0.2:
+            yaw += math.pi / 2  # crossing traffic
+        orient = _rotation(np.array([0.0, 1.0, 0.0]), yaw)
+        heading = orient @ np.array([0.0, 0.0, 1.0])
+        vel = heading * rng.uniform(0.3, 1.0) * 2 * half[2]
+        spin = np.array([0.0, rng.normal(0, 0.05), 0.0])
+    else:
+        depth = rng.uniform(0.35, 0.85) * depth_m
+        uv = rng.uniform([0.1 * cam.w, 0.1 * cam.h], [0.9 * cam.w, 0.9 * cam.h])
+        centre = cam.rays(uv[None])[0] * depth
+        footprint = _log_uniform(rng, 0.04, 0.35) * cam.w  # object width on screen, pixels
+        half = 0.5 * footprint * depth / cam.f * rng.uniform(0.4, 1.0, 3)
+        orient = _rotation(_unit(rng), rng.uniform(0, math.pi))
+        vel = _unit(rng) * rng.uniform(0.3, 1.0) * 2 * half.max()
+        spin = _unit(rng) * rng.uniform(0.0, 0.3)
+    if kind == "planar":
+        half = half.copy()
+        half[rng.integers(3)] = 0.005 * half.max()
+    local = _shape_points(rng, n, half, box=kind == "planar" or rng.random() < 0.6)
+    acc = vel * rng.uniform(-0.3, 0.3) + _unit(rng) * 0.1 * np.linalg.norm(vel)
+    spin_acc = spin * rng.uniform(-0.3, 0.3)
+    deform = np.zeros((n, 3))
+    hinge_part = np.zeros(n, dtype=bool)
+    hinge_point = np.zeros(3)
+    hinge_rotvec = np.zeros(3)
+    size = float(half.max())
+    if kind == "nonrigid":
+        # A smooth displacement field: a few random sinusoids over the body, 5-30 % of its size.
+        freq = rng.normal(0, 1.5 / size, (3, 3))
+        phase = rng.uniform(0, 2 * math.pi, 3)
+        amp = rng.normal(0, rng.uniform(0.05, 0.3) * size, (3, 3))
+        deform = np.sin(local @ freq.T + phase) @ amp
+    elif kind == "articulated":
+        split = int(np.argmax(half))
+        hinge_point[split] = rng.uniform(-0.3, 0.3) * half[split]
+        hinge_part = local[:, split] > hinge_point[split]
+        axis = np.zeros(3)
+        axis[(split + rng.integers(1, 3)) % 3] = 1.0
+        hinge_rotvec = axis * rng.uniform(0.3, 1.0) * rng.choice([-1.0, 1.0])
+    return _Body(kind, local, centre, orient, vel, acc, spin, spin_acc, deform, hinge_part,
+                 hinge_point, hinge_rotvec, _log_uniform(rng, *motion_range))
+
+
+class _World:
+    """All points of all bodies, vectorised; positions(scale) gives (F, N, 3) world points."""
+
+    def __init__(self, bodies: list[_Body], frames: int) -> None:
+        self.frames = frames
+        self.sizes = np.array([len(b.local) for b in bodies])
+        self.body = np.repeat(np.arange(len(bodies)), self.sizes)
+        self.local = np.concatenate([b.local for b in bodies])
+        self.deform = np.concatenate([b.deform for b in bodies])
+        self.hinge_part = np.concatenate([b.hinge_part for b in bodies])
+        self.centre = np.stack([b.centre for b in bodies])
+        self.orient = np.stack([b.orient for b in bodies])
+        self.vel = np.stack([b.vel for b in bodies])
+        self.acc = np.stack([b.acc for b in bodies])
+        self.spin = np.stack([b.spin for b in bodies])
+        self.spin_acc = np.stack([b.spin_acc for b in bodies])
+        self.hinge_point = np.stack([b.hinge_point for b in bodies])
+        self.hinge_rotvec = np.stack([b.hinge_rotvec for b in bodies])
+        self.kinds = [b.kind for b in bodies]
+        self.starts = np.concatenate([[0], np.cumsum(self.sizes)])
+        self.has_hinge = any(b.kind == "articulated" for b in bodies)
+        tau = np.arange(frames, dtype=np.float64) / (frames - 1)  # normalised time 0..1
+        self.tau = tau[:, None, None]
+        self.tau2 = (tau**2)[:, None, None]
+
+    def positions(self, scale: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """World points (F, N, 3) with every body's motion multiplied by scale (B,)."""
+        f, b = self.frames, len(scale)
+        s = scale[None, :, None]
+        rot = _rodrigues((s * (self.spin * self.tau + self.spin_acc * self.tau2)).reshape(-1, 3))
+        # Row-vector form: x_world = x_local @ (R(t) @ orient)^T.
+        rot_t = np.transpose(rot.reshape(f, b, 3, 3) @ self.orient, (1, 0, 3, 2))  # (B, F, 3, 3)
+        trans = self.centre + s * (self.vel * self.tau + self.acc * self.tau2)  # (F, B, 3)
+        hinge_t = None
+        if self.has_hinge:
+            hinge = _rodrigues((s * self.hinge_rotvec * self.tau).reshape(-1, 3))
+            hinge_t = np.transpose(hinge.reshape(f, b, 3, 3), (1, 0, 3, 2))
+        out = np.empty((f, len(self.body), 3))
+        # Points are stored body by body; a batched matmul per body beats one gathered einsum.
+        for i, (lo, hi) in enumerate(zip(self.starts[:-1], self.starts[1:])):
+            local = np.broadcast_to(self.local[lo:hi], (f, hi - lo, 3))
+            if self.kinds[i] == "nonrigid":
+                local = local + scale[i] * self.tau * self.deform[lo:hi]
+            elif self.kinds[i] == "articulated" and hinge_t is not None:
+                pivot = self.hinge_point[i]
+                bent = (local - pivot) @ hinge_t[i] + pivot
+                local = np.where(self.hinge_part[lo:hi, None], bent, local)
+            out[:, lo:hi] = local @ rot_t[i] + trans[:, i, None, :]
+        return out
+
+
+def _occluded(
+    uv: npt.NDArray[np.float64], z: npt.NDArray[np.float64], body: npt.NDArray[np.int64],
+    objects: Sequence[int], ok: npt.NDArray[np.bool_]
+) -> npt.NDArray[np.bool_]:
+    """(N,) True for points hidden behind an object in some frame.
+
+    An object's silhouette is approximated by the ellipse of its projected points' covariance
+    (for points spread over a convex outline the outline lies near Mahalanobis distance 2); points
+    of other bodies inside it and farther than the object's mean depth are hidden.
+    """
+    obj = np.asarray(objects)
+    member = (body[None, :] == obj[:, None]) & ok  # (O, N)
+    n = np.maximum(member.sum(axis=1), 1)[None, :, None]  # (1, O, 1)
+    w = member.astype(np.float64)
+    mean = (w @ uv) / n  # (F, O, 2)
+    second = w @ np.concatenate([uv * uv, uv[..., :1] * uv[..., 1:]], axis=-1) / n  # (F, O, 3)
+    var_x = second[..., 0] - mean[..., 0] ** 2 + 1.0
+    var_y = second[..., 1] - mean[..., 1] ** 2 + 1.0
+    cov_xy = second[..., 2] - mean[..., 0] * mean[..., 1]
+    det = np.maximum(var_x * var_y - cov_xy**2, 1e-9)
+    depth = (w @ z[..., None])[..., 0] / n[..., 0]  # (F, O)
+    ex = uv[:, None, :, 0] - mean[..., 0, None]  # (F, O, N)
+    ey = uv[:, None, :, 1] - mean[..., 1, None]
+    # Squared Mahalanobis distance with the closed-form 2x2 inverse.
+    m2 = (var_y[..., None] * ex**2 - 2 * cov_xy[..., None] * ex * ey + var_x[..., None] * ey**2)
+    inside = m2 < 3.0 * det[..., None]
+    behind = z[:, None, :] > depth[..., None]
+    hidden = inside & behind & (body[None, None, :] != obj[None, :, None])
+    hidden &= (member.sum(axis=1) >= 3)[None, :, None]
+    return hidden.any(axis=(0, 1))
+
+
+def _outlier_tracks(
+    rng: np.random.Generator, n: int, frames: int, w: int, h: int,
+    start: npt.NDArray[np.float64] | None, pair: bool,
+) -> npt.NDArray[np.float64]:
+    """Gross-outlier tracks (F, n, 2) inside the image.
+
+    Pairs: independent uniform points in both images. Clips: a mix of tracks jumping to random
+    places and random walks with large steps, starting at start (n, 2) when given.
+    """
+    hi = np.array([w - 1.0, h - 1.0])
+    uv = rng.uniform(0.0, 1.0, (frames, n, 2)) * hi
+    if pair:
+        return uv
+    if start is not None:
+        uv[0] = start
+    step = np.exp(rng.uniform(math.log(2.0), math.log(0.05 * w), n))[None, :, None]
+    walk = uv[0] + np.concatenate(
+        [np.zeros((1, n, 2)), (rng.normal(size=(frames - 1, n, 2)) * step).cumsum(axis=0)]
+    )
+    jumpy = rng.random(n) < 0.3
+    uv[:, ~jumpy] = walk[:, ~jumpy]
+    return np.clip(uv, 0.0, hi)
+
+
+def _take(rng: np.random.Generator, body: npt.NDArray[np.int64], cap: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Indices of at most cap[b] random members of each group b of body (N,)."""
+    order = np.lexsort((rng.random(len(body)), body))
+    sorted_body = body[order]
+    first = np.searchsorted(sorted_body, sorted_body)
+    rank = np.arange(len(body)) - first
+    return np.sort(order[rank < cap[sorted_body]])
+
+
+def _draw(
+    rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str
+) -> LabeledClip | None:
+    """One attempt; None when too few bodies survived culling."""
+    frames = cfg.frames
+    h, w = _sample_image_size(rng, cfg)
+    fov = rng.uniform(50.0, 90.0) * math.pi / 180.0
+    f = 0.5 * w / math.tan(0.5 * fov)
+    motion = str(cfg.camera_motions[rng.integers(len(cfg.camera_motions))])
+    driving = motion == "driving"
+    depth_m = 15.0 if driving else _log_uniform(rng, 1.0, 20.0)
+    ground_m = rng.uniform(1.4, 1.8)  # camera height above the road (driving)
+    rot, centre = _camera_poses(rng, motion, frames, depth_m)
+    cam = _Camera(f, (w - 1) / 2.0, (h - 1) / 2.0, h, w, rot, centre)
+
+    num_bodies = int(rng.integers(cfg.num_bodies[0], cfg.num_bodies[1] + 1))
+    has_bg = rng.random() < cfg.background_prob
+    num_objects = num_bodies - int(has_bg)
+    total = int(rng.integers(cfg.num_points[0], cfg.num_points[1] + 1))
+    ratio = float(rng.uniform(*cfg.outlier_ratio))
+    inliers = max(1, round(total * (1.0 - ratio)))
+    weights = np.array(
+        [1.0] * int(has_bg) + [_log_uniform(rng, *cfg.object_weight) for _ in range(num_objects)]
+    )
+    target = np.maximum(cfg.min_points_per_group, np.round(inliers * weights / weights.sum()))
+    target = target.astype(np.int64)
+    drawn = np.ceil(target * _OVERSAMPLE).astype(np.int64)
+
+    bodies: list[_Body] = []
+    bg_kind = None
+    if has_bg:
+        xyz, bg_kind = _background_points(rng, cam, int(drawn[0]), driving, depth_m, ground_m)
+        zero = np.zeros(3)
+        bodies.append(_Body("background", xyz, zero, np.eye(3), zero, zero, zero, zero,
+                            np.zeros_like(xyz), np.zeros(len(xyz), bool), zero, zero, 0.0))
+    for i in range(num_objects):
+        kind = str(cfg.object_kinds[rng.integers(len(cfg.object_kinds))])
+        bodies.append(_object_body(rng, cam, int(drawn[i + int(has_bg)]), kind, driving, depth_m,
+                                   ground_m, cfg.relative_motion_px))
+    world = _World(bodies, frames)
+    kinds = [b.kind for b in bodies]
+    objects = [i for i, b in enumerate(bodies) if b.kind != "background"]
+
+    # Scale each object's motion to its target relative motion. Perspective makes the pixel
+    # displacement only roughly linear in the scale, hence one secant refinement.
+    target_px = np.array([b.target_px for b in bodies])
+    scale = np.where(target_px > 0, 1.0, 0.0)
+    counts = np.maximum(world.sizes, 1)
+    uv_still = None
+    for _ in range(2 if objects else 1):
+        xyz = world.positions(scale)
+        uv, z = cam.project(xyz)
+        if uv_still is None:
+            # Frame 0 is the same at any scale: where every point would stay, never moving,
+            # seen from the last camera.
+            last = replace(cam, rot=cam.rot[-1:], centre=cam.centre[-1:])
+            uv_still = last.project(xyz[:1])[0][0]
+        disp = np.linalg.norm(uv[-1] - uv_still, axis=1)
+        moved = np.bincount(world.body, weights=disp, minlength=len(bodies)) / counts
+        # Cap: keeps rotations below ~1 rad over the clip for tiny, far objects.
+        scale = np.minimum(scale * target_px / np.maximum(moved, 1e-6), 3.0)
+    noise = float(rng.uniform(*cfg.noise_px))
+    drift = float(rng.uniform(*cfg.drift_px))
+    n = uv.shape[1]
+    err = rng.normal(0.0, noise, uv.shape) if noise > 0 else np.zeros(uv.shape)
+    if drift > 0:
+        walk = rng.normal(0.0, drift, (frames - 1, n, 2)).cumsum(axis=0)
+        err[1:] += walk
+    obs = uv + err
+    ok = (z > _NEAR_M).all(axis=0)
+    ok &= ((obs >= 0) & (obs <= np.array([w - 1.0, h - 1.0]))).all(axis=(0, 2))
+    if objects:
+        ok &= ~_occluded(uv, z, world.body, objects, ok)
+    keep = np.flatnonzero(ok)
+    keep = keep[_take(rng, world.body[keep], target)]
+    body = world.body[keep]
+    count = np.bincount(body, minlength=len(bodies))
+    alive = count >= cfg.min_points_per_group
+    need = 2 if cfg.num_bodies[0] >= 2 else 1
+    if alive.sum() < need:
+        return None
+    keep = keep[alive[body]]
+    relabel = np.cumsum(alive) - 1
+    labels = relabel[world.body[keep]]
+    tracks = obs[:, keep]  # (F, n_in, 2)
+    num_in = len(keep)
+    kinds_alive = [k for k, a in zip(kinds, alive) if a]
+    moved_alive = [float(m) for m, a in zip(moved, alive) if a]
+
+    num_out = round(ratio / (1.0 - ratio) * num_in) if ratio > 0 else 0
+    outlier_label = None
+    if num_out:
+        if cfg.outliers_as_group:
+            out_tracks = _outlier_tracks(rng, num_out, frames, w, h, None, pair)
+            outlier_label = len(kinds_alive)
+            out_labels = np.full(num_out, outlier_label)
+            kinds_alive.append("outlier")
+        else:
+            host = rng.integers(num_in, size=num_out)
+            out_tracks = _outlier_tracks(rng, num_out, frames, w, h, tracks[0, host], pair)
+            out_labels = labels[host]
+        tracks = np.concatenate([tracks, out_tracks], axis=1)
+        labels = np.concatenate([labels, out_labels])
+    is_outlier = np.arange(len(labels)) >= num_in
+    perm = rng.permutation(len(labels))
+    traj = np.ascontiguousarray(tracks[:, perm].transpose(1, 0, 2)).reshape(len(perm), 2 * frames)
+    meta: dict[str, Any] = {
+        "camera_motion": motion,
+        "image_size_hw": (h, w),
+        "focal_px": f,
+        "background_kind": bg_kind,
+        "body_kinds": tuple(kinds_alive),
+        "relative_motion_px": tuple(moved_alive),
+        "noise_px": noise,
+        "drift_px": drift,
+        "outlier_ratio": num_out / len(labels),
+        "outlier_label": outlier_label,
+        "is_outlier": is_outlier[perm],
+    }
+    return LabeledClip(
+        name=name,
+        traj=traj.astype(np.float32),
+        labels=labels[perm].astype(np.int64),
+        dataset="synthetic",
+        meta=meta,
+    )
+
+
+def generate_clip(
+    rng: np.random.Generator, cfg: SyntheticConfig = SyntheticConfig(), *, name: str = "synthetic"
+) -> LabeledClip:
+    """Draw one synthetic multi-body clip.
+
+    Args:
+        rng: the random source; the same generator state gives the same clip.
+        cfg: what to sample from.
+        name: the clip's name.
+
+    Returns:
+        LabeledClip with traj (N, 2F) float32 pixel coordinates (x_1, y_1, ..., x_F, y_F), every
+        point inside [0, W-1] x [0, H-1] in every frame; labels (N,) int64 contiguous in 0..K-1,
+        the background (when present) being 0, the outlier group (when present) the last one;
+        dataset "synthetic"; meta with "camera_motion", "image_size_hw", "focal_px",
+        "background_kind", "body_kinds" (kind per label), "relative_motion_px" (measured
+        per inlier label; 0 for the background), "noise_px", "drift_px", "outlier_ratio"
+        (actual), "outlier_label" (int or None) and "is_outlier" ((N,) bool).
+
+    Raises:
+        InputError: when no draw in 100 leaves enough bodies with min_points_per_group visible
+            points (e.g. a huge min_points_per_group with few points).
+    """
+    return _generate(rng, cfg, pair=False, name=name)
+
+
+def generate_pair(
+    rng: np.random.Generator, cfg: SyntheticConfig = PAIR_CONFIG, *, name: str = "synthetic-pair"
+) -> LabeledClip:
+    """Draw one two-view sample with gross outliers, like an AdelaideRMF image pair.
+
+    Outliers are independent random points in both images. cfg.frames is taken as 2 whatever
+    its value; see PAIR_CONFIG for the defaults.
+
+    Args:
+        rng: the random source.
+        cfg: what to sample from.
+        name: the sample's name.
+
+    Returns:
+        LabeledClip as for generate_clip with F = 2: traj (N, 4) float32 [x1, y1, x2, y2] pixels.
+
+    Raises:
+        InputError: as generate_clip.
+    """
+    if cfg.frames != 2:
+        cfg = replace(cfg, frames=2)
+    return _generate(rng, cfg, pair=True, name=name)
+
+
+def _generate(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str) -> LabeledClip:
+    for attempt in range(_MAX_TRIES):
+        clip = _draw(rng, cfg, pair, name)
+        if clip is not None:
+            return clip
+        logger.debug("synthetic draw %d left too few bodies; drawing again", attempt)
+    raise InputError(
+        f"{cfg}: no draw in {_MAX_TRIES} left enough bodies with "
+        f"{cfg.min_points_per_group} visible points"
+    )
+
+
+class SyntheticDataset(Sequence[LabeledClip]):
+    """A fixed-length, lazily generated sequence of synthetic clips.
+
+    Clip i is drawn from np.random.default_rng((base_seed, i)), so it is the same on every call
+    and on every worker, without materialising the others.
+
+    Args:
+        length: number of clips.
+        cfg: what to sample from (PAIR_CONFIG-like configs with pair=True for two views).
+        base_seed: non-negative seed; datasets with different seeds are independent.
+        pair: draw with generate_pair instead of generate_clip.
+    """
+
+    def __init__(
+        self,
+        length: int,
+        cfg: SyntheticConfig | None = None,
+        base_seed: int = 0,
+        pair: bool = False,
+    ) -> None:
+        if length < 0:
+            raise InputError(f"SyntheticDataset length={length}: need >= 0")
+        if base_seed < 0:
+            raise InputError(f"SyntheticDataset base_seed={base_seed}: need >= 0")
+        self.length = length
+        self.cfg = cfg if cfg is not None else (PAIR_CONFIG if pair else SyntheticConfig())
+        self.base_seed = base_seed
+        self.pair = pair
+
+    def __len__(self) -> int:
+        return self.length
+
+    @overload
+    def __getitem__(self, index: int) -> LabeledClip: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[LabeledClip]: ...
+
+    def __getitem__(self, index: int | slice) -> LabeledClip | list[LabeledClip]:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(self.length))]
+        i = int(index)
+        if i < 0:
+            i += self.length
+        if not 0 <= i < self.length:
+            raise IndexError(f"clip {index} out of range for a dataset of {self.length}")
+        rng = np.random.default_rng((self.base_seed, i))
+        name = f"synthetic/{self.base_seed}/{i:07d}"
+        if self.pair:
+            return generate_pair(rng, self.cfg, name=name)
+        return generate_clip(rng, self.cfg, name=name)

@@ -1,0 +1,111 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mosegpipe.data.lce import CURVE_TYPES, LCEConfig, LCEDataset, lce_sample, lce_splits, make_lce
+from mosegpipe.errors import InputError
+from mosegpipe.types import LabeledClip
+
+
+def _distance_to_curve(points: np.ndarray, curve: dict) -> np.ndarray:
+    """Unsigned distance of (M, 2) points to a curve described by an LCE meta entry."""
+    if curve["type"] == "line":
+        p0, d = np.array(curve["point"]), np.array(curve["direction"])
+        normal = np.array([-d[1], d[0]])
+        return np.abs((points - p0) @ normal)
+    if curve["type"] == "circle":
+        return np.abs(np.linalg.norm(points - np.array(curve["centre"]), axis=1) - curve["radius"])
+    # Ellipse: nearest of 4096 samples of the true curve (spacing < 1e-3, far below sigma).
+    major, minor = curve["axes"]
+    theta = np.linspace(0.0, 2 * np.pi, 4096, endpoint=False)
+    c, s = np.cos(curve["angle"]), np.sin(curve["angle"])
+    local = np.stack([major * np.cos(theta), minor * np.sin(theta)], axis=1)
+    dense = np.array(curve["centre"]) + local @ np.array([[c, s], [-s, c]])
+    return np.sqrt(((points[:, None, :] - dense[None]) ** 2).sum(-1)).min(axis=1)
+
+
+def test_sample_has_four_groups_of_bounded_size() -> None:
+    clips = make_lce(20, seed=1, points_per_curve=(7, 12))
+    for clip in clips:
+        assert isinstance(clip, LabeledClip)
+        assert clip.dataset == "lce"
+        assert clip.traj.dtype == np.float32 and clip.traj.shape == (clip.num_points, 2)
+        assert clip.labels.dtype == np.int64
+        counts = np.bincount(clip.labels, minlength=4)
+        assert clip.k == 4 and counts.size == 4
+        assert counts.min() >= 7 and counts.max() <= 12
+        assert [c["type"] for c in clip.meta["curves"]] == list(CURVE_TYPES)
+        assert clip.num_frames == 1
+
+
+def test_fixed_points_per_curve() -> None:
+    clip = make_lce(1, seed=0, points_per_curve=(5, 5))[0]
+    assert clip.num_points == 20
+    assert np.bincount(clip.labels).tolist() == [5, 5, 5, 5]
+
+
+def test_deterministic_per_index_and_seed() -> None:
+    a = LCEDataset(50, seed=7, split="train")
+    b = LCEDataset(50, seed=7, split="train")
+    # Item 42 must not depend on which items were generated before it.
+    np.testing.assert_array_equal(a[42].traj, b[42].traj)
+    _ = [b[i] for i in range(10)]
+    np.testing.assert_array_equal(a[42].labels, b[42].labels)
+    np.testing.assert_array_equal(a[-1].traj, a[49].traj)
+    assert not np.array_equal(a[0].traj, a[1].traj)
+    c = LCEDataset(50, seed=8, split="train")
+    assert not np.array_equal(a[0].traj, c[0].traj)
+    listed = make_lce(3, seed=7)
+    lazy = LCEDataset(3, seed=7)
+    for x, y in zip(listed, lazy, strict=True):
+        np.testing.assert_array_equal(x.traj, y.traj)
+
+
+def test_splits_sizes_and_distinct() -> None:
+    splits = lce_splits(seed=0)
+    assert {k: len(v) for k, v in splits.items()} == {"train": 8000, "val": 200, "test": 200}
+    first = [splits[k][0].traj for k in ("train", "val", "test")]
+    assert not np.array_equal(first[0][:5], first[1][:5])
+    assert not np.array_equal(first[1][:5], first[2][:5])
+    assert splits["test"][199].name == "lce/test/00199"
+    with pytest.raises(IndexError):
+        splits["val"][200]
+    assert len(splits["train"][10:13]) == 3
+    np.testing.assert_array_equal(lce_splits(seed=0)["val"][3].traj, splits["val"][3].traj)
+
+
+def test_noise_free_points_lie_on_their_curves() -> None:
+    rng = np.random.default_rng(0)
+    clip = lce_sample(rng, LCEConfig(noise_sigma=0.0))
+    for label, curve in enumerate(clip.meta["curves"]):
+        d = _distance_to_curve(clip.traj[clip.labels == label].astype(np.float64), curve)
+        assert d.max() < 2e-3, curve["type"]
+
+
+def test_noise_level_matches_sigma() -> None:
+    residuals: dict[str, list[np.ndarray]] = {"line": [], "circle": [], "ellipse": []}
+    for clip in LCEDataset(40, seed=3, split="noise"):
+        for label, curve in enumerate(clip.meta["curves"]):
+            pts = clip.traj[clip.labels == label].astype(np.float64)
+            residuals[curve["type"]].append(_distance_to_curve(pts, curve))
+    for kind, parts in residuals.items():
+        rms = float(np.sqrt(np.mean(np.concatenate(parts) ** 2)))
+        # The normal component of isotropic 2-D noise has std sigma; curvature lowers it slightly.
+        assert 0.044 < rms < 0.056, (kind, rms)
+
+
+def test_points_in_unit_scale_box() -> None:
+    cfg = LCEConfig()
+    for clip in LCEDataset(30, seed=0):
+        # Largest reach: centre 1 + line half-length 1.5 (plus a few sigma of noise).
+        assert np.abs(clip.traj).max() < cfg.centre_box + cfg.line_half_length + 0.3
+
+
+def test_invalid_config() -> None:
+    with pytest.raises(InputError, match="points_per_curve"):
+        LCEConfig(points_per_curve=(10, 5))
+    with pytest.raises(InputError, match="noise_sigma"):
+        LCEConfig(noise_sigma=-1.0)
+    with pytest.raises(InputError, match="num_samples"):
+        LCEDataset(-1)
