@@ -1,0 +1,284 @@
+"""K-means on embeddings, with the number of clusters K chosen automatically.
+
+Two criteria pick K from a sweep of K-means fits:
+
+- ``"residual"`` (default): an elbow of the K-means residual curve, scored by how much sharper the
+  relative drop of the residual is at K than at K+1 (see :func:`cluster_auto_k`).
+- ``"silhouette"``: the mean silhouette coefficient (scikit-learn), K >= 2 plus a threshold rule
+  for K = 1.
+
+Cluster ids are ordered by cluster size (0 = largest, usually the background), ties broken by
+first appearance, so results are deterministic for a seed and easy to colour consistently.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.errors import InputError
+from mosegpipe.types import Clustering
+
+logger = logging.getLogger(__name__)
+
+_METHODS = ("residual", "silhouette")
+
+# A residual at or below this fraction of r(1) counts as "nothing left to explain": float noise,
+# not structure, so the relative drop after it is defined as 0 instead of 0/0.
+_RESIDUAL_FLOOR = 1e-9
+
+
+@dataclass(frozen=True)
+class ClusterConfig:
+    """How :func:`cluster_auto_k` chooses K.
+
+    Attributes:
+        method: "residual" (elbow of the K-means residual) or "silhouette".
+        k_min: smallest K considered; 1 allows the answer "a single motion".
+        k_max: largest K considered (capped at N - 1 for a clip of N points).
+        n_init: K-means restarts per K; the best residual of the restarts is kept.
+        seed: random seed of K-means (same seed, same labels).
+        num_threads: BLAS/OpenMP threads for scikit-learn; 1 is fastest for these sizes.
+        min_elbow: "residual" answers K = 1 unless some K >= 2 scores above this (scores lie in
+            [-1, 1]; see cluster_auto_k for measured values).
+        min_silhouette: "silhouette" answers K = 1 unless the best silhouette exceeds this.
+        min_spread: when the mean squared distance to the centroid is below this fraction of the
+            mean squared norm, the embeddings are one point up to noise and K = 1 outright.
+    """
+
+    method: str = "residual"  # no O(N^2) distances; it matched silhouette on every blob test
+    k_min: int = 1  # single-motion clips exist (static scene, camera motion only)
+    k_max: int = 8  # benchmarks have at most 5 motions; 8 leaves headroom for real videos
+    n_init: int = 10  # sklearn's classic default; fewer restarts make the residual curve noisy
+    seed: int = 0  # fixed so that repeated runs give identical labels
+    num_threads: int = 1  # see the timing note in kmeans(): 2 threads were 10-400x slower
+    # Measured on Gaussian blobs on the unit sphere: one blob with N >= 100 scores at most 0.15
+    # for E >= 3 (0.19-0.24 for E = 2, up to 0.48 for N = 10; 6 seeds each), while 2-6 groups
+    # of 300 points with E = 5 or 16 score 0.4-0.9 at noise 0.05 and 0.2-0.76 at noise 0.15.
+    min_elbow: float = 0.2
+    # Same blobs: one blob reaches 0.20 (E=5) to 0.38 (E=3) for N >= 100, groups 0.56-0.92 at
+    # noise 0.05-0.15 with E = 5; 0.25 (Kaufman & Rousseeuw's "no structure") is too low for E=3.
+    min_silhouette: float = 0.4
+    min_spread: float = 1e-4  # RMS distance 0.01 on the unit sphere: identical up to noise
+
+    def __post_init__(self) -> None:
+        if self.method not in _METHODS:
+            raise InputError(f"cluster method {self.method!r} is not one of {', '.join(_METHODS)}")
+        if self.k_min < 1:
+            raise InputError(f"k_min={self.k_min} must be at least 1")
+        if self.k_max < self.k_min:
+            raise InputError(f"k_max={self.k_max} is smaller than k_min={self.k_min}")
+        if self.n_init < 1:
+            raise InputError(f"n_init={self.n_init} must be at least 1")
+        if self.num_threads < 1:
+            raise InputError(f"num_threads={self.num_threads} must be at least 1")
+        if not -1.0 <= self.min_elbow <= 1.0:
+            raise InputError(f"min_elbow={self.min_elbow} must lie in [-1, 1]")
+        if not -1.0 <= self.min_silhouette <= 1.0:
+            raise InputError(f"min_silhouette={self.min_silhouette} must lie in [-1, 1]")
+        if not 0.0 <= self.min_spread < 1.0:
+            raise InputError(f"min_spread={self.min_spread} must lie in [0, 1)")
+
+
+def _check_embeddings(emb: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Validate (N, E) embeddings; return them as float64 (residual ratios need the precision)."""
+    arr = np.asarray(emb)
+    if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise InputError(f"embeddings must have shape (N, E) with N, E >= 1, got {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise InputError(f"embeddings must be numeric, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"embeddings of shape {arr.shape} contain NaN or inf")
+    return arr
+
+
+def relabel_by_size(labels: npt.ArrayLike) -> npt.NDArray[np.int64]:
+    """Renumber cluster ids 0..k-1 by decreasing size, ties broken by first appearance.
+
+    Args:
+        labels: (N,) integer cluster ids (any values).
+
+    Returns:
+        (N,) int64 ids; id 0 is the largest cluster.
+    """
+    labels = np.asarray(labels).ravel()
+    values, first, inverse, counts = np.unique(
+        labels, return_index=True, return_inverse=True, return_counts=True
+    )
+    # lexsort sorts by the last key first: size descending, then first appearance ascending.
+    order = np.lexsort((first, -counts))
+    new_id = np.empty(values.size, dtype=np.int64)
+    new_id[order] = np.arange(values.size, dtype=np.int64)
+    return new_id[inverse.ravel()]
+
+
+def kmeans(
+    emb: npt.ArrayLike,
+    k: int,
+    seed: int = 0,
+    n_init: int = 10,
+    num_threads: int = 1,
+) -> tuple[npt.NDArray[np.int64], float]:
+    """K-means with a fixed K (scikit-learn, k-means++ initialisation, best of n_init restarts).
+
+    Runs under a BLAS/OpenMP limit of ``num_threads``. Measured on the shared 2-core development
+    machine (N=300, E=5, K=4, n_init=10, median of 5 fits, four runs at different loads):
+    1 thread 7-26 ms; 2 threads 10 ms when nothing else ran, but 235-310 ms (10-30x slower)
+    with other processes on the machine and once 2.9 s (400x), as the OpenMP threads wait for
+    a core that is busy elsewhere.
+
+    Args:
+        emb: (N, E) float embeddings.
+        k: number of clusters, 1 <= k <= N.
+        seed: random state of the k-means++ seeding; same seed, same result.
+        n_init: number of restarts.
+        num_threads: thread limit for the BLAS/OpenMP pools.
+
+    Returns:
+        labels: (N,) int64 in 0..k-1, ordered by decreasing cluster size (see relabel_by_size).
+            Fewer than k ids occur when the points have fewer than k distinct values.
+        inertia: sum of squared distances of the points to their centroid (same units as emb**2).
+
+    Raises:
+        InputError: bad shape, non-finite values, or k outside 1..N.
+    """
+    from sklearn.cluster import KMeans
+    from sklearn.exceptions import ConvergenceWarning
+    from threadpoolctl import threadpool_limits
+
+    x = _check_embeddings(emb)
+    n = x.shape[0]
+    if k < 1:
+        raise InputError(f"k={k} must be at least 1")
+    if k > n:
+        raise InputError(f"k={k} is larger than the number of points ({n})")
+    with threadpool_limits(num_threads), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        model = KMeans(n_clusters=k, n_init=n_init, random_state=seed).fit(x)
+    for warning in caught:
+        logger.debug("K-means K=%d: %s", k, warning.message)
+    return relabel_by_size(model.labels_), float(model.inertia_)
+
+
+def _elbow_scores(residuals: npt.NDArray[np.float64], candidates: range) -> dict[int, float]:
+    """Elbow score per candidate K from residuals[K] = r(K), K = 0..K_max+1 (index 0 unused)."""
+    r = np.minimum.accumulate(residuals[1:])  # r(K) is non-increasing for exact K-means
+    r = np.concatenate(([np.inf], r))
+    floor = _RESIDUAL_FLOOR * r[1]
+
+    def drop(kk: int) -> float:
+        # Relative drop d(K) = 1 - r(K) / r(K-1): the share of what K-1 clusters left unexplained
+        # that the K-th cluster explains.
+        if r[kk - 1] <= floor:
+            return 0.0
+        return float(1.0 - r[kk] / r[kk - 1])
+
+    return {kk: drop(kk) - drop(kk + 1) for kk in candidates}
+
+
+def cluster_auto_k(
+    emb: npt.ArrayLike,
+    cfg: ClusterConfig = ClusterConfig(),
+    k: int | None = None,
+) -> Clustering:
+    """Cluster embeddings with K-means, choosing K automatically unless ``k`` is given.
+
+    With ``k`` given this is plain K-means (method "fixed", empty scores). Otherwise K-means runs
+    for every K in a sweep and one criterion picks K. Let r(K) be the K-means residual (inertia)
+    and S = sum_i ||e_i||^2. The embeddings are expected L2-normalised, but both criteria are
+    scale-free (multiplying all embeddings by a constant changes nothing).
+
+    1. Small-spread rule (both methods, only when k_min == 1): if r(1) <= min_spread * S, i.e.
+       all embeddings are one point up to noise, answer K = 1 without a sweep
+       (scores = {1: 1.0}).
+    2. "residual": r(K) is computed for K = 1 .. min(k_max + 1, N) and made non-increasing
+       (running minimum, against K-means local minima). The relative drop
+       d(K) = 1 - r(K) / r(K-1) is the share of the residual left by K-1 clusters that the K-th
+       cluster removes (d(K) = 0 when r(K-1) <= 1e-9 r(1): nothing is left to explain).
+       Candidates are K in [max(2, k_min), min(k_max, N - 1)] so that d(K + 1) exists, and
+       score(K) = d(K) - d(K+1), a second-order difference on a relative scale: large when the
+       residual collapses at K and flattens after it, as for well-separated groups. Relative
+       drops make the score scale-free and little affected by unequal cluster sizes; it lies in
+       [-1, 1]. K = 1 gets the score min_elbow, so it wins exactly when no K >= 2 exceeds it
+       (one Gaussian blob of N >= 100 points in E >= 3 dimensions scores at most 0.15).
+    3. "silhouette": mean silhouette coefficient (scikit-learn, Euclidean) of the K-means labels
+       for K in [max(2, k_min), min(k_max, N - 1)]. K = 1 gets the score min_silhouette, so it
+       wins exactly when no K >= 2 exceeds it.
+
+    With k_min >= 2, K = 1 is never a candidate and the best K >= k_min wins. Ties go to the
+    smaller K. When no candidate exists (N <= 2 or k_min > N - 1) the answer is
+    K = min(k_min, N) with empty scores. For tiny N the choice means little: r(N) = 0 trivially,
+    so the candidate K = N - 1 has d(K + 1) = 1 and a low "residual" score.
+
+    Args:
+        emb: (N, E) float embeddings, one row per point (L2-normalised rows expected).
+        cfg: sweep range, criterion and K-means settings.
+        k: force this many clusters (1 <= k <= N) instead of choosing.
+
+    Returns:
+        Clustering with labels (N,) int64 ordered by decreasing cluster size (0 = largest, ties
+        by first appearance), the chosen k, the score of every candidate K and the method
+        ("residual", "silhouette" or "fixed").
+
+    Raises:
+        InputError: bad embeddings, or k outside 1..N.
+    """
+    x = _check_embeddings(emb)
+    n = x.shape[0]
+    if k is not None:
+        if k < 1:
+            raise InputError(f"--k {k} must be at least 1")
+        if k > n:
+            raise InputError(f"--k {k} is larger than the number of tracks ({n})")
+        labels, _ = kmeans(x, k, seed=cfg.seed, n_init=cfg.n_init, num_threads=cfg.num_threads)
+        return Clustering(labels=labels, k=k, scores={}, method="fixed")
+
+    def fit(kk: int) -> tuple[npt.NDArray[np.int64], float]:
+        return kmeans(x, kk, seed=cfg.seed, n_init=cfg.n_init, num_threads=cfg.num_threads)
+
+    total = float(np.sum(x * x))
+    spread = float(np.sum((x - x.mean(axis=0)) ** 2))
+    if cfg.k_min == 1 and spread <= cfg.min_spread * total:
+        logger.debug("spread %.3g of %.3g is below min_spread: K=1", spread, total)
+        return Clustering(np.zeros(n, dtype=np.int64), 1, {1: 1.0}, cfg.method)
+
+    k_hi = min(cfg.k_max, n - 1)
+    candidates = range(max(2, cfg.k_min), k_hi + 1)
+    if len(candidates) == 0:
+        k_only = min(cfg.k_min, n)
+        logger.debug("no candidate K for N=%d and k_min=%d: K=%d", n, cfg.k_min, k_only)
+        return Clustering(fit(k_only)[0], k_only, {}, cfg.method)
+
+    fits: dict[int, npt.NDArray[np.int64]] = {}
+    if cfg.method == "residual":
+        residuals = np.zeros(k_hi + 2, dtype=np.float64)
+        residuals[1] = spread  # exact: the optimal single centroid is the mean
+        fits[1] = np.zeros(n, dtype=np.int64)
+        for kk in range(2, k_hi + 2):
+            fits[kk], residuals[kk] = fit(kk)
+        scores = _elbow_scores(residuals, candidates)
+        threshold = cfg.min_elbow
+    else:
+        from sklearn.metrics import silhouette_score
+        from threadpoolctl import threadpool_limits
+
+        scores = {}
+        for kk in candidates:
+            fits[kk] = fit(kk)[0]
+            if np.unique(fits[kk]).size < 2:
+                scores[kk] = -1.0  # duplicate points gave one cluster: no evidence for K
+                continue
+            with threadpool_limits(cfg.num_threads):
+                scores[kk] = float(silhouette_score(x, fits[kk]))
+        threshold = cfg.min_silhouette
+    if cfg.k_min == 1:
+        scores = {1: float(threshold), **scores}
+        fits[1] = np.zeros(n, dtype=np.int64)
+    best = max(scores, key=lambda kk: (scores[kk], -kk))
+    logger.debug("%s scores %s: K=%d", cfg.method, scores, best)
+    return Clustering(labels=fits[best], k=best, scores=scores, method=cfg.method)

@@ -1,0 +1,201 @@
+"""Named training recipes and the data sources they draw from.
+
+A source is a name ("synthetic", "kt3d", "hopkins", "adelaide", ...) turned into a sampler by
+`build_sampler`; a recipe is a weighted mix of sources plus model and training hyper-parameters.
+Held-out sequences are excluded by name, so leave-one-out folds never see their test sequence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from mosegpipe.model import ModelConfig
+from mosegpipe.train import Sampler, TrainConfig, clip_sampler, mixture_sampler
+from mosegpipe.types import LabeledClip
+
+SOURCES = {
+    "synthetic": "multi-body perspective clips generated on the fly (data/synthetic.py)",
+    "synthetic-pair": "two-view synthetic scenes with gross outliers as their own group",
+    "kt3d": "every F-frame window of the KT3DMoSeg sequences (fully visible tracks)",
+    "kt3d-first": "the frames 1..F clip of each KT3DMoSeg sequence (the paper's 'vanilla' training set)",
+    "hopkins": "every F-frame window (stride F) of the Hopkins155 sequences",
+    "adelaide": "the AdelaideRMF two-view pairs, outliers as one more group",
+    "lce": "the synthetic lines/circles/ellipses training split",
+}
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A named training recipe.
+
+    Attributes:
+        name: the preset name given to `moseg train --preset`.
+        description: one line for `moseg train --help` and the model card.
+        train: training hyper-parameters.
+        model: architecture.
+        sources: (source name, weight) pairs mixed by weight.
+    """
+
+    name: str
+    description: str
+    train: TrainConfig
+    model: ModelConfig
+    sources: tuple[tuple[str, float], ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "description": self.description, "sources": [list(s) for s in self.sources]}
+
+
+_F5 = ModelConfig(in_dim=10, width=64, num_blocks=30, embed_dim=5)
+_F2 = ModelConfig(in_dim=4, width=64, num_blocks=30, embed_dim=5)
+
+RECIPES: dict[str, Recipe] = {
+    r.name: r
+    for r in (
+        Recipe(
+            "clip-f5",
+            "shipped 5-frame model: synthetic clips mixed with KT3DMoSeg and Hopkins155 windows",
+            TrainConfig(frames=5, steps=3000, batch_size=8, lr=1e-3),
+            _F5,
+            (("synthetic", 0.5), ("kt3d", 0.3), ("hopkins", 0.2)),
+        ),
+        Recipe(
+            "synthetic-f5",
+            "5-frame model from synthetic clips only (zero-shot on every benchmark)",
+            TrainConfig(frames=5, steps=3000, batch_size=8, lr=1e-3),
+            _F5,
+            (("synthetic", 1.0),),
+        ),
+        Recipe(
+            "pair-f2",
+            "shipped two-view model: synthetic pairs mixed with AdelaideRMF",
+            TrainConfig(frames=2, steps=3000, batch_size=8, lr=1e-3, reverse=True),
+            _F2,
+            (("synthetic-pair", 0.6), ("adelaide", 0.4)),
+        ),
+        Recipe(
+            "synthetic-f2",
+            "two-view model from synthetic pairs only (zero-shot on AdelaideRMF)",
+            TrainConfig(frames=2, steps=3000, batch_size=8, lr=1e-3),
+            _F2,
+            (("synthetic-pair", 1.0),),
+        ),
+        Recipe(
+            "lce",
+            "the paper's synthetic lines/circles/ellipses benchmark (2-D points, F = 1)",
+            TrainConfig(frames=1, steps=3000, batch_size=16, lr=1e-3, flip=True, reverse=False),
+            ModelConfig(in_dim=2, width=64, num_blocks=30, embed_dim=5),
+            (("lce", 1.0),),
+        ),
+    )
+}
+
+
+def get_recipe(name: str) -> Recipe:
+    """The recipe called `name`; ValueError listing the known names otherwise."""
+    if name not in RECIPES:
+        raise ValueError(f"unknown recipe {name!r}; choose from {', '.join(sorted(RECIPES))}")
+    return RECIPES[name]
+
+
+def source_clips(
+    source: str, data_root: Path | None, frames: int, exclude: Collection[str] = ()
+) -> list[LabeledClip]:
+    """The labelled clips of a real-data source, without the sequences named in `exclude`.
+
+    Args:
+        source: "kt3d", "kt3d-first", "hopkins", "adelaide" or "lce".
+        data_root: the benchmark folder (holding kt3dmoseg/, hopkins155/, adelaidermf/).
+        frames: F of the clips to produce.
+        exclude: sequence / pair names to leave out (held-out folds).
+    """
+    if source == "lce":
+        from mosegpipe.data.lce import lce_splits
+
+        return list(lce_splits()["train"])
+    if data_root is None:
+        raise ValueError(f"source {source!r} needs a data root")
+    if source in ("kt3d", "kt3d-first"):
+        from mosegpipe.data.kt3dmoseg import kt3d_windows, list_kt3d_sequences, read_kt3d_sequence
+
+        mode = "all" if source == "kt3d" else "first"
+        clips: list[LabeledClip] = []
+        for name in list_kt3d_sequences(data_root):
+            if name in exclude:
+                continue
+            clips.extend(kt3d_windows(read_kt3d_sequence(data_root, name), frames=frames, mode=mode))
+        return [c for c in clips if c.k >= 1]
+    if source == "hopkins":
+        from mosegpipe.data.hopkins155 import load_hopkins
+
+        out: list[LabeledClip] = []
+        for clip in load_hopkins(data_root):
+            if clip.name in exclude:
+                continue
+            out.extend(_windows(clip, frames, stride=frames))
+        return out
+    if source == "adelaide":
+        from mosegpipe.data.adelaidermf import load_adelaide
+
+        if frames != 2:
+            raise ValueError("the adelaide source is two-view: it needs frames = 2")
+        return [c for c in load_adelaide(data_root) if c.name not in exclude]
+    raise ValueError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
+
+
+def _windows(clip: LabeledClip, frames: int, stride: int) -> list[LabeledClip]:
+    """Consecutive F-frame windows of a complete-trajectory clip."""
+    total = clip.num_frames
+    out = []
+    for start in range(0, total - frames + 1, stride):
+        traj = clip.traj[:, 2 * start : 2 * (start + frames)]
+        out.append(
+            replace(clip, name=f"{clip.name}/f{start + 1}-{start + frames}", traj=traj, meta={**clip.meta, "start": start})
+        )
+    return out
+
+
+def build_sampler(
+    sources: Sequence[tuple[str, float]],
+    data_root: Path | None,
+    frames: int,
+    exclude: Collection[str] = (),
+    seed: int = 0,
+) -> tuple[Sampler, dict[str, Any]]:
+    """A mixture sampler over `sources`, plus a plain-data description of what it holds.
+
+    Synthetic sources generate clips on the fly; real sources are loaded once.
+    """
+    parts: list[tuple[float, Sampler]] = []
+    described: dict[str, Any] = {}
+    for name, weight in sources:
+        if weight <= 0:
+            continue
+        if name in ("synthetic", "synthetic-pair"):
+            from mosegpipe.data.synthetic import SyntheticConfig, generate_clip, generate_pair
+
+            if name == "synthetic":
+                scfg = SyntheticConfig(frames=frames)
+
+                def draw(rng: Any, _c: SyntheticConfig = scfg) -> LabeledClip:
+                    return generate_clip(rng, _c)
+            else:
+                scfg = SyntheticConfig(frames=2)
+
+                def draw(rng: Any, _c: SyntheticConfig = scfg) -> LabeledClip:
+                    return generate_pair(rng, _c)
+
+            parts.append((weight, draw))
+            described[name] = {"weight": weight, "generated": True}
+        else:
+            clips = source_clips(name, data_root, frames, exclude)
+            if not clips:
+                raise ValueError(f"source {name!r} gave no clips (frames={frames}, excluded {sorted(exclude)})")
+            parts.append((weight, clip_sampler(clips)))
+            described[name] = {"weight": weight, "num_clips": len(clips), "excluded": sorted(exclude)}
+    if not parts:
+        raise ValueError("no training source with a positive weight")
+    return mixture_sampler(parts), described

@@ -1,0 +1,220 @@
+"""Training SubspaceNet: samplers of labelled clips, augmentation, the training loop and named presets.
+
+A sampler is any callable `rng -> LabeledClip`; samplers mix (synthetic data generated on the fly, real
+benchmark clips) so one loop serves every recipe. Clips of different sizes train together in padded
+batches with exact per-clip statistics (see model.pad_batch).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from mosegpipe.losses import LOSSES
+from mosegpipe.model import ModelConfig, SubspaceNet, pad_batch
+from mosegpipe.types import LabeledClip
+
+log = logging.getLogger(__name__)
+
+Sampler = Callable[[np.random.Generator], LabeledClip]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Hyper-parameters of one training run.
+
+    Attributes:
+        frames: trajectory length F the model is trained for (input dimension 2F).
+        loss: "mimi", "l2" or "ce" (see losses.py).
+        alpha: MaxInterMinIntra weight of the inter-cluster term.
+        steps: optimiser steps.
+        batch_size: clips per step (padded batch).
+        lr: peak Adam learning rate; cosine decay to lr * lr_min_ratio, after `warmup` linear steps.
+        lr_min_ratio: final learning rate as a fraction of lr.
+        warmup: linear warm-up steps.
+        max_points: clips with more points are randomly subsampled to this many per step (speed).
+        flip: random horizontal mirroring of whole clips (a mirrored scene is a valid scene).
+        reverse: random time reversal of whole clips (motion played backwards is still rigid motion).
+        grad_clip: gradient-norm clip.
+        seed: seed of the data stream and the initialisation.
+        time_budget_s: stop early after this many seconds (None = run all steps).
+    """
+
+    frames: int = 5
+    loss: str = "mimi"
+    alpha: float = 0.5
+    steps: int = 2000
+    batch_size: int = 8
+    lr: float = 1e-3
+    lr_min_ratio: float = 0.05
+    warmup: int = 50
+    max_points: int = 600
+    flip: bool = True
+    reverse: bool = True
+    grad_clip: float = 1.0
+    seed: int = 0
+    time_budget_s: float | None = None
+
+
+@dataclass
+class TrainResult:
+    """The trained model (eval mode) with its loss history (one entry per logged step)."""
+
+    model: SubspaceNet
+    history: list[dict[str, float]] = field(default_factory=list)
+    seconds: float = 0.0
+    steps_done: int = 0
+
+
+def clip_sampler(clips: Sequence[LabeledClip]) -> Sampler:
+    """Uniformly draws one of `clips`."""
+    if not clips:
+        raise ValueError("clip_sampler needs at least one clip")
+    items = list(clips)
+
+    def draw(rng: np.random.Generator) -> LabeledClip:
+        return items[int(rng.integers(len(items)))]
+
+    return draw
+
+
+def mixture_sampler(parts: Sequence[tuple[float, Sampler]]) -> Sampler:
+    """Draws from one of several samplers with the given (unnormalised) weights."""
+    weights = np.array([w for w, _ in parts], dtype=np.float64)
+    if weights.size == 0 or np.any(weights < 0) or weights.sum() <= 0:
+        raise ValueError(f"mixture weights must be non-negative with a positive sum, got {weights.tolist()}")
+    probs = weights / weights.sum()
+    samplers = [s for _, s in parts]
+
+    def draw(rng: np.random.Generator) -> LabeledClip:
+        return samplers[int(rng.choice(len(samplers), p=probs))](rng)
+
+    return draw
+
+
+def augment(clip: LabeledClip, rng: np.random.Generator, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Returns an augmented copy of a clip's (traj (N, 2F) float32, labels (N,) int64).
+
+    Subsamples to cfg.max_points (every group keeps at least one point), mirrors x and reverses time at
+    random. Scale and translation need no augmentation: the model's input normalisation removes them.
+    """
+    traj, labels = clip.traj, clip.labels
+    n = traj.shape[0]
+    if n > cfg.max_points:
+        keep = rng.choice(n, size=cfg.max_points, replace=False)
+        missing = np.setdiff1d(np.unique(labels), np.unique(labels[keep]))
+        if missing.size:
+            extra = [int(rng.choice(np.flatnonzero(labels == g))) for g in missing]
+            keep = np.concatenate([keep[: cfg.max_points - len(extra)], np.array(extra)])
+        traj, labels = traj[keep], labels[keep]
+    f = traj.shape[1] // 2
+    xy = traj.reshape(-1, f, 2).copy()
+    if cfg.flip and rng.random() < 0.5:
+        xy[:, :, 0] *= -1.0
+    if cfg.reverse and rng.random() < 0.5:
+        xy = xy[:, ::-1]
+    return np.ascontiguousarray(xy.reshape(-1, 2 * f), dtype=np.float32), labels.astype(np.int64)
+
+
+def _lr_at(step: int, cfg: TrainConfig) -> float:
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    progress = (step - cfg.warmup) / max(1, cfg.steps - cfg.warmup)
+    floor = cfg.lr * cfg.lr_min_ratio
+    return floor + 0.5 * (cfg.lr - floor) * (1.0 + math.cos(math.pi * min(1.0, progress)))
+
+
+def train_model(
+    sampler: Sampler,
+    cfg: TrainConfig = TrainConfig(),
+    model_cfg: ModelConfig | None = None,
+    init: SubspaceNet | None = None,
+    log_every: int = 50,
+    on_log: Callable[[dict[str, float]], None] | None = None,
+) -> TrainResult:
+    """Trains SubspaceNet on clips drawn from `sampler`.
+
+    Args:
+        sampler: draws LabeledClips whose trajectories have 2 * cfg.frames columns.
+        cfg: training hyper-parameters.
+        model_cfg: architecture for a fresh model (ignored when `init` is given).
+        init: a model to fine-tune (copied; the argument is left untouched).
+        log_every: steps between history entries.
+        on_log: called with each history entry (e.g. to print progress).
+
+    Returns:
+        TrainResult with the model in eval mode.
+    """
+    if cfg.loss not in LOSSES:
+        raise ValueError(f"unknown loss {cfg.loss!r}; choose from {sorted(LOSSES)}")
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    if init is not None:
+        model = SubspaceNet(init.cfg)
+        model.load_state_dict(init.state_dict())
+    else:
+        model = SubspaceNet(model_cfg or ModelConfig(in_dim=2 * cfg.frames))
+    if model.cfg.in_dim != 2 * cfg.frames:
+        raise ValueError(f"model input dimension {model.cfg.in_dim} does not fit {cfg.frames} frames")
+    loss_fn = LOSSES[cfg.loss]
+    kwargs: dict[str, Any] = {"alpha": cfg.alpha} if cfg.loss == "mimi" else {}
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    model.train()
+    history: list[dict[str, float]] = []
+    t0 = time.perf_counter()
+    running = 0.0
+    count = 0
+    step = 0
+    for step in range(cfg.steps):
+        if cfg.time_budget_s is not None and time.perf_counter() - t0 > cfg.time_budget_s:
+            log.info("time budget of %.0f s reached after %d steps", cfg.time_budget_s, step)
+            break
+        for group in opt.param_groups:
+            group["lr"] = _lr_at(step, cfg)
+        batch = [augment(sampler(rng), rng, cfg) for _ in range(cfg.batch_size)]
+        x, labels, mask = pad_batch([b[0] for b in batch], [b[1] for b in batch])
+        z = model(x, mask)
+        loss = loss_fn(z, labels, mask, **kwargs)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+        opt.step()
+        running += float(loss.detach())
+        count += 1
+        if (step + 1) % log_every == 0 or step + 1 == cfg.steps:
+            entry = {
+                "step": float(step + 1),
+                "loss": running / count,
+                "lr": _lr_at(step, cfg),
+                "seconds": time.perf_counter() - t0,
+            }
+            history.append(entry)
+            if on_log is not None:
+                on_log(entry)
+            running, count = 0.0, 0
+    else:
+        step = cfg.steps
+    model.eval()
+    return TrainResult(model=model, history=history, seconds=time.perf_counter() - t0, steps_done=step)
+
+
+def recipe_of(cfg: TrainConfig, sources: dict[str, Any], result: TrainResult | None = None) -> dict[str, Any]:
+    """A plain-data description of a training run, stored in checkpoints."""
+    recipe: dict[str, Any] = {"train_config": asdict(cfg), "sources": sources}
+    if result is not None:
+        recipe["seconds"] = round(result.seconds, 1)
+        recipe["steps_done"] = result.steps_done
+        recipe["final_loss"] = result.history[-1]["loss"] if result.history else None
+    return recipe
+
+
+def with_overrides(cfg: TrainConfig, **overrides: Any) -> TrainConfig:
+    """`cfg` with the given fields replaced, ignoring None values (CLI options left unset)."""
+    return replace(cfg, **{k: v for k, v in overrides.items() if v is not None})

@@ -1,0 +1,192 @@
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, relabel_by_size
+from mosegpipe.errors import InputError
+from mosegpipe.metrics import misclassification_error
+
+
+@pytest.fixture(autouse=True)
+def _one_thread() -> Iterator[None]:
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        yield
+
+
+def sphere_blobs(
+    k: int, n: int = 200, e: int = 8, noise: float = 0.05, seed: int = 0
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """k Gaussian blobs around well-separated random centres, rows L2-normalised."""
+    rng = np.random.default_rng(seed)
+    centres = np.linalg.qr(rng.normal(size=(e, e)))[0][:k]  # orthonormal: 90 degrees apart
+    labels = np.arange(n) % k
+    rng.shuffle(labels)
+    x = centres[labels] + noise * rng.normal(size=(n, e))
+    return x / np.linalg.norm(x, axis=1, keepdims=True), labels.astype(np.int64)
+
+
+# --- config -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"method": "gap"}, "'gap'"),
+        ({"k_min": 0}, "k_min=0"),
+        ({"k_min": 4, "k_max": 3}, "k_max=3"),
+        ({"n_init": 0}, "n_init=0"),
+        ({"num_threads": 0}, "num_threads=0"),
+        ({"min_elbow": 2.0}, "min_elbow=2.0"),
+        ({"min_spread": -1.0}, "min_spread=-1.0"),
+    ],
+)
+def test_config_rejects_bad_values(kwargs: dict, message: str) -> None:
+    with pytest.raises(InputError, match=message):
+        ClusterConfig(**kwargs)
+
+
+# --- kmeans -------------------------------------------------------------------------------------
+
+
+def test_relabel_by_size_orders_by_size_then_first_appearance() -> None:
+    assert relabel_by_size([7, 3, 3, 5, 5, 3]).tolist() == [2, 0, 0, 1, 1, 0]
+    # equal sizes: the cluster seen first gets the smaller id
+    assert relabel_by_size([9, 9, 4, 4]).tolist() == [0, 0, 1, 1]
+
+
+def test_kmeans_recovers_blobs_and_inertia() -> None:
+    x, gt = sphere_blobs(3, n=90)
+    labels, inertia = kmeans(x, 3)
+    assert labels.dtype == np.int64 and labels.shape == (90,)
+    assert misclassification_error(labels, gt) == 0.0
+    expected = sum(((x[labels == c] - x[labels == c].mean(0)) ** 2).sum() for c in range(3))
+    assert inertia == pytest.approx(expected, rel=1e-6)
+
+
+def test_kmeans_is_deterministic_for_a_seed() -> None:
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(120, 4))  # no structure: the result depends on the seed
+    a = kmeans(x, 5, seed=3)
+    b = kmeans(x, 5, seed=3)
+    np.testing.assert_array_equal(a[0], b[0])
+    assert a[1] == b[1]
+
+
+@pytest.mark.parametrize("bad", [np.zeros((0, 3)), np.zeros(5), np.full((4, 2), np.nan)])
+def test_kmeans_rejects_bad_embeddings(bad: npt.NDArray[np.float64]) -> None:
+    with pytest.raises(InputError, match="embeddings"):
+        kmeans(bad, 1)
+
+
+def test_kmeans_rejects_k_above_n() -> None:
+    with pytest.raises(InputError, match="k=4 is larger than the number of points \\(3\\)"):
+        kmeans(np.eye(3), 4)
+
+
+# --- automatic K --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", ["residual", "silhouette"])
+@pytest.mark.parametrize("k", [2, 3, 4, 5, 6])
+def test_auto_k_finds_separated_blobs(method: str, k: int) -> None:
+    x, gt = sphere_blobs(k, seed=k)
+    result = cluster_auto_k(x, ClusterConfig(method=method, n_init=4))
+    assert result.k == k
+    assert result.method == method
+    assert misclassification_error(result.labels, gt) == 0.0
+    assert sorted(result.scores) == list(range(1, 9))
+    assert max(result.scores, key=result.scores.__getitem__) == k
+
+
+def test_residual_scores_match_hand_computed_elbow() -> None:
+    # Four collinear groups of two points at 0, 10, 20, 30 (spread 0.1 inside each group):
+    # r(K) is known in closed form, so score(K) = d(K) - d(K+1) with d(K) = 1 - r(K)/r(K-1).
+    centres = np.repeat([0.0, 10.0, 20.0, 30.0], 2)
+    x = (centres + np.tile([-0.05, 0.05], 4))[:, None]
+    result = cluster_auto_k(x, ClusterConfig(k_max=4, n_init=10))
+    r1 = float(((x - x.mean()) ** 2).sum())  # 1000.02
+    r2 = 2 * (2 * 25.0 + 2 * 25.0) + 8 * 0.0025  # groups {0,10} and {20,30}: 200.02
+    r3 = 2 * 25.0 * 2 + 8 * 0.0025  # one merged pair: 100.02
+    r4 = 8 * 0.0025  # 0.02
+    r5 = 6 * 0.0025  # one group split: 0.015
+    d = {2: 1 - r2 / r1, 3: 1 - r3 / r2, 4: 1 - r4 / r3, 5: 1 - r5 / r4}
+    assert result.k == 4
+    for kk in (2, 3, 4):
+        assert result.scores[kk] == pytest.approx(d[kk] - d[kk + 1], abs=1e-9)
+    assert result.scores[1] == ClusterConfig().min_elbow
+
+
+def test_residual_picks_one_cluster_for_a_single_blob() -> None:
+    x, _ = sphere_blobs(1, n=300, noise=0.1)
+    result = cluster_auto_k(x)
+    assert result.k == 1
+    assert np.all(result.labels == 0)
+    assert max(v for kk, v in result.scores.items() if kk > 1) < ClusterConfig().min_elbow
+
+
+def test_silhouette_picks_one_cluster_for_a_single_blob() -> None:
+    x, _ = sphere_blobs(1, n=200, noise=0.1)
+    assert cluster_auto_k(x, ClusterConfig(method="silhouette", n_init=4)).k == 1
+
+
+def test_identical_embeddings_give_one_cluster_without_sweep() -> None:
+    x = np.tile([[0.6, 0.8]], (50, 1)) + 1e-7 * np.random.default_rng(0).normal(size=(50, 2))
+    result = cluster_auto_k(x)
+    assert (result.k, result.scores) == (1, {1: 1.0})
+
+
+def test_k_min_two_excludes_one_cluster() -> None:
+    x, _ = sphere_blobs(1, n=100, noise=0.1)
+    result = cluster_auto_k(x, ClusterConfig(k_min=2, k_max=4, n_init=4))
+    assert 2 <= result.k <= 4
+    assert 1 not in result.scores
+
+
+def test_scale_does_not_change_the_choice() -> None:
+    x, _ = sphere_blobs(3, n=120, seed=7)
+    a = cluster_auto_k(x, ClusterConfig(n_init=4))
+    b = cluster_auto_k(1000.0 * x, ClusterConfig(n_init=4))
+    assert a.k == b.k == 3
+    assert a.scores == pytest.approx(b.scores, abs=1e-9)
+    np.testing.assert_array_equal(a.labels, b.labels)
+
+
+def test_forced_k() -> None:
+    x, gt = sphere_blobs(3, n=60)
+    result = cluster_auto_k(x, k=2)
+    assert (result.k, result.method, result.scores) == (2, "fixed", {})
+    assert set(result.labels.tolist()) == {0, 1}
+    # size order: cluster 0 is the largest
+    assert np.sum(result.labels == 0) >= np.sum(result.labels == 1)
+
+
+def test_forced_k_larger_than_n_is_an_input_error() -> None:
+    with pytest.raises(InputError, match=r"--k 7 is larger than the number of tracks \(5\)"):
+        cluster_auto_k(np.eye(5), k=7)
+
+
+@pytest.mark.parametrize("method", ["residual", "silhouette"])
+def test_auto_k_is_deterministic(method: str) -> None:
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(80, 5))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    cfg = ClusterConfig(method=method, seed=11, n_init=3)
+    a, b = cluster_auto_k(x, cfg), cluster_auto_k(x, cfg)
+    assert a.k == b.k and a.scores == b.scores
+    np.testing.assert_array_equal(a.labels, b.labels)
+
+
+@pytest.mark.parametrize("method", ["residual", "silhouette"])
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_tiny_inputs_do_not_crash(method: str, n: int) -> None:
+    x = np.eye(4)[:n]
+    result = cluster_auto_k(x, ClusterConfig(method=method))
+    assert result.labels.shape == (n,)
+    assert 1 <= result.k <= n
+    assert result.labels.max() < result.k
