@@ -183,9 +183,9 @@ def build_sampler(
                 def draw(rng: Any, _c: SyntheticConfig = scfg) -> LabeledClip:
                     return generate_clip(rng, _c)
             else:
-                scfg = SyntheticConfig(frames=2)
+                from mosegpipe.data.synthetic import PAIR_CONFIG
 
-                def draw(rng: Any, _c: SyntheticConfig = scfg) -> LabeledClip:
+                def draw(rng: Any, _c: SyntheticConfig = PAIR_CONFIG) -> LabeledClip:
                     return generate_pair(rng, _c)
 
             parts.append((weight, draw))
