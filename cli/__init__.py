@@ -1,0 +1,1 @@
+"""The moseg command-line interface (installed as mosegpipe.cli)."""

@@ -1,0 +1,360 @@
+"""The `moseg` command: a thin Typer layer over mosegpipe.pipeline, batch, train and evaluate.
+
+Only this layer prints, and only here does a MosegError become one line on stderr and exit code 1.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import os
+import sys
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Annotated, Any, Optional, TypeVar
+
+import typer
+
+from mosegpipe import __version__
+from mosegpipe.errors import InputError, MosegError
+
+app = typer.Typer(
+    name="moseg",
+    help="Motion segmentation of tracked points with SubspaceNet: clips, image pairs, folders of clips.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"moseg: error: {message}", err=True)
+    raise typer.Exit(code=1)
+
+
+def _friendly(fn: F) -> F:
+    """Turns MosegError (and bad option values) into one line on stderr and exit code 1."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except MosegError as exc:
+            _fail(str(exc))
+        except KeyboardInterrupt:
+            _fail("interrupted")
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _setup(threads: int, verbose: bool) -> None:
+    from mosegpipe.runtime import set_threads
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    set_threads(threads)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"moseg {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """moseg: which tracked points move together, dense masks and a Rerun recording."""
+
+
+Threads = Annotated[int, typer.Option("--threads", min=1, help="CPU threads (1 is fastest for one clip on small machines).")]
+Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Log progress.")]
+KOpt = Annotated[Optional[int], typer.Option("--k", min=1, help="Force this many motions (default: automatic K).")]
+KMethod = Annotated[str, typer.Option("--k-method", help="Automatic K: 'residual' or 'silhouette'.")]
+KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered by automatic K.")]
+ModelOpt = Annotated[Optional[Path], typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
+Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results already in the output folder.")]
+NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
+
+
+def _pipeline_cfg(frames: int, k: Optional[int], k_method: str, k_max: int) -> Any:
+    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.pipeline import PipelineConfig
+
+    if k_method not in ("residual", "silhouette"):
+        raise InputError(f"--k-method {k_method!r}: choose 'residual' or 'silhouette'")
+    return PipelineConfig(frames=frames, k=k, cluster=replace(ClusterConfig(), method=k_method, k_max=k_max))
+
+
+def _print_summary(summary: dict[str, Any], out: Path) -> None:
+    scores = ", ".join(f"K={k}: {v:.3g}" for k, v in summary["k_scores"].items())
+    if summary["kind"] == "clip":
+        typer.echo(
+            f"{summary['num_tracks_segmented']} tracks over {summary['frames']} frames -> K = {summary['k']} "
+            f"({summary['k_method']}) · tracks per motion {summary['tracks_per_motion']}"
+        )
+    else:
+        typer.echo(
+            f"{summary['num_matches']} matches -> {summary['num_motions']} motions + {summary['num_outliers']} outliers "
+            f"(K = {summary['k']}, {summary['k_method']}) · matches per motion {summary['matches_per_motion']}"
+        )
+    if scores:
+        typer.echo(f"scores per K: {scores}")
+    t = summary["timings_s"]
+    typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in t.items()))
+    typer.echo(f"wrote {out}/ (summary.json, labels.npz, masks/, overlay/" + (", recording.rrd)" if (out / "recording.rrd").exists() else ")"))
+
+
+@app.command()
+@_friendly
+def run(
+    clip: Annotated[Path, typer.Argument(help="A video file OpenCV can read, or a folder of frames.")],
+    frames: Annotated[int, typer.Option("--frames", "-f", min=2, help="Frames to segment (the paper uses 5).")] = 5,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: <clip name>_moseg).")] = None,
+    whole: Annotated[bool, typer.Option("--whole", help="Segment the whole video in consecutive windows of --frames.")] = False,
+    k: KOpt = None,
+    k_method: KMethod = "residual",
+    k_max: KMax = 8,
+    model: ModelOpt = None,
+    overwrite: Overwrite = False,
+    no_rrd: NoRrd = False,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment the motions in the first --frames frames of CLIP (or the whole video with --whole)."""
+    _setup(threads, verbose)
+    from mosegpipe.pipeline import load_model, segment_clip, write_clip_outputs
+
+    cfg = _pipeline_cfg(frames, k, k_method, k_max)
+    if not clip.exists():
+        raise InputError(f"{clip}: no such file or folder")
+    out = out or clip.with_name(f"{clip.stem}_moseg")
+    net = load_model(frames, model)
+    if whole:
+        from mosegpipe.video import segment_video
+
+        summary = segment_video(clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd)
+        typer.echo(
+            f"{summary['frames']} frames in {summary['num_windows']} windows -> {summary['num_motions']} motion labels; "
+            f"{summary['fps']:.1f} frames/s; wrote {out}/"
+        )
+        return
+    result = segment_clip(clip, cfg, net)
+    summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
+    _print_summary(summary, out)
+
+
+@app.command()
+@_friendly
+def pair(
+    img1: Annotated[Path, typer.Argument(help="First image.")],
+    img2: Annotated[Path, typer.Argument(help="Second image (may differ in size).")],
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: <img1 name>_pair_moseg).")] = None,
+    k: KOpt = None,
+    k_method: KMethod = "residual",
+    k_max: KMax = 8,
+    model: ModelOpt = None,
+    overwrite: Overwrite = False,
+    no_rrd: NoRrd = False,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment the motions between two images from SIFT matches; outliers get their own label."""
+    _setup(threads, verbose)
+    from mosegpipe.pipeline import load_model, segment_pair, write_pair_outputs
+
+    cfg = _pipeline_cfg(2, k, k_method, k_max)
+    for p in (img1, img2):
+        if not p.exists():
+            raise InputError(f"{p}: no such file")
+    out = out or img1.with_name(f"{img1.stem}_pair_moseg")
+    result = segment_pair(img1, img2, cfg, load_model(2, model))
+    summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
+    _print_summary(summary, out)
+
+
+@app.command()
+@_friendly
+def batch(
+    folder: Annotated[Path, typer.Argument(help="Folder searched for video files and frame folders.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder: one sub-folder per clip plus batch_summary.csv/json.")],
+    frames: Annotated[int, typer.Option("--frames", "-f", min=2)] = 5,
+    k: KOpt = None,
+    k_method: KMethod = "residual",
+    k_max: KMax = 8,
+    model: ModelOpt = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")] = False,
+    no_rrd: NoRrd = False,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment every clip under FOLDER; failures are reported and skipped, re-runs resume."""
+    _setup(threads, verbose)
+    from rich.progress import Progress
+
+    from mosegpipe.batch import plan, run_batch
+    from mosegpipe.pipeline import load_model
+
+    cfg = _pipeline_cfg(frames, k, k_method, k_max)
+    total = len(plan(folder, out))
+    with Progress(transient=True) as bar:
+        task = bar.add_task("segmenting", total=total)
+
+        def step(item: Any, row: dict[str, Any]) -> None:
+            bar.advance(task)
+            if row["status"] == "failed":
+                bar.console.print(f"[red]failed[/red] {item.name}: {row['error']}")
+
+        rows = run_batch(folder, out, cfg, load_model(frames, model), rrd=not no_rrd, overwrite=overwrite, on_item=step)
+    width = max(len(r["name"]) for r in rows)
+    typer.echo(f"{'clip':<{width}}  status   K  tracks  seconds")
+    for r in rows:
+        typer.echo(f"{r['name']:<{width}}  {r['status']:<7} {r['k']!s:>2}  {r['tracks']!s:>6}  {r['seconds']!s:>7}")
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "skipped", "failed")}
+    typer.echo(f"{counts['ok']} segmented, {counts['skipped']} skipped (done earlier), {counts['failed']} failed; see {out}/batch_summary.csv")
+
+
+@app.command()
+@_friendly
+def view(recording: Annotated[Path, typer.Argument(help="A .rrd recording written by moseg.")]) -> None:
+    """Open a recording in the Rerun viewer (ships with rerun-sdk)."""
+    import shutil
+
+    if not recording.is_file():
+        raise InputError(f"{recording}: no such recording")
+    exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    if not Path(exe).exists():
+        raise InputError("the rerun viewer was not found next to this Python (pip install rerun-sdk)")
+    os.execv(exe, [exe, str(recording)])
+
+
+def _data_root(data_root: Optional[Path]) -> Path:
+    root = data_root or Path(os.environ.get("MOSEG_DATA", "../shared/data"))
+    if not root.is_dir():
+        raise InputError(f"{root}: benchmark data folder not found (use --data-root or MOSEG_DATA)")
+    return root
+
+
+DataRoot = Annotated[Optional[Path], typer.Option("--data-root", help="Benchmark folder (default: $MOSEG_DATA or ../shared/data).")]
+
+
+@app.command()
+@_friendly
+def train(
+    preset: Annotated[str, typer.Option("--preset", help="Named recipe: clip-f5, synthetic-f5, pair-f2, synthetic-f2, lce.")] = "clip-f5",
+    out: Annotated[Path, typer.Option("--out", "-o", help="Checkpoint file to write.")] = Path("runs/model.pt"),
+    steps: Annotated[Optional[int], typer.Option("--steps", min=1, help="Override the recipe's step count.")] = None,
+    batch_size: Annotated[Optional[int], typer.Option("--batch-size", min=1)] = None,
+    lr: Annotated[Optional[float], typer.Option("--lr")] = None,
+    loss: Annotated[Optional[str], typer.Option("--loss", help="mimi, l2 or ce.")] = None,
+    seed: Annotated[Optional[int], typer.Option("--seed")] = None,
+    init: Annotated[Optional[Path], typer.Option("--init", help="Fine-tune from this checkpoint.")] = None,
+    exclude: Annotated[Optional[str], typer.Option("--exclude", help="Comma-separated source names to leave out (leave-one-dataset-out).")] = None,
+    time_budget: Annotated[Optional[float], typer.Option("--time-budget", help="Stop after this many seconds.")] = None,
+    data_root: DataRoot = None,
+    threads: Annotated[int, typer.Option("--threads", min=1)] = 2,
+    verbose: Verbose = False,
+) -> None:
+    """Train a SubspaceNet checkpoint from a named recipe (synthetic data generated on the fly)."""
+    _setup(threads, verbose)
+    from mosegpipe.model import SubspaceNet
+    from mosegpipe.recipes import build_sampler, get_recipe
+    from mosegpipe.train import recipe_of, train_model, with_overrides
+
+    try:
+        recipe = get_recipe(preset)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
+    sources = tuple((s, w) for s, w in recipe.sources if s not in dropped)
+    needs_data = any(not s.startswith("synthetic") and s != "lce" for s, _ in sources)
+    root = _data_root(data_root) if needs_data else data_root
+    cfg = with_overrides(recipe.train, steps=steps, batch_size=batch_size, lr=lr, loss=loss, seed=seed, time_budget_s=time_budget)
+    try:
+        sampler, described = build_sampler(sources, root, cfg.frames, seed=cfg.seed)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    start = SubspaceNet.from_checkpoint(init) if init else None
+    typer.echo(f"training {preset}: {cfg.steps} steps × {cfg.batch_size} clips, sources {described}")
+    result = train_model(
+        sampler,
+        cfg,
+        model_cfg=recipe.model,
+        init=start,
+        on_log=lambda e: typer.echo(f"step {int(e['step']):>6}  loss {e['loss']:.4f}  lr {e['lr']:.2e}  {e['seconds']:.0f} s"),
+    )
+    rec = recipe_of(cfg, described, result)
+    rec.update(name=preset, command=" ".join(["moseg", *sys.argv[1:]]), init=str(init) if init else None, excluded=sorted(dropped))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    result.model.save(out, recipe=rec)
+    typer.echo(f"wrote {out} ({result.steps_done} steps, {result.seconds:.0f} s)")
+
+
+@app.command("eval")
+@_friendly
+def eval_(
+    protocol: Annotated[str, typer.Argument(help="kt3d-test, kt3d-loo, adelaide-test, adelaide-loo, hopkins-test, lce.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder (results.md/csv/json; per-fold files to resume).")],
+    model: ModelOpt = None,
+    variant: Annotated[str, typer.Option("--variant", help="kt3d-loo: 'vanilla' or 'augment'.")] = "vanilla",
+    frames: Annotated[Optional[int], typer.Option("--frames", "-f", help="Trajectory length (default: 5; 2 for adelaide).")] = None,
+    init: Annotated[Optional[Path], typer.Option("--init", help="LOO folds start from this checkpoint.")] = None,
+    steps: Annotated[Optional[int], typer.Option("--steps", min=1, help="Training steps per fold.")] = None,
+    batch_size: Annotated[Optional[int], typer.Option("--batch-size", min=1)] = None,
+    lr: Annotated[Optional[float], typer.Option("--lr")] = None,
+    synthetic_weight: Annotated[float, typer.Option("--synthetic-weight", help="LOO: weight of synthetic clips mixed into each fold.")] = 0.0,
+    baselines: Annotated[str, typer.Option("--baselines", help="Comma-separated baselines ('' for none).")] = "kmeans-raw,spectral-raw,ssc",
+    folds: Annotated[Optional[str], typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
+    k_method: KMethod = "residual",
+    k_max: KMax = 8,
+    data_root: DataRoot = None,
+    threads: Annotated[int, typer.Option("--threads", min=1)] = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Run a benchmark protocol: per-clip table, mean/median error, NMI, correct K, time, baselines."""
+    _setup(threads, verbose)
+    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.evaluate import PROTOCOLS, EvalConfig, run_protocol
+    from mosegpipe.model import SubspaceNet
+    from mosegpipe.train import TrainConfig, with_overrides
+
+    if protocol not in PROTOCOLS:
+        raise InputError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
+    if variant not in ("vanilla", "augment"):
+        raise InputError(f"--variant {variant!r}: choose 'vanilla' or 'augment'")
+    f = frames or (2 if protocol.startswith("adelaide") else 1 if protocol == "lce" else 5)
+    train_cfg = with_overrides(TrainConfig(frames=f, steps=500), steps=steps, batch_size=batch_size, lr=lr)
+    cfg = EvalConfig(
+        protocol=protocol,
+        variant=variant,
+        frames=f,
+        baselines=tuple(b for b in baselines.split(",") if b),
+        cluster=replace(ClusterConfig(), method=k_method, k_max=k_max),
+        train=train_cfg,
+        synthetic_weight=synthetic_weight,
+        folds=tuple(folds.split(",")) if folds else None,
+    )
+    net = None
+    if protocol.endswith("-test"):
+        from mosegpipe.pipeline import load_model
+
+        net = load_model(f, model)
+    elif protocol == "lce" and model is not None:
+        net = SubspaceNet.from_checkpoint(model)
+    start = SubspaceNet.from_checkpoint(init) if init else None
+    try:
+        _, _, table = run_protocol(cfg, _data_root(data_root), out, model=net, init=start, progress=typer.echo)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    typer.echo(table)
+    typer.echo(f"wrote {out}/results.md, results.csv, results.json")
+
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,536 @@
+"""Reading videos, frame folders and images; writing masks, JSON, arrays and videos atomically.
+
+Every writer goes through :func:`atomic_write`, so an interrupted run never leaves a half-written
+file under the final name (a later run that skips finished outputs can trust what it finds).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import secrets
+import struct
+import zlib
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.errors import InputError
+from mosegpipe.types import Frames
+
+IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
+"""File name endings (lower case) treated as images, in a frame folder or as a single image."""
+
+_VIDEO_FOURCC: dict[str, str] = {
+    # opencv-python-headless has no H.264 encoder; these two write and read back frame-exact.
+    ".avi": "MJPG",
+    ".mp4": "mp4v",
+}
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------
+
+
+def read_image(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
+    """Read one image file as RGB.
+
+    Grayscale images are replicated to 3 channels, alpha is dropped and 16-bit images are scaled
+    to 8 bits (OpenCV's IMREAD_COLOR conversion).
+
+    Args:
+        path: an image file OpenCV can decode (png, jpg, bmp, tif, ...).
+
+    Returns:
+        (H, W, 3) uint8 RGB image.
+
+    Raises:
+        InputError: the file is missing or cannot be decoded as an image.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such image file")
+    # np.fromfile + imdecode instead of imread: imread silently fails on some non-ASCII paths.
+    try:
+        buf = np.fromfile(p, dtype=np.uint8)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read file ({exc})") from exc
+    bgr = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+    if bgr is None:
+        raise InputError(f"{p}: not a readable image (corrupt or unsupported format)")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def _list_images(folder: Path) -> list[Path]:
+    return sorted(
+        (f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES),
+        key=lambda f: f.name,
+    )
+
+
+def _check_start_chunk(path: Path, start: int, chunk: int | None, max_frames: int | None) -> None:
+    if start < 0:
+        raise InputError(f"{path}: start={start} must be >= 0")
+    if chunk is not None and chunk < 1:
+        raise InputError(f"{path}: chunk={chunk} must be >= 1")
+    if max_frames is not None and max_frames < 1:
+        raise InputError(f"{path}: max_frames={max_frames} must be >= 1")
+
+
+def _iter_single_frames(path: Path, start: int, max_frames: int | None) -> Iterator[tuple[int, npt.NDArray[np.uint8]]]:
+    """Yield (index, (H, W, 3) RGB frame) from a folder, an image file or a video file."""
+    if not path.exists():
+        raise InputError(f"{path}: no such file or folder")
+    stop = None if max_frames is None else start + max_frames
+    if path.is_dir():
+        files = _list_images(path)
+        if not files:
+            raise InputError(f"{path}: folder holds no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
+        if start >= len(files):
+            raise InputError(f"{path}: start={start} but the folder has only {len(files)} images")
+        size_hw: tuple[int, int] | None = None
+        for index in range(start, len(files) if stop is None else min(stop, len(files))):
+            image = read_image(files[index])
+            if size_hw is None:
+                size_hw = image.shape[:2]
+            elif image.shape[:2] != size_hw:
+                raise InputError(
+                    f"{files[index]}: image is {image.shape[1]}x{image.shape[0]} but earlier images in "
+                    f"{path} are {size_hw[1]}x{size_hw[0]}"
+                )
+            yield index, image
+        return
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        if start > 0:
+            raise InputError(f"{path}: start={start} but a single image has only 1 frame")
+        yield 0, read_image(path)
+        return
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            raise InputError(f"{path}: not a readable video (OpenCV could not open it)")
+        # grab() through the skipped frames: seeking with CAP_PROP_POS_FRAMES is keyframe-inexact
+        # for some codecs, and frame indices must match the source exactly.
+        for skipped in range(start):
+            if not cap.grab():
+                if skipped == 0:
+                    raise InputError(f"{path}: no frames could be decoded (corrupt or truncated video?)")
+                raise InputError(f"{path}: start={start} but the video has only {skipped} frames")
+        index = start
+        while stop is None or index < stop:
+            ok, bgr = cap.read()
+            if not ok or bgr is None:
+                break
+            if bgr.ndim == 2:
+                bgr = cv2.cvtColor(bgr, cv2.COLOR_GRAY2BGR)
+            yield index, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+            index += 1
+        if index == start:
+            if start == 0:
+                raise InputError(f"{path}: no frames could be decoded (corrupt or truncated video?)")
+            raise InputError(f"{path}: start={start} is at or past the last decodable frame")
+    finally:
+        cap.release()
+
+
+def iter_video(
+    path: str | os.PathLike[str],
+    start: int = 0,
+    chunk: int | None = None,
+    *,
+    max_frames: int | None = None,
+) -> Iterator[tuple[int, npt.NDArray[np.uint8]]]:
+    """Stream frames of a video file, a folder of images or a single image, keeping memory flat.
+
+    Args:
+        path: a video file OpenCV can read, a folder of images (sorted by file name) or one image.
+        start: index of the first frame to yield.
+        chunk: None to yield single frames; else yield stacks of up to `chunk` consecutive frames
+            (the last stack may be shorter), for processing long videos in windows.
+        max_frames: stop after this many frames in total (None = to the end).
+
+    Yields:
+        (index, frame): index of the (first) frame in the source, and a (H, W, 3) uint8 RGB frame,
+        or a (n, H, W, 3) uint8 stack with n <= chunk when `chunk` is given.
+
+    Raises:
+        InputError: missing path, unreadable or corrupt video, empty folder, images of different
+            sizes, or `start` past the end. Raised lazily, on iteration.
+    """
+    p = Path(path)
+    _check_start_chunk(p, start, chunk, max_frames)
+    frames = _iter_single_frames(p, start, max_frames)
+    if chunk is None:
+        yield from frames
+        return
+    batch: list[npt.NDArray[np.uint8]] = []
+    first = start
+    for index, frame in frames:
+        if not batch:
+            first = index
+        batch.append(frame)
+        if len(batch) == chunk:
+            yield first, np.stack(batch)
+            batch = []
+    if batch:
+        yield first, np.stack(batch)
+
+
+def _video_fps(path: Path) -> float:
+    if path.is_dir() or path.suffix.lower() in IMAGE_SUFFIXES:
+        return 0.0
+    cap = cv2.VideoCapture(str(path))
+    try:
+        fps = float(cap.get(cv2.CAP_PROP_FPS)) if cap.isOpened() else 0.0
+    finally:
+        cap.release()
+    return fps if np.isfinite(fps) and fps > 0 else 0.0
+
+
+def read_video(path: str | os.PathLike[str], max_frames: int | None = None, start: int = 0) -> Frames:
+    """Read frames of a video file, a folder of images or a single image into memory.
+
+    Args:
+        path: a video file OpenCV can read, a folder of png/jpg/jpeg/bmp/tif images (sorted by
+            name; grayscale images become 3-channel) or one image file.
+        max_frames: read at most this many frames (None = all; mind the memory on long videos and
+            prefer :func:`iter_video`). A shorter source gives fewer frames, not an error: the
+            caller knows how many it needs.
+        start: index of the first frame to read.
+
+    Returns:
+        Frames with images (T, H, W, 3) uint8 RGB, fps of the source (0.0 for folders/images),
+        source = str(path) and start.
+
+    Raises:
+        InputError: missing path, unreadable or corrupt video, folder without images, images of
+            different sizes, or `start` past the end.
+    """
+    p = Path(path)
+    images = [frame for _, frame in iter_video(p, start=start, max_frames=max_frames)]
+    return Frames(images=np.stack(images), fps=_video_fps(p), source=str(p), start=start)
+
+
+def video_info(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Describe a video file, frame folder or image without decoding it all.
+
+    Args:
+        path: as for :func:`read_video`.
+
+    Returns:
+        dict with "kind" ("video", "folder" or "image"), "num_frames" (int, or None when the
+        container does not say), "fps" (float, 0.0 when unknown), "size_hw" ((H, W) pixels,
+        from the first frame).
+
+    Raises:
+        InputError: as for :func:`read_video`.
+    """
+    p = Path(path)
+    # Decoding the first frame validates the input and gives the true size (container headers
+    # can be missing or wrong).
+    _, first = next(iter_video(p, max_frames=1))
+    size_hw = (int(first.shape[0]), int(first.shape[1]))
+    if p.is_dir():
+        return {"kind": "folder", "num_frames": len(_list_images(p)), "fps": 0.0, "size_hw": size_hw}
+    if p.suffix.lower() in IMAGE_SUFFIXES:
+        return {"kind": "image", "num_frames": 1, "fps": 0.0, "size_hw": size_hw}
+    cap = cv2.VideoCapture(str(p))
+    try:
+        count = float(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+    finally:
+        cap.release()
+    return {
+        "kind": "video",
+        "num_frames": int(count) if np.isfinite(count) and count > 0 else None,
+        "fps": fps if np.isfinite(fps) and fps > 0 else 0.0,
+        "size_hw": size_hw,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing
+# ---------------------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Write a file under a temporary name and move it into place only if the body succeeds.
+
+    The temporary file lives in the same folder (so os.replace is an atomic rename) and keeps the
+    final suffix (OpenCV and numpy choose the format from it). Missing parent folders are created.
+
+    Args:
+        path: final file path.
+
+    Yields:
+        Temporary path the body must write to (the file does not exist yet).
+
+    Raises:
+        FileNotFoundError: the body finished without creating the temporary file.
+    """
+    final = Path(path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = final.with_name(f".{final.stem}.{secrets.token_hex(4)}.tmp{final.suffix}")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise FileNotFoundError(f"{final}: nothing was written to the temporary file {tmp.name}")
+        os.replace(tmp, final)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+
+
+def default_palette() -> npt.NDArray[np.uint8]:
+    """The 256-colour palette of PASCAL VOC / DAVIS masks: index 0 black, then distinct colours.
+
+    Colour i spreads the bits of i over the high bits of R, G and B (bit 0 -> R, 1 -> G, 2 -> B,
+    3 -> R one level lower, ...), so small indices get saturated, well separated colours.
+
+    Returns:
+        (256, 3) uint8 RGB.
+    """
+    index = np.arange(256)
+    palette = np.zeros((256, 3), dtype=np.int64)
+    for level in range(8):
+        for channel in range(3):
+            bit = (index >> (3 * level + channel)) & 1
+            palette[:, channel] |= bit << (7 - level)
+    return palette.astype(np.uint8)
+
+
+def _png_chunk(tag: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+
+
+def write_palette_png(
+    path: str | os.PathLike[str],
+    mask: npt.NDArray[np.uint8],
+    palette: npt.NDArray[np.uint8] | None = None,
+) -> None:
+    """Write an indexed-colour (palette) PNG, the DAVIS convention for label masks.
+
+    The pixel values are stored as palette indices (PNG colour type 3, 8 bits), so reading the
+    file back gives the labels exactly while image viewers show colours.
+
+    Args:
+        path: output .png path (written atomically).
+        mask: (H, W) uint8 label image.
+        palette: (P, 3) uint8 RGB with P <= 256 (default :func:`default_palette`).
+
+    Raises:
+        ValueError: mask is not 2-D uint8 or palette is not (P <= 256, 3) uint8.
+    """
+    mask = np.asarray(mask)
+    if mask.ndim != 2 or mask.dtype != np.uint8 or mask.size == 0:
+        raise ValueError(f"mask must be a non-empty (H, W) uint8 array, got {mask.dtype} {mask.shape}")
+    palette = default_palette() if palette is None else np.asarray(palette)
+    if palette.ndim != 2 or palette.shape[1] != 3 or not 1 <= palette.shape[0] <= 256 or palette.dtype != np.uint8:
+        raise ValueError(f"palette must be (P <= 256, 3) uint8, got {palette.dtype} {palette.shape}")
+    height, width = mask.shape
+    # Each scanline starts with filter type 0 (none); masks are long runs, which zlib compresses well.
+    raw = np.zeros((height, width + 1), dtype=np.uint8)
+    raw[:, 1:] = mask
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 3, 0, 0, 0)
+    data = (
+        _PNG_SIGNATURE
+        + _png_chunk(b"IHDR", ihdr)
+        + _png_chunk(b"PLTE", np.ascontiguousarray(palette).tobytes())
+        + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), 6))
+        + _png_chunk(b"IEND", b"")
+    )
+    with atomic_write(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def _unfilter_scanlines(raw: npt.NDArray[np.uint8], height: int, width: int) -> npt.NDArray[np.uint8]:
+    """Undo PNG scanline filters for 1 byte per pixel (8-bit palette or gray)."""
+    rows = raw.reshape(height, width + 1)
+    out = np.zeros((height, width), dtype=np.uint8)
+    prior = np.zeros(width, dtype=np.uint8)
+    for y in range(height):
+        ftype, line = int(rows[y, 0]), rows[y, 1:]
+        if ftype == 0:
+            cur = line
+        elif ftype == 1:  # Sub: running sum modulo 256 along the row
+            cur = (np.cumsum(line, dtype=np.uint64) & 0xFF).astype(np.uint8)
+        elif ftype == 2:  # Up
+            cur = line + prior
+        elif ftype in (3, 4):  # Average / Paeth depend on the reconstructed left pixel: sequential
+            cur = np.zeros(width, dtype=np.uint8)
+            left = 0
+            up_left = 0
+            for x in range(width):
+                up = int(prior[x])
+                if ftype == 3:
+                    pred = (left + up) >> 1
+                else:
+                    p = left + up - up_left
+                    pa, pb, pc = abs(p - left), abs(p - up), abs(p - up_left)
+                    pred = left if pa <= pb and pa <= pc else (up if pb <= pc else up_left)
+                left = (int(line[x]) + pred) & 0xFF
+                cur[x] = left
+                up_left = up
+        else:
+            raise ValueError(f"unknown PNG filter type {ftype} in row {y}")
+        out[y] = cur
+        prior = out[y]
+    return out
+
+
+def read_palette_png(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
+    """Read the palette indices of an indexed-colour PNG (the inverse of :func:`write_palette_png`).
+
+    Decodes 8-bit, non-interlaced PNGs of colour type 3 (palette) or 0 (grayscale, whose values
+    are returned as they are). OpenCV expands palettes to colours, so it cannot be used for this.
+
+    Args:
+        path: a .png file.
+
+    Returns:
+        (H, W) uint8 palette indices.
+
+    Raises:
+        InputError: missing file, not a PNG, corrupt data (CRC/zlib) or an unsupported variant.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such file")
+    data = p.read_bytes()
+    if not data.startswith(_PNG_SIGNATURE):
+        raise InputError(f"{p}: not a PNG file")
+    pos = len(_PNG_SIGNATURE)
+    header: tuple[int, ...] | None = None
+    idat = bytearray()
+    while pos + 8 <= len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        tag = data[pos + 4 : pos + 8]
+        body = data[pos + 8 : pos + 8 + length]
+        crc_bytes = data[pos + 8 + length : pos + 12 + length]
+        if len(body) != length or len(crc_bytes) != 4:
+            raise InputError(f"{p}: truncated PNG chunk {tag!r}")
+        if struct.unpack(">I", crc_bytes)[0] != zlib.crc32(tag + body) & 0xFFFFFFFF:
+            raise InputError(f"{p}: CRC mismatch in PNG chunk {tag!r} (corrupt file)")
+        if tag == b"IHDR":
+            header = struct.unpack(">IIBBBBB", body)
+        elif tag == b"IDAT":
+            idat += body
+        elif tag == b"IEND":
+            break
+        pos += 12 + length
+    if header is None:
+        raise InputError(f"{p}: PNG without IHDR chunk")
+    width, height, depth, color_type, _, _, interlace = header
+    if depth != 8 or color_type not in (0, 3) or interlace != 0:
+        raise InputError(
+            f"{p}: unsupported PNG variant (bit depth {depth}, colour type {color_type}, "
+            f"interlace {interlace}); expected an 8-bit non-interlaced palette PNG"
+        )
+    try:
+        raw = np.frombuffer(zlib.decompress(bytes(idat)), dtype=np.uint8)
+    except zlib.error as exc:
+        raise InputError(f"{p}: corrupt PNG image data ({exc})") from exc
+    if raw.size != height * (width + 1):
+        raise InputError(f"{p}: PNG image data has {raw.size} bytes, expected {height * (width + 1)}")
+    try:
+        return _unfilter_scanlines(raw, height, width)
+    except ValueError as exc:
+        raise InputError(f"{p}: {exc}") from exc
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise TypeError(f"object of type {type(obj).__name__} is not JSON serialisable")
+
+
+def write_json(path: str | os.PathLike[str], obj: Any) -> None:
+    """Write `obj` as indented UTF-8 JSON (numpy scalars/arrays and paths converted), atomically.
+
+    Args:
+        path: output file.
+        obj: JSON-serialisable object; numpy values and os.PathLike are converted.
+    """
+    text = json.dumps(obj, indent=2, default=_json_default, ensure_ascii=False)
+    with atomic_write(path) as tmp:
+        tmp.write_text(text + "\n", encoding="utf-8")
+
+
+def write_npz(path: str | os.PathLike[str], **arrays: npt.ArrayLike) -> None:
+    """Write arrays to a compressed .npz file atomically.
+
+    Args:
+        path: output file (numpy would append ".npz" to a bare name; here the name is kept as given).
+        **arrays: name -> array.
+    """
+    with atomic_write(path) as tmp, open(tmp, "wb") as fh:
+        # A file object, not a name: np.savez would append ".npz" to the temporary name.
+        np.savez_compressed(fh, **arrays)
+
+
+def write_video(
+    path: str | os.PathLike[str],
+    frames_iter: Iterable[npt.NDArray[np.uint8]],
+    fps: float,
+) -> int:
+    """Encode RGB frames to a video file atomically (MJPG in .avi, mp4v in .mp4).
+
+    Args:
+        path: output path ending in .avi or .mp4.
+        frames_iter: (H, W, 3) uint8 RGB frames, all the same size (consumed lazily).
+        fps: frames per second to store (> 0).
+
+    Returns:
+        Number of frames written.
+
+    Raises:
+        InputError: unsupported suffix, fps <= 0, no frames, or frames of different sizes/dtypes.
+        OSError: OpenCV could not open a writer for the file.
+    """
+    final = Path(path)
+    fourcc = _VIDEO_FOURCC.get(final.suffix.lower())
+    if fourcc is None:
+        raise InputError(f"{final}: unsupported video suffix {final.suffix!r}; use .avi (MJPG) or .mp4 (mp4v)")
+    if not fps > 0:
+        raise InputError(f"{final}: fps={fps} must be > 0")
+    count = 0
+    with atomic_write(final) as tmp:
+        writer: cv2.VideoWriter | None = None
+        size_wh: tuple[int, int] | None = None
+        try:
+            for frame in frames_iter:
+                frame = np.asarray(frame)
+                if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+                    raise InputError(f"{final}: frame {count} must be (H, W, 3) uint8, got {frame.dtype} {frame.shape}")
+                if writer is None:
+                    size_wh = (frame.shape[1], frame.shape[0])
+                    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*fourcc), float(fps), size_wh)
+                    if not writer.isOpened():
+                        raise OSError(f"{final}: OpenCV could not open a {fourcc} video writer")
+                elif (frame.shape[1], frame.shape[0]) != size_wh:
+                    raise InputError(
+                        f"{final}: frame {count} is {frame.shape[1]}x{frame.shape[0]}, "
+                        f"earlier frames are {size_wh[0]}x{size_wh[1]}"
+                    )
+                writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+                count += 1
+        finally:
+            if writer is not None:
+                writer.release()
+        if count == 0:
+            raise InputError(f"{final}: no frames to write")
+    return count

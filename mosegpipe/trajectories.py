@@ -1,0 +1,132 @@
+"""From point tracks or matches to the trajectory matrix that SubspaceNet embeds.
+
+SubspaceNet takes complete trajectories: a point enters the (N, 2F) matrix only if it is visible
+in every one of the F frames (the paper's KT3DMoSeg protocol keeps the points visible in all
+frames of a 5-frame window).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.errors import InputError
+from mosegpipe.types import Matches, Tracks, Trajectories
+
+
+def build_trajectories(tracks: Tracks, frames: int | None = None, start: int = 0) -> Trajectories:
+    """Stack the tracks visible in all frames of a window into the trajectory matrix.
+
+    Args:
+        tracks: Tracks with xy (N, T, 2) float32 pixels and visible (N, T) bool.
+        frames: window length F (None = from `start` to the last tracked frame).
+        start: first frame of the window.
+
+    Returns:
+        Trajectories with data (M, 2F) float32 pixels ordered x_1, y_1, ..., x_F, y_F, and
+        track_ids (M,) int64 = the rows of `tracks` visible (with finite coordinates) in all
+        frames of [start, start + F), ascending.
+
+    Raises:
+        InputError: the window does not fit in the tracked frames, or F < 1.
+    """
+    num_frames = tracks.num_frames
+    if frames is None:
+        frames = num_frames - start
+    if start < 0 or frames < 1 or start + frames > num_frames:
+        raise InputError(f"window start={start}, frames={frames} does not fit in {num_frames} tracked frames")
+    window = slice(start, start + frames)
+    xy = tracks.xy[:, window]
+    keep = tracks.visible[:, window].all(axis=1) & np.isfinite(xy).all(axis=(1, 2))
+    ids = np.flatnonzero(keep).astype(np.int64)
+    data = np.ascontiguousarray(xy[ids].reshape(len(ids), 2 * frames), dtype=np.float32)
+    return Trajectories(data=data, track_ids=ids)
+
+
+def iter_windows(
+    tracks: Tracks, frames: int, stride: int | None = None
+) -> Iterator[tuple[int, Trajectories]]:
+    """Slide a window of `frames` frames over the tracks and build each window's trajectories.
+
+    Args:
+        tracks: Tracks over T frames.
+        frames: window length F (1 <= F <= T).
+        stride: step between window starts (default F: windows that do not overlap). A final
+            window ending at frame T is added when the stride would leave frames uncovered.
+
+    Yields:
+        (start, Trajectories) for each window [start, start + F).
+
+    Raises:
+        InputError: F or stride out of range.
+    """
+    num_frames = tracks.num_frames
+    stride = frames if stride is None else stride
+    if not 1 <= frames <= num_frames:
+        raise InputError(f"frames={frames} must be between 1 and the {num_frames} tracked frames")
+    if stride < 1:
+        raise InputError(f"stride={stride} must be >= 1")
+    starts = list(range(0, num_frames - frames + 1, stride))
+    if starts[-1] + frames < num_frames:
+        starts.append(num_frames - frames)
+    for start in starts:
+        yield start, build_trajectories(tracks, frames=frames, start=start)
+
+
+def trajectories_from_matches(matches: Matches) -> Trajectories:
+    """Two-view trajectories: one row (x1, y1, x2, y2) per correspondence.
+
+    Args:
+        matches: Matches with xy1, xy2 (N, 2) float32 pixels.
+
+    Returns:
+        Trajectories with data (N, 4) float32 and track_ids = arange(N) (rows of `matches`).
+    """
+    data = np.concatenate([matches.xy1, matches.xy2], axis=1).astype(np.float32)
+    return Trajectories(data=np.ascontiguousarray(data), track_ids=np.arange(len(data), dtype=np.int64))
+
+
+def _interp_weights(source_frames: int, target_frames: int) -> npt.NDArray[np.float64]:
+    """(target, source) matrix of linear-interpolation weights on a common time axis [0, 1]."""
+    if source_frames == 1:
+        return np.ones((target_frames, 1))
+    pos = np.linspace(0.0, source_frames - 1, target_frames)
+    lo = np.clip(np.floor(pos).astype(int), 0, source_frames - 2)
+    frac = pos - lo
+    weights = np.zeros((target_frames, source_frames))
+    rows = np.arange(target_frames)
+    weights[rows, lo] = 1.0 - frac
+    weights[rows, lo + 1] += frac
+    return weights
+
+
+def resample_frames(traj: Trajectories, target_frames: int) -> Trajectories:
+    """Linearly interpolate every trajectory in time to a different number of frames.
+
+    The first and last frames are kept; target frame j sits at source time
+    j * (F - 1) / (target_frames - 1). Used to feed a model trained on a fixed F with clips of
+    another length.
+
+    Args:
+        traj: Trajectories with data (N, 2F) float32.
+        target_frames: F' >= 1 (F' = 1 keeps the first frame).
+
+    Returns:
+        Trajectories with data (N, 2F') float32 and the same track_ids.
+
+    Raises:
+        InputError: target_frames < 1 or traj has no frames.
+    """
+    if target_frames < 1:
+        raise InputError(f"target_frames={target_frames} must be >= 1")
+    source_frames = traj.num_frames
+    if source_frames < 1:
+        raise InputError(f"trajectories have no frames (data shape {traj.data.shape})")
+    if target_frames == source_frames:
+        return traj
+    weights = _interp_weights(source_frames, target_frames)
+    xy = traj.data.reshape(traj.num_points, source_frames, 2).astype(np.float64)
+    out = np.einsum("ts,nsc->ntc", weights, xy).reshape(traj.num_points, 2 * target_frames)
+    return Trajectories(data=out.astype(np.float32), track_ids=traj.track_ids.copy())
