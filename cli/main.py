@@ -26,6 +26,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",  # docstring paragraphs wrap to the terminal instead of keeping source line breaks
 )
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -37,7 +38,8 @@ def _fail(message: str) -> None:
 
 
 def _friendly(fn: F) -> F:
-    """Turns MosegError (and bad option values) into one line on stderr and exit code 1."""
+    """Turns MosegError, OS errors (a full disk, a read-only folder) and Ctrl-C into one line on stderr
+    and exit code 1. Anything else is a bug and keeps its traceback."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -45,6 +47,9 @@ def _friendly(fn: F) -> F:
             return fn(*args, **kwargs)
         except MosegError as exc:
             _fail(str(exc))
+        except OSError as exc:
+            where = f"{exc.filename}: " if exc.filename else ""
+            _fail(f"{where}{exc.strerror or exc}")
         except KeyboardInterrupt:
             _fail("interrupted")
 
@@ -55,7 +60,18 @@ def _setup(threads: int, verbose: bool) -> None:
     from mosegpipe.runtime import set_threads
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if not verbose:
+        # FFmpeg inside OpenCV prints decoder complaints ("moov atom not found") straight to stderr;
+        # the failure they cause is reported once, as a moseg error. Read when the first video opens.
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     set_threads(threads)
+
+
+def _default_out(path: Path, suffix: str) -> Path:
+    """<name><suffix> beside the input (resolved, so that "." or "clip/" still have a name)."""
+    path = path.resolve()
+    return path.with_name(f"{path.stem}{suffix}")
 
 
 def _version(value: bool) -> None:
@@ -115,9 +131,10 @@ def _print_summary(summary: dict[str, Any], out: Path) -> None:
 @_friendly
 def run(
     clip: Annotated[Path, typer.Argument(help="A video file OpenCV can read, or a folder of frames.")],
-    frames: Annotated[int, typer.Option("--frames", "-f", min=2, help="Frames to segment (the paper uses 5).")] = 5,
-    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: <clip name>_moseg).")] = None,
-    whole: Annotated[bool, typer.Option("--whole", help="Segment the whole video in consecutive windows of --frames.")] = False,
+    frames: Annotated[int, typer.Option("--frames", "-f", min=2, help="Frames to segment (the paper uses 5); with --whole, the window length.")] = 5,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: beside the clip, named after it + '_moseg').")] = None,
+    whole: Annotated[bool, typer.Option("--whole", help="Segment the whole video in consecutive windows of --frames frames.")] = False,
+    max_frames: Annotated[Optional[int], typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")] = None,
     k: KOpt = None,
     k_method: KMethod = "residual",
     k_max: KMax = 8,
@@ -127,23 +144,32 @@ def run(
     threads: Threads = 1,
     verbose: Verbose = False,
 ) -> None:
-    """Segment the motions in the first --frames frames of CLIP (or the whole video with --whole)."""
+    """Segment the motions in the first --frames frames of CLIP (or the whole video with --whole).
+
+    Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ and recording.rrd into the
+    output folder; see docs/OUTPUTS.md. Exit code 1 with one 'moseg: error:' line on failure.
+    """
     _setup(threads, verbose)
-    from mosegpipe.pipeline import load_model, segment_clip, write_clip_outputs
+    from mosegpipe.pipeline import check_output_dir, load_model, segment_clip, write_clip_outputs
 
     cfg = _pipeline_cfg(frames, k, k_method, k_max)
     if not clip.exists():
         raise InputError(f"{clip}: no such file or folder")
-    out = out or clip.with_name(f"{clip.stem}_moseg")
+    if max_frames is not None and not whole:
+        raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
+    out = out or _default_out(clip, "_moseg")
+    check_output_dir(out, overwrite)
     net = load_model(frames, model)
     if whole:
         from mosegpipe.video import segment_video
 
-        summary = segment_video(clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd)
+        summary = segment_video(clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=max_frames)
         typer.echo(
-            f"{summary['frames']} frames in {summary['num_windows']} windows -> {summary['num_motions']} motion labels; "
-            f"{summary['fps']:.1f} frames/s; wrote {out}/"
+            f"{summary['frames']} frames in {summary['num_windows']} windows of {summary['window_frames']} "
+            f"({summary['num_windows_labelled']} labelled) -> {summary['num_motions']} motion labels"
         )
+        typer.echo(f"{summary['seconds']:.1f} s, {summary['processing_fps']:.1f} frames/s")
+        typer.echo(f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.avi" + (", recording.rrd)" if not no_rrd else ")"))
         return
     result = segment_clip(clip, cfg, net)
     summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
@@ -155,7 +181,7 @@ def run(
 def pair(
     img1: Annotated[Path, typer.Argument(help="First image.")],
     img2: Annotated[Path, typer.Argument(help="Second image (may differ in size).")],
-    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: <img1 name>_pair_moseg).")] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg').")] = None,
     k: KOpt = None,
     k_method: KMethod = "residual",
     k_max: KMax = 8,
@@ -167,13 +193,14 @@ def pair(
 ) -> None:
     """Segment the motions between two images from SIFT matches; outliers get their own label."""
     _setup(threads, verbose)
-    from mosegpipe.pipeline import load_model, segment_pair, write_pair_outputs
+    from mosegpipe.pipeline import check_output_dir, load_model, segment_pair, write_pair_outputs
 
     cfg = _pipeline_cfg(2, k, k_method, k_max)
     for p in (img1, img2):
-        if not p.exists():
-            raise InputError(f"{p}: no such file")
-    out = out or img1.with_name(f"{img1.stem}_pair_moseg")
+        if not p.is_file():
+            raise InputError(f"{p}: no such image file")
+    out = out or _default_out(img1, "_pair_moseg")
+    check_output_dir(out, overwrite)
     result = segment_pair(img1, img2, cfg, load_model(2, model))
     summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
     _print_summary(summary, out)
@@ -194,44 +221,83 @@ def batch(
     threads: Threads = 1,
     verbose: Verbose = False,
 ) -> None:
-    """Segment every clip under FOLDER; failures are reported and skipped, re-runs resume."""
+    """Segment every clip under FOLDER (video files and frame folders, searched recursively).
+
+    Each clip gets its own sub-folder of --out (as from 'moseg run'), and batch_summary.csv/json
+    list every clip with its status. A clip that fails is reported and the others go on; a re-run
+    skips the clips already done (resume). Exit code: 0 when every clip was segmented or skipped,
+    1 when any clip failed (after all the others were processed and the summary written).
+    """
     _setup(threads, verbose)
+    from rich.markup import escape
     from rich.progress import Progress
 
     from mosegpipe.batch import plan, run_batch
     from mosegpipe.pipeline import load_model
 
     cfg = _pipeline_cfg(frames, k, k_method, k_max)
-    total = len(plan(folder, out))
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder; choose another --out")
+    items = plan(folder, out)
+    if not items:
+        raise InputError(f"{folder}: no video files or frame folders found")
+    net = load_model(frames, model)
     with Progress(transient=True) as bar:
-        task = bar.add_task("segmenting", total=total)
+        task = bar.add_task("segmenting", total=len(items))
 
         def step(item: Any, row: dict[str, Any]) -> None:
             bar.advance(task)
             if row["status"] == "failed":
-                bar.console.print(f"[red]failed[/red] {item.name}: {row['error']}")
+                bar.console.print(f"[red]failed[/red] {escape(item.name)}: {escape(row['error'])}")
 
-        rows = run_batch(folder, out, cfg, load_model(frames, model), rrd=not no_rrd, overwrite=overwrite, on_item=step)
-    width = max(len(r["name"]) for r in rows)
-    typer.echo(f"{'clip':<{width}}  status   K  tracks  seconds")
+        rows = run_batch(folder, out, cfg, net, rrd=not no_rrd, overwrite=overwrite, on_item=step)
+    width = max(4, *(len(r["name"]) for r in rows))
+    typer.echo(f"{'clip':<{width}}  status    K  tracks  seconds")
     for r in rows:
-        typer.echo(f"{r['name']:<{width}}  {r['status']:<7} {r['k']!s:>2}  {r['tracks']!s:>6}  {r['seconds']!s:>7}")
+        typer.echo(f"{r['name']:<{width}}  {r['status']:<7} {r['k']!s:>3}  {r['tracks']!s:>6}  {r['seconds']!s:>7}")
     counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "skipped", "failed")}
-    typer.echo(f"{counts['ok']} segmented, {counts['skipped']} skipped (done earlier), {counts['failed']} failed; see {out}/batch_summary.csv")
+    typer.echo(
+        f"{counts['ok']} segmented, {counts['skipped']} skipped (done earlier), {counts['failed']} failed; "
+        f"wrote {out}/batch_summary.csv and batch_summary.json"
+    )
+    if counts["failed"]:
+        _fail(f"{counts['failed']} of {len(rows)} clips failed (reasons in {out}/batch_summary.csv)")
+
+
+def _find_viewer() -> str | None:
+    """The `rerun` executable: on PATH, else beside this Python (a virtualenv not on PATH)."""
+    import shutil
+
+    beside = Path(sys.executable).with_name("rerun")
+    return shutil.which("rerun") or (str(beside) if beside.is_file() else None)
+
+
+def _has_display() -> bool:
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
 
 
 @app.command()
 @_friendly
-def view(recording: Annotated[Path, typer.Argument(help="A .rrd recording written by moseg.")]) -> None:
-    """Open a recording in the Rerun viewer (ships with rerun-sdk)."""
-    import shutil
-
+def view(
+    recording: Annotated[Path, typer.Argument(help="A .rrd recording written by moseg.")],
+    web: Annotated[bool, typer.Option("--web", help="Serve the viewer to a web browser instead of opening a window.")] = False,
+) -> None:
+    """Open a recording in the Rerun viewer (the 'rerun' program that ships with rerun-sdk)."""
     if not recording.is_file():
         raise InputError(f"{recording}: no such recording")
-    exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    if not Path(exe).exists():
-        raise InputError("the rerun viewer was not found next to this Python (pip install rerun-sdk)")
-    os.execv(exe, [exe, str(recording)])
+    exe = _find_viewer()
+    if exe is None:
+        raise InputError(
+            "the Rerun viewer ('rerun') was not found on PATH or beside this Python; install rerun-sdk, "
+            f"or open {recording} at https://rerun.io/viewer"
+        )
+    if not web and not _has_display():
+        raise InputError(f"no display to open a window on (DISPLAY is unset); try 'moseg view --web {recording}'")
+    args = [exe, "--web-viewer", str(recording)] if web else [exe, str(recording)]
+    sys.stdout.flush()
+    os.execv(exe, args)
 
 
 def _data_root(data_root: Optional[Path]) -> Path:

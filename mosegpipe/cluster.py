@@ -46,6 +46,8 @@ class ClusterConfig:
         min_elbow: "residual" answers K = 1 unless some K >= 2 scores above this (scores lie in
             [-1, 1]; see cluster_auto_k for measured values).
         min_silhouette: "silhouette" answers K = 1 unless the best silhouette exceeds this.
+        one_motion_spread: K = 1 is considered only when the mean squared distance to the centroid
+            is at most this fraction of the mean squared norm.
         min_spread: when the mean squared distance to the centroid is below this fraction of the
             mean squared norm, the embeddings are one point up to noise and K = 1 outright.
     """
@@ -64,6 +66,12 @@ class ClusterConfig:
     # noise 0.05-0.15 with E = 5; 0.25 (Kaufman & Rousseeuw's "no structure") is too low for E=3.
     min_silhouette: float = 0.4
     min_spread: float = 1e-4  # RMS distance 0.01 on the unit sphere: identical up to noise
+    # K = 1 is a candidate only when the mean squared distance to the centroid is at most this
+    # fraction of the mean squared norm (RMS distance 0.32 on the unit sphere). Trained embeddings
+    # of several motions spread far wider; without this gate the K = 1 threshold score beat the
+    # elbow of loosely clustered multi-motion embeddings (zero-shot AdelaideRMF: K = 1 on 14 of 19
+    # pairs). Calibrated on synthetic one-body clips: docs/RESULTS.md.
+    one_motion_spread: float = 0.1
 
     def __post_init__(self) -> None:
         if self.method not in _METHODS:
@@ -82,6 +90,8 @@ class ClusterConfig:
             raise InputError(f"min_silhouette={self.min_silhouette} must lie in [-1, 1]")
         if not 0.0 <= self.min_spread < 1.0:
             raise InputError(f"min_spread={self.min_spread} must lie in [0, 1)")
+        if not 0.0 <= self.one_motion_spread <= 1.0:
+            raise InputError(f"one_motion_spread={self.one_motion_spread} must lie in [0, 1]")
 
 
 def _check_embeddings(emb: npt.ArrayLike) -> npt.NDArray[np.float64]:
@@ -204,11 +214,12 @@ def cluster_auto_k(
        score(K) = d(K) - d(K+1), a second-order difference on a relative scale: large when the
        residual collapses at K and flattens after it, as for well-separated groups. Relative
        drops make the score scale-free and little affected by unequal cluster sizes; it lies in
-       [-1, 1]. K = 1 gets the score min_elbow, so it wins exactly when no K >= 2 exceeds it
-       (one Gaussian blob of N >= 100 points in E >= 3 dimensions scores at most 0.15).
+       [-1, 1]. When the spread r(1) is at most one_motion_spread * S, K = 1 is a candidate with
+       the score min_elbow, so it wins exactly when no K >= 2 exceeds it (one Gaussian blob of
+       N >= 100 points in E >= 3 dimensions scores at most 0.15); wider spreads never give K = 1.
     3. "silhouette": mean silhouette coefficient (scikit-learn, Euclidean) of the K-means labels
-       for K in [max(2, k_min), min(k_max, N - 1)]. K = 1 gets the score min_silhouette, so it
-       wins exactly when no K >= 2 exceeds it.
+       for K in [max(2, k_min), min(k_max, N - 1)]. K = 1 (under the same spread gate) gets the
+       score min_silhouette, so it wins exactly when no K >= 2 exceeds it.
 
     With k_min >= 2, K = 1 is never a candidate and the best K >= k_min wins. Ties go to the
     smaller K. When no candidate exists (N <= 2 or k_min > N - 1) the answer is
@@ -276,7 +287,7 @@ def cluster_auto_k(
             with threadpool_limits(cfg.num_threads):
                 scores[kk] = float(silhouette_score(x, fits[kk]))
         threshold = cfg.min_silhouette
-    if cfg.k_min == 1:
+    if cfg.k_min == 1 and spread <= cfg.one_motion_spread * total:
         scores = {1: float(threshold), **scores}
         fits[1] = np.zeros(n, dtype=np.int64)
     best = max(scores, key=lambda kk: (scores[kk], -kk))

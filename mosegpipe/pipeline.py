@@ -7,9 +7,11 @@ renamed when complete), so a failure never leaves half an output behind.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import shutil
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,11 +22,11 @@ import numpy.typing as npt
 
 from mosegpipe import __version__
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.errors import InputError, OutputExistsError, TooFewTracksError
-from mosegpipe.io import default_palette, read_image, read_video, write_json, write_npz, write_palette_png
-from mosegpipe.masks import MaskConfig, labels_to_mask, labels_to_masks
+from mosegpipe.errors import CheckpointError, InputError, OutputExistsError, TooFewTracksError
+from mosegpipe.io import default_palette, read_image, read_video, video_info, write_json, write_npz, write_palette_png
+from mosegpipe.masks import MaskConfig, labels_to_mask, labels_to_masks, overlay_mask
 from mosegpipe.match import MatchConfig, match_sift
-from mosegpipe.model import SubspaceNet
+from mosegpipe.model import SubspaceNet, available_default_frames
 from mosegpipe.track import TrackConfig, track_klt
 from mosegpipe.trajectories import build_trajectories, resample_frames, trajectories_from_matches
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
@@ -117,15 +119,24 @@ def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet
 
     Clips whose frame count has no shipped model are served by the 5-frame model after temporal
     resampling of each trajectory (see trajectories.resample_frames).
+
+    Args:
+        frames: F, the trajectory length the model will see (2 = image pairs).
+        checkpoint: a checkpoint file to load instead of the shipped weights.
+
+    Returns:
+        The model in eval mode.
+
+    Raises:
+        CheckpointError: the checkpoint is missing, corrupt or not a SubspaceNet, or no weights are shipped.
     """
     if checkpoint is not None:
         return SubspaceNet.from_checkpoint(checkpoint)
-    if frames == 2:
-        return SubspaceNet.default(frames=2)
-    from mosegpipe.model import available_default_frames
-
-    available = available_default_frames()
-    return SubspaceNet.default(frames=frames if frames in available else 5)
+    shipped = 2 if frames == 2 else frames if frames in available_default_frames() else 5
+    try:
+        return SubspaceNet.default(frames=shipped)
+    except CheckpointError as exc:
+        raise CheckpointError(f"{exc}; pass --model CHECKPOINT to use other weights") from exc
 
 
 def _model_info(model: SubspaceNet) -> dict[str, Any]:
@@ -144,22 +155,59 @@ def _embed(model: SubspaceNet, traj: Trajectories) -> npt.NDArray[np.float32]:
     return model.embed(traj.data)
 
 
-def _check_k(k: int | None, n: int) -> None:
-    if k is not None and (k < 1 or k > n):
-        raise InputError(f"--k {k} is larger than the number of tracks ({n})" if k > n else f"--k {k} must be >= 1")
+def _check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
+    if k is not None and k < 1:
+        raise InputError(f"--k {k} must be >= 1")
+    if k is not None and k > n:
+        raise InputError(f"{source}: --k {k} is larger than the number of {what} ({n})")
+
+
+def _model_or_default(model: SubspaceNet | None, frames: int, timings: dict[str, float]) -> SubspaceNet:
+    if model is not None:
+        return model
+    t0 = time.perf_counter()
+    model = load_model(frames)
+    timings["load_model"] = time.perf_counter() - t0
+    return model
+
+
+@contextlib.contextmanager
+def decode_errors(source: str | Path) -> Iterator[None]:
+    """Turns what OpenCV or the OS raise while reading a broken input into an InputError naming it.
+
+    The readers raise InputError for the failures they foresee; a corrupt stream can still make an
+    OpenCV decoder throw cv2.error, and an unreadable file raise OSError (permissions, I/O errors).
+    Wrap reads only: an OSError while writing outputs is not the input's fault.
+
+    Raises:
+        InputError: in place of cv2.error or OSError raised in the block.
+    """
+    try:
+        yield
+    except (cv2.error, OSError) as exc:
+        lines = str(exc).strip().splitlines()
+        detail = " ".join(lines[-1].split())[:200] if lines else type(exc).__name__
+        raise InputError(f"{source}: cannot read it ({detail})") from exc
 
 
 def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None) -> ClipResult:
     """Segments the motions in a short stack of frames.
 
+    Args:
+        frames: Frames with images (T, H, W, 3) uint8 RGB; every frame is segmented.
+        cfg: pipeline settings (cfg.frames is not used here: T is what the frames hold).
+        model: the model (None = the shipped default for T frames).
+
+    Returns:
+        ClipResult; its masks are (T, H, W) uint8 with 0 = unknown and k + 1 = motion k.
+
     Raises:
         TooFewTracksError: fewer than cfg.min_tracks tracks live through all frames.
         InputError: cfg.k larger than the number of tracks.
+        CheckpointError: no model given and no shipped weights.
     """
     timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    model = model or load_model(frames.num_frames)
-    timings["load_model"] = time.perf_counter() - t0
+    model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     tracks = track_klt(frames, cfg.track)
     timings["track"] = time.perf_counter() - t0
@@ -169,7 +217,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
             f"{frames.source or 'clip'}: only {traj.num_points} tracks survived {frames.num_frames} frames; "
             f"need at least {cfg.min_tracks} (textureless or blank frames?)"
         )
-    _check_k(cfg.k, traj.num_points)
+    _check_k(cfg.k, traj.num_points, frames.source or "clip")
     t0 = time.perf_counter()
     emb = _embed(model, traj)
     timings["embed"] = time.perf_counter() - t0
@@ -182,12 +230,38 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, _model_info(model))
 
 
+def _container_frames(path: str | Path) -> int | None:
+    """The frame count a video container claims (None for folders, images or when it does not say)."""
+    try:
+        with decode_errors(path):
+            info = video_info(path)
+    except InputError:
+        return None
+    return info["num_frames"] if info["kind"] == "video" else None
+
+
 def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None) -> ClipResult:
-    """Reads the first cfg.frames frames of a video file or frame folder and segments them."""
+    """Reads the first cfg.frames frames of a video file or frame folder and segments them.
+
+    Args:
+        path: a video file OpenCV can read or a folder of images (sorted by name).
+        cfg: pipeline settings; cfg.frames frames are read.
+        model: the model (None = the shipped default for cfg.frames).
+
+    Returns:
+        ClipResult (timings also hold "read").
+
+    Raises:
+        InputError: missing, unreadable, corrupt or truncated input, or fewer than cfg.frames frames.
+        TooFewTracksError: see segment_frames.
+    """
     t0 = time.perf_counter()
-    frames = read_video(path, max_frames=cfg.frames)
+    with decode_errors(path):
+        frames = read_video(path, max_frames=cfg.frames)
     if frames.num_frames < cfg.frames:
-        raise InputError(f"{path}: only {frames.num_frames} frames, --frames needs {cfg.frames}")
+        claimed = _container_frames(path)
+        hint = f" of the {claimed} its header lists (truncated or corrupt video?)" if claimed and claimed > frames.num_frames else ""
+        raise InputError(f"{path}: only {frames.num_frames} frames could be read{hint}; --frames needs {cfg.frames}")
     read_s = time.perf_counter() - t0
     result = segment_frames(frames, cfg, model)
     result.timings = {"read": read_s, **result.timings}
@@ -218,19 +292,40 @@ def segment_pair(
     cfg: PipelineConfig = PipelineConfig(frames=2),
     model: SubspaceNet | None = None,
 ) -> PairResult:
-    """Segments the motions between two images (they may differ in size); outliers get label -1."""
+    """Segments the motions between two images (they may differ in size); outliers get label -1.
+
+    Args:
+        img1, img2: image files, or (H_i, W_i, 3) uint8 RGB arrays.
+        cfg: pipeline settings (cfg.frames is not used: a pair is 2 frames).
+        model: the model (None = the shipped 2-frame default).
+
+    Returns:
+        PairResult.
+
+    Raises:
+        InputError: a missing or unreadable image, or cfg.k larger than the number of matches.
+        TooFewTracksError: fewer than cfg.min_tracks SIFT matches.
+    """
     timings: dict[str, float] = {}
-    im1 = read_image(img1) if not isinstance(img1, np.ndarray) else img1
-    im2 = read_image(img2) if not isinstance(img2, np.ndarray) else img2
-    t0 = time.perf_counter()
-    model = model or load_model(2)
-    timings["load_model"] = time.perf_counter() - t0
+    images = []
+    for img in (img1, img2):
+        if isinstance(img, np.ndarray):
+            images.append(img)
+            continue
+        with decode_errors(img):
+            images.append(read_image(img))
+    im1, im2 = images
+    names = " and ".join(str(i) if not isinstance(i, np.ndarray) else "<array>" for i in (img1, img2))
+    model = _model_or_default(model, 2, timings)
     t0 = time.perf_counter()
     matches = match_sift(im1, im2, cfg.match)
     timings["match"] = time.perf_counter() - t0
     if matches.num_matches < cfg.min_tracks:
-        raise TooFewTracksError(f"only {matches.num_matches} matches between the images; need at least {cfg.min_tracks}")
-    _check_k(cfg.k, matches.num_matches)
+        raise TooFewTracksError(
+            f"{names}: only {matches.num_matches} SIFT matches; need at least {cfg.min_tracks} "
+            "(blank, textureless or unrelated images?)"
+        )
+    _check_k(cfg.k, matches.num_matches, names, "matches")
     traj = trajectories_from_matches(matches)
     t0 = time.perf_counter()
     emb = _embed(model, traj)
@@ -253,15 +348,43 @@ def segment_pair(
     return PairResult((im1, im2), matches, emb, clustering, labels, outlier, masks, timings, _model_info(model))
 
 
+def check_output_dir(out_dir: str | Path, overwrite: bool) -> None:
+    """Fails early when `out_dir` cannot receive a run's outputs.
+
+    An absent or empty folder is fine. A folder holding files is refused unless `overwrite`, and
+    even then only when it is a moseg output folder (holds summary.json): --overwrite never deletes
+    a folder of other files (an input folder given as --out by mistake, a home directory).
+
+    Raises:
+        OutputExistsError: it holds results and overwrite is False.
+        InputError: it is a file, or it holds files that are not a moseg output.
+    """
+    out = Path(out_dir)
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder; choose another --out")
+    if not any(out.iterdir()):
+        return
+    if not overwrite:
+        raise OutputExistsError(f"{out}: already holds results; pass --overwrite to replace them")
+    if not (out / "summary.json").is_file():
+        raise InputError(f"{out}: holds files but no summary.json, so it is not a moseg output; refusing to replace it")
+
+
 class _OutputDir:
-    """Builds an output folder under a temporary name; renames it into place only when complete."""
+    """Builds an output folder under a temporary name; renames it into place only when complete.
+
+    The temporary folder `.NAME.partial` sits beside the final one (same file system, so the rename
+    is atomic). On an exception (KeyboardInterrupt included) it is removed and the final folder is
+    left as it was; on success an existing final folder is replaced (see check_output_dir).
+    """
 
     def __init__(self, out_dir: Path, overwrite: bool) -> None:
-        self.final = Path(out_dir)
-        if self.final.exists() and any(self.final.iterdir()) and not overwrite:
-            raise OutputExistsError(f"{self.final}: already holds results; pass --overwrite to replace them")
+        check_output_dir(out_dir, overwrite)
+        # absolute(): "." or "" has no name to build the temporary sibling from.
+        self.final = Path(out_dir).absolute()
         self.tmp = self.final.with_name(f".{self.final.name}.partial")
-        self.overwrite = overwrite
 
     def __enter__(self) -> Path:
         if self.tmp.exists():
@@ -295,15 +418,16 @@ def overlay_image(
     Args:
         image: (H, W, 3) uint8 RGB.
         mask: (H, W) uint8 mask values (0 = unknown, left unblended) or None.
-        xy: (N, 2) pixel positions of the tracks in this image.
-        labels: (N,) labels (-1 = outlier, drawn as a small grey cross).
+        xy: (N, 2) float32 pixel positions of the tracks in this image.
+        labels: (N,) int64 labels (-1 = outlier, drawn as a small grey cross); colour = palette[label + 1],
+            the colour of the mask value label + 1.
+        alpha: weight of the mask colour, 0..1.
+
+    Returns:
+        (H, W, 3) uint8 RGB.
     """
     palette = default_palette()
-    out = image.copy()
-    if mask is not None:
-        colour = palette[mask]
-        known = mask > 0
-        out[known] = (alpha * colour[known] + (1 - alpha) * out[known]).astype(np.uint8)
+    out = overlay_mask(image, mask, palette, alpha) if mask is not None else image.copy()
     for (x, y), lab in zip(np.round(xy).astype(int), labels):
         if lab < 0:
             cv2.drawMarker(out, (int(x), int(y)), (160, 160, 160), cv2.MARKER_TILTED_CROSS, 5, 1)
@@ -329,6 +453,7 @@ def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
         "kind": "clip",
         "source": result.frames.source,
         "version": __version__,
+        "start": result.frames.start,
         "frames": result.frames.num_frames,
         "size_hw": list(result.frames.size_hw),
         "k": c.k,
@@ -348,8 +473,21 @@ def write_clip_outputs(
 ) -> dict[str, Any]:
     """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg and recording.rrd atomically.
 
+    The folder layout and every field are documented in docs/OUTPUTS.md. Mask and overlay files are
+    named after the source frame index (000000.png, ...).
+
+    Args:
+        result: what segment_clip / segment_frames returned.
+        out_dir: output folder; built under a temporary name and renamed when complete.
+        cfg: the settings the result was computed with (recorded in summary.json).
+        overwrite: replace an existing moseg output folder.
+        rrd: also write the Rerun recording.
+
     Returns:
         The summary dict that was written.
+
+    Raises:
+        OutputExistsError, InputError: see check_output_dir.
     """
     summary = clip_summary(result, cfg)
     with _OutputDir(Path(out_dir), overwrite) as tmp:
@@ -365,9 +503,11 @@ def write_clip_outputs(
         (tmp / "masks").mkdir()
         (tmp / "overlay").mkdir()
         for t in range(result.frames.num_frames):
-            write_palette_png(tmp / "masks" / f"{t:06d}.png", result.masks[t], palette)
+            name = f"{result.frames.start + t:06d}"
+            write_palette_png(tmp / "masks" / f"{name}.png", result.masks[t], palette)
             xy = result.tracks.xy[traj.track_ids, t]
-            _write_jpg(tmp / "overlay" / f"{t:06d}.jpg", overlay_image(result.frames.images[t], result.masks[t], xy, result.clustering.labels))
+            overlay = overlay_image(result.frames.images[t], result.masks[t], xy, result.clustering.labels)
+            _write_jpg(tmp / "overlay" / f"{name}.jpg", overlay)
         if rrd:
             from mosegpipe.viz import write_recording
 
@@ -421,11 +561,33 @@ def write_pair_outputs(
     sources: tuple[str, str] = ("", ""),
     rrd: bool = True,
 ) -> dict[str, Any]:
-    """Writes summary.json, labels.npz, masks/{0,1}.png, overlay/{0,1}.jpg and recording.rrd atomically."""
+    """Writes summary.json, labels.npz, masks/00000{0,1}.png, overlay/00000{0,1}.jpg and recording.rrd atomically.
+
+    Args:
+        result: what segment_pair returned.
+        out_dir: output folder; built under a temporary name and renamed when complete.
+        cfg: the settings the result was computed with (recorded in summary.json).
+        overwrite: replace an existing moseg output folder.
+        sources: the two image paths, for summary.json.
+        rrd: also write the Rerun recording.
+
+    Returns:
+        The summary dict that was written.
+
+    Raises:
+        OutputExistsError, InputError: see check_output_dir.
+    """
     summary = pair_summary(result, cfg, sources)
     with _OutputDir(Path(out_dir), overwrite) as tmp:
         m = result.matches
-        write_npz(tmp / "labels.npz", xy1=m.xy1, xy2=m.xy2, labels=result.labels, clusters=result.clustering.labels, embeddings=result.embeddings)
+        write_npz(
+            tmp / "labels.npz",
+            xy1=m.xy1,
+            xy2=m.xy2,
+            labels=result.labels,
+            clusters=result.clustering.labels,
+            embeddings=result.embeddings,
+        )
         palette = default_palette()
         (tmp / "masks").mkdir()
         (tmp / "overlay").mkdir()
@@ -435,6 +597,17 @@ def write_pair_outputs(
         if rrd:
             from mosegpipe.viz import write_pair_recording
 
-            write_pair_recording(tmp / "recording.rrd", result.images, m, result.labels, result.embeddings, result.masks, result.clustering.scores, result.clustering.k)
+            t0 = time.perf_counter()
+            write_pair_recording(
+                tmp / "recording.rrd",
+                result.images,
+                m,
+                result.labels,
+                result.embeddings,
+                result.masks,
+                result.clustering.scores,
+                result.clustering.k,
+            )
+            summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
         write_json(tmp / "summary.json", summary)
     return summary

@@ -44,6 +44,7 @@ def sphere_blobs(
         ({"num_threads": 0}, "num_threads=0"),
         ({"min_elbow": 2.0}, "min_elbow=2.0"),
         ({"min_spread": -1.0}, "min_spread=-1.0"),
+        ({"one_motion_spread": 1.5}, "one_motion_spread=1.5"),
     ],
 )
 def test_config_rejects_bad_values(kwargs: dict, message: str) -> None:
@@ -100,7 +101,7 @@ def test_auto_k_finds_separated_blobs(method: str, k: int) -> None:
     assert result.k == k
     assert result.method == method
     assert misclassification_error(result.labels, gt) == 0.0
-    assert sorted(result.scores) == list(range(1, 9))
+    assert sorted(result.scores) == list(range(2, 9))  # wide spread: K = 1 is no candidate
     assert max(result.scores, key=result.scores.__getitem__) == k
 
 
@@ -119,7 +120,7 @@ def test_residual_scores_match_hand_computed_elbow() -> None:
     assert result.k == 4
     for kk in (2, 3, 4):
         assert result.scores[kk] == pytest.approx(d[kk] - d[kk + 1], abs=1e-9)
-    assert result.scores[1] == ClusterConfig().min_elbow
+    assert 1 not in result.scores
 
 
 def test_residual_picks_one_cluster_for_a_single_blob() -> None:
@@ -139,6 +140,18 @@ def test_identical_embeddings_give_one_cluster_without_sweep() -> None:
     x = np.tile([[0.6, 0.8]], (50, 1)) + 1e-7 * np.random.default_rng(0).normal(size=(50, 2))
     result = cluster_auto_k(x)
     assert (result.k, result.scores) == (1, {1: 1.0})
+
+
+def test_wide_spread_never_gives_one_cluster() -> None:
+    # Two loose groups whose elbow scores stay below min_elbow: without the spread gate K = 1 won.
+    x, gt = sphere_blobs(2, n=200, noise=0.6, seed=3)
+    spread = float(((x - x.mean(axis=0)) ** 2).sum() / (x**2).sum())
+    assert spread > ClusterConfig().one_motion_spread
+    result = cluster_auto_k(x)
+    assert result.k >= 2
+    assert 1 not in result.scores
+    gated = cluster_auto_k(x, ClusterConfig(one_motion_spread=1.0))
+    assert 1 in gated.scores
 
 
 def test_k_min_two_excludes_one_cluster() -> None:

@@ -1,0 +1,215 @@
+"""Wall-clock speed of the pipeline on this machine, printed as Markdown tables.
+
+    python benchmarks/speed.py [--model PATH] [--data-root ../shared/data] [--video-frames 200]
+
+(a) `moseg run` on 5 frames at 640x480 (a rendered clip and the first frames of vtest.avi resized),
+    stage by stage: the first (cold) call after the imports, then the median of --repeats calls
+    after one warm-up call. "write" is masks + overlays + labels + summary, "rrd" the recording.
+(b) whole-video mode (`moseg run --whole`, mosegpipe.video.segment_video) on --video-frames frames
+    of a rendered 640x480 video (~900 tracks) and of vtest.avi resized to 640x480 (~400 tracks):
+    frames per second, vtest.avi with and without the Rerun recording.
+(c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
+
+Everything runs on one thread (mosegpipe.runtime.set_threads(1)), as `moseg` does by default.
+Without --model the shipped 5-frame weights are used, or, when there are none, an untrained
+SubspaceNet of the same size: the timings hold, the segmentations do not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+_T_START = time.perf_counter()
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from mosegpipe.cluster import cluster_auto_k  # noqa: E402
+from mosegpipe.model import ModelConfig, SubspaceNet  # noqa: E402
+from mosegpipe.pipeline import PipelineConfig, segment_clip, write_clip_outputs  # noqa: E402
+from mosegpipe.runtime import set_threads  # noqa: E402
+
+_IMPORT_S = time.perf_counter() - _T_START
+_DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+STAGES = ("read", "track", "embed", "cluster", "masks", "write", "rrd")
+
+
+def machine_info() -> str:
+    """One line: CPU model, cores, torch threads and versions, load average."""
+    model = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    load = " / ".join(f"{v:.2f}" for v in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
+    return (
+        f"{model} · nproc {usable} (cpu_count {os.cpu_count()}) · torch {torch.__version__} with "
+        f"{torch.get_num_threads()} thread(s) · OpenCV {cv2.__version__} with {cv2.getNumThreads()} thread(s) · "
+        f"Python {platform.python_version()} · load average {load}"
+    )
+
+
+def load_model(path: Path | None, frames: int = 5) -> tuple[SubspaceNet, str]:
+    """The model to time and a description of it."""
+    if path is not None:
+        t0 = time.perf_counter()
+        model = SubspaceNet.from_checkpoint(path)
+        return model, f"checkpoint {path} (loaded in {1000 * (time.perf_counter() - t0):.0f} ms)"
+    try:
+        return SubspaceNet.default(frames=frames), f"shipped weights for {frames} frames"
+    except Exception:  # noqa: BLE001 - any failure means: no usable shipped weights
+        torch.manual_seed(0)
+        return SubspaceNet(ModelConfig(in_dim=2 * frames)).eval(), "untrained SubspaceNet (no shipped weights; accuracy meaningless)"
+
+
+def write_video(frames: list[np.ndarray], path: Path, fps: float = 10.0) -> Path:
+    """RGB frames (H, W, 3) uint8 to an MJPG .avi."""
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    if not writer.isOpened():
+        sys.exit(f"speed.py: cannot write {path}")
+    for f in frames:
+        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    writer.release()
+    return path
+
+
+def resized_frames(video: Path, count: int, size_wh: tuple[int, int] = (640, 480)) -> list[np.ndarray]:
+    """The first `count` frames of a video, resized, RGB."""
+    from mosegpipe.io import iter_video
+
+    return [cv2.resize(f, size_wh, interpolation=cv2.INTER_AREA) for _, f in iter_video(video, max_frames=count)]
+
+
+def run_once(clip: Path, out: Path, model: SubspaceNet, cfg: PipelineConfig) -> tuple[dict[str, float], dict[str, Any]]:
+    """One `moseg run` (segment_clip + write_clip_outputs with the recording): seconds per stage."""
+    t0 = time.perf_counter()
+    result = segment_clip(clip, cfg, model)
+    t1 = time.perf_counter()
+    summary = write_clip_outputs(result, out, cfg, overwrite=True, rrd=True)
+    t2 = time.perf_counter()
+    times = {k: result.timings.get(k, 0.0) for k in ("read", "track", "embed", "cluster", "masks")}
+    times["rrd"] = float(summary["timings_s"].get("rrd", 0.0))
+    times["write"] = (t2 - t1) - times["rrd"]
+    times["total"] = t2 - t0
+    return times, summary
+
+
+def clip_table(clips: dict[str, Path], model: SubspaceNet, repeats: int, work: Path) -> str:
+    cfg = PipelineConfig(frames=5)
+    cols = [*STAGES, "total"]
+    lines = ["| input | call | tracks | K | " + " | ".join(f"{c} ms" for c in cols) + " |", "|" + "---|" * (len(cols) + 4)]
+    first = True
+    for name, path in clips.items():
+        out = work / f"out_{name}"
+        cold, summary = run_once(path, out, model, cfg)
+        if first:
+            label = "cold (1st call in process)"
+        else:
+            label = "1st call on this input"
+        runs = [run_once(path, out, model, cfg)[0] for _ in range(repeats)]
+        warm = {c: statistics.median(r[c] for r in runs) for c in cols}
+        info = f"{summary['num_tracks_segmented']} | {summary['k']}"
+        for lab, t in ((label, cold), (f"warm, median of {repeats}", warm)):
+            lines.append(f"| {name} | {lab} | {info} | " + " | ".join(f"{1000 * t[c]:.0f}" for c in cols) + " |")
+        first = False
+    return "\n".join(lines)
+
+
+def video_table(runs: list[tuple[str, Path, bool]], model: SubspaceNet, work: Path) -> str:
+    """Whole-video mode on each (name, video, with recording) run."""
+    from mosegpipe.video import segment_video
+
+    cfg = PipelineConfig(frames=5)
+    lines = ["| input | recording | frames | windows | mean tracks / window | motion labels | wall s | frames/s |", "|---|---|---|---|---|---|---|---|"]
+    for i, (name, video, rrd) in enumerate(runs):
+        t0 = time.perf_counter()
+        s = segment_video(video, work / f"video_{i}", cfg, model, overwrite=True, rrd=rrd)
+        seconds = time.perf_counter() - t0
+        tracks = np.mean([w["num_tracks"] for w in s["windows"]])
+        lines.append(
+            f"| {name} | {'yes' if rrd else 'no'} | {s['frames']} | {s['num_windows']} | {tracks:.0f} | "
+            f"{s['num_motions']} | {seconds:.2f} | {s['frames'] / seconds:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def kt3d_line(data_root: Path, model: SubspaceNet) -> str:
+    from mosegpipe.data.kt3dmoseg import kt3d_test_clips
+
+    clips = kt3d_test_clips(data_root, frames=5)
+    cluster_auto_k(model.embed(clips[0].traj))  # one-off costs out of the timing
+    per = []
+    for clip in clips:
+        t0 = time.perf_counter()
+        cluster_auto_k(model.embed(clip.traj))
+        per.append(time.perf_counter() - t0)
+    n = sum(c.num_points for c in clips)
+    return (
+        f"| {len(clips)} KT3DMoSeg test clips | {n} | {sum(per):.3f} | {1000 * statistics.median(per):.1f} | "
+        f"{1000 * max(per):.1f} |"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", type=Path, default=None, help="5-frame checkpoint (default: shipped weights or untrained)")
+    ap.add_argument("--data-root", type=Path, default=Path(os.environ.get("MOSEG_DATA", _DEFAULT_DATA)))
+    ap.add_argument("--video-frames", type=int, default=200, help="frames of the videos in whole-video mode")
+    ap.add_argument("--repeats", type=int, default=3, help="warm calls per input in (a)")
+    ap.add_argument("--skip", nargs="*", default=[], choices=["clip", "video", "kt3d"])
+    args = ap.parse_args(argv)
+
+    set_threads(1)
+    model, model_desc = load_model(args.model)
+    vtest = args.data_root / "videos" / "vtest.avi"
+    print("# mosegpipe speed\n")
+    print(f"machine: {machine_info()}\n")
+    print(f"model: {model_desc}\n")
+    print(f"imports (cv2, numpy, torch, mosegpipe pipeline): {_IMPORT_S:.2f} s\n")
+    with tempfile.TemporaryDirectory(prefix="moseg_speed_") as tmp:
+        work = Path(tmp)
+        if "clip" not in args.skip:
+            from mosegpipe.render import RenderConfig, render_clip, write_clip
+
+            rendered = render_clip(RenderConfig(size_hw=(480, 640), frames=5, num_objects=2, seed=0, camera_motion="handheld"))
+            clips = {"rendered": write_clip(rendered, work / "rendered", video=True) / "clip.avi"}
+            if vtest.is_file():
+                clips["vtest.avi"] = write_video(resized_frames(vtest, 5), work / "vtest5.avi")
+            print("## (a) `moseg run` on 5 frames at 640x480 (stage times in ms)\n")
+            print(clip_table(clips, model, args.repeats, work) + "\n")
+        if "video" not in args.skip:
+            from mosegpipe.render import RenderConfig, render_clip
+
+            n = args.video_frames
+            long_clip = render_clip(RenderConfig(size_hw=(480, 640), frames=n, num_objects=3, seed=1, camera_motion="handheld"))
+            runs = [(f"rendered {n} frames 640x480", write_video(list(long_clip.frames), work / "rendered_long.avi"), False)]
+            if vtest.is_file():
+                video = write_video(resized_frames(vtest, n), work / "vtest_long.avi")
+                runs += [(f"vtest.avi {n} frames 640x480", video, False), (f"vtest.avi {n} frames 640x480", video, True)]
+            print("## (b) whole-video mode (`moseg run --whole`, windows of 5 frames)\n")
+            print(video_table(runs, model, work) + "\n")
+        if "kt3d" not in args.skip:
+            if (args.data_root / "kt3dmoseg").is_dir():
+                print("## (c) embedding + automatic K on the KT3DMoSeg test clips (one thread)\n")
+                print("| clips | points | total s | median ms / clip | max ms / clip |\n|---|---|---|---|---|")
+                print(kt3d_line(args.data_root, model) + "\n")
+            else:
+                print(f"(c) skipped: {args.data_root / 'kt3dmoseg'} not found\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,721 @@
+"""End-to-end scores: the whole pipeline (tracking or matching included) against benchmark ground truth.
+
+The benchmark protocols in evaluate.py feed SubspaceNet the datasets' own trajectories. Here the
+pipeline finds its own points (KLT tracks, SIFT matches) as it would on a user's video, and the
+ground truth is carried over to them:
+
+- "kt3d-video": the first F frames of each KT3DMoSeg sequence go through `segment_frames`. Each of our
+  tracks takes the label of the nearest ground-truth trajectory in frame 1 (among those visible in
+  frame 1, not only those visible in all F frames: more of the image is covered that way). The
+  ground-truth trajectories were seeded on a regular 8 px grid (integer coordinates), so our corners
+  sit up to ~5.7 px from the nearest seed: within 3 px only ~5 % of our tracks find one, within 5 px
+  ~15 %. The default radius is therefore 5 px. A match is dropped when the ground-truth trajectory
+  is also visible in frame F and lies more than twice the radius from our track there (the two
+  points followed different surfaces, e.g. across an object boundary). Tracks without a match are
+  not scored. The KT3DMoSeg coordinates may be 1-based (MATLAB); at most 1 px, well inside the radius.
+- "adelaide-pairs": each AdelaideRMF pair goes through `segment_pair`. Our match takes the label of
+  the nearest ground-truth correspondence in image 1 within 3 px, kept only when the two agree in
+  image 2 within 3 px as well. The release's coordinates sit about +0.75 px from OpenCV's SIFT
+  keypoints in x and y (measured: median offset of nearby points on every pair; a 1-based,
+  VLFeat-style convention), well inside the radius. Ground-truth gross outliers (label 0) count as
+  one group and our outliers (label -1) as one more predicted group, as in the dataset protocol.
+- "rendered": synthetic clips from mosegpipe.render with exact per-pixel masks; the dense masks are
+  scored with the DAVIS region similarity J and boundary F-measure (see `mask_scores`), and the
+  tracks with the misclassification error against the mask value under each track in frame 1.
+
+Every protocol returns one row (dict) per clip; `summarize_rows` and `format_rows` turn rows into a
+summary and a Markdown table. A clip that the pipeline cannot segment (too few tracks) gives a row
+with error NaN and is counted in the summary's "num_unscored".
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from mosegpipe.errors import MosegError
+from mosegpipe.metrics import misclassification_error
+from mosegpipe.model import SubspaceNet
+from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair
+from mosegpipe.types import Frames
+
+log = logging.getLogger(__name__)
+
+KT3D_MAX_DIST_PX = 5.0
+"""Label-transfer radius for KT3DMoSeg, pixels (its ground truth lies on an 8 px grid; see module doc)."""
+
+ADELAIDE_MAX_DIST_PX = 3.0
+"""Label-transfer radius for AdelaideRMF in each image, pixels."""
+
+BOUNDARY_TOLERANCE = 0.008
+"""DAVIS boundary tolerance as a fraction of the image diagonal (6.4 -> 7 px at 640x480)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Label transfer
+
+
+def _as_points(name: str, xy: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    arr = np.asarray(xy, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (N, 2), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} of shape {arr.shape} holds NaN or inf")
+    return arr
+
+
+def nearest_within(
+    our_xy: npt.ArrayLike, gt_xy: npt.ArrayLike, max_dist_px: float
+) -> npt.NDArray[np.int64]:
+    """Index of the nearest ground-truth point within a radius, for each of our points.
+
+    Args:
+        our_xy: (N, 2) pixel coordinates of our points.
+        gt_xy: (M, 2) pixel coordinates of the ground-truth points.
+        max_dist_px: largest accepted Euclidean distance, pixels (inclusive).
+
+    Returns:
+        (N,) int64 row of gt_xy, or -1 where no ground-truth point lies within max_dist_px.
+
+    Raises:
+        ValueError: bad shapes, NaN/inf coordinates or a negative radius.
+    """
+    ours = _as_points("our_xy", our_xy)
+    gt = _as_points("gt_xy", gt_xy)
+    if not max_dist_px >= 0:
+        raise ValueError(f"max_dist_px={max_dist_px} must be >= 0")
+    out = np.full(ours.shape[0], -1, dtype=np.int64)
+    if ours.shape[0] == 0 or gt.shape[0] == 0:
+        return out
+    # cKDTree's bound is strict; nudge it so that a point exactly at max_dist_px is accepted.
+    dist, idx = cKDTree(gt).query(ours, k=1, distance_upper_bound=np.nextafter(max_dist_px, np.inf))
+    found = np.isfinite(dist)
+    out[found] = idx[found]
+    return out
+
+
+def transfer_labels(
+    our_xy: npt.ArrayLike,
+    gt_xy: npt.ArrayLike,
+    gt_labels: npt.ArrayLike,
+    max_dist_px: float = 3.0,
+) -> npt.NDArray[np.int64]:
+    """Ground-truth label of the nearest ground-truth point within a radius.
+
+    Args:
+        our_xy: (N, 2) pixel coordinates of our points (tracks in one frame, or matches in one image).
+        gt_xy: (M, 2) pixel coordinates of the labelled ground-truth points in the same frame.
+        gt_labels: (M,) non-negative integer labels of the ground-truth points.
+        max_dist_px: largest accepted distance, pixels (inclusive).
+
+    Returns:
+        (N,) int64 label, -1 where no ground-truth point lies within max_dist_px.
+
+    Raises:
+        ValueError: bad shapes, NaN/inf coordinates, negative labels or radius.
+    """
+    labels = np.asarray(gt_labels)
+    gt = _as_points("gt_xy", gt_xy)
+    if labels.shape != (gt.shape[0],):
+        raise ValueError(f"gt_labels has shape {labels.shape}, expected ({gt.shape[0]},)")
+    if labels.size and (not np.issubdtype(labels.dtype, np.integer) or labels.min() < 0):
+        raise ValueError("gt_labels must be non-negative integers (-1 marks unmatched points)")
+    idx = nearest_within(our_xy, gt, max_dist_px)
+    out = np.full(idx.shape, -1, dtype=np.int64)
+    out[idx >= 0] = labels[idx[idx >= 0]]
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Mask metrics
+
+
+def jaccard(pred: npt.ArrayLike, gt: npt.ArrayLike) -> float:
+    """Region similarity J = |P ∩ G| / |P ∪ G| of two binary masks.
+
+    Args:
+        pred: (H, W) bool (or 0/1) predicted mask.
+        gt: (H, W) bool (or 0/1) ground-truth mask.
+
+    Returns:
+        J in [0, 1]; 1.0 when both masks are empty (DAVIS convention).
+
+    Raises:
+        ValueError: shapes differ.
+    """
+    p = np.asarray(pred, dtype=bool)
+    g = np.asarray(gt, dtype=bool)
+    if p.shape != g.shape:
+        raise ValueError(f"pred has shape {p.shape} but gt has shape {g.shape}")
+    union = np.count_nonzero(p | g)
+    if union == 0:
+        return 1.0
+    return float(np.count_nonzero(p & g) / union)
+
+
+def boundary_map(mask: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """One-pixel inner boundary of a binary mask.
+
+    A pixel is on the boundary when it is in the mask and one of its 4-neighbours is not. The
+    image border is not a boundary (a mask running off the image has no contour there), as in
+    the DAVIS evaluation.
+
+    Args:
+        mask: (H, W) bool (or 0/1).
+
+    Returns:
+        (H, W) bool.
+    """
+    m = np.ascontiguousarray(np.asarray(mask, dtype=bool), dtype=np.uint8)
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    # erode pads with +inf by default, so pixels on the image border keep their value.
+    eroded = cv2.erode(m, cross)
+    return (m > 0) & (eroded == 0)
+
+
+def _tolerance_px(tolerance: float, size_hw: tuple[int, int]) -> float:
+    """DAVIS: a tolerance >= 1 is in pixels, below 1 a fraction of the diagonal, rounded up."""
+    if tolerance >= 1:
+        return float(tolerance)
+    return float(math.ceil(tolerance * math.hypot(*size_hw)))
+
+
+def boundary_f(
+    pred: npt.ArrayLike, gt: npt.ArrayLike, tolerance: float = BOUNDARY_TOLERANCE
+) -> tuple[float, float, float]:
+    """DAVIS boundary precision, recall and F-measure of two binary masks.
+
+    Follows Perazzi et al. (CVPR 2016): boundary pixels of the prediction count as correct when a
+    ground-truth boundary pixel lies within the tolerance, and vice versa; F = 2PR / (P + R).
+    Distances come from a Euclidean distance transform (OpenCV, exact mask) instead of DAVIS's
+    dilation with a disk of the same radius, which selects the same pixels.
+
+    Args:
+        pred: (H, W) bool predicted mask.
+        gt: (H, W) bool ground-truth mask.
+        tolerance: below 1: fraction of the image diagonal, rounded up to whole pixels (DAVIS uses
+            0.008); from 1 up: pixels.
+
+    Returns:
+        (precision, recall, F) in [0, 1]. Both boundaries empty: (1, 1, 1). Only the prediction's
+        empty: (1, 0, 0); only the ground truth's empty: (0, 1, 0).
+
+    Raises:
+        ValueError: shapes differ.
+    """
+    p = np.asarray(pred, dtype=bool)
+    g = np.asarray(gt, dtype=bool)
+    if p.shape != g.shape or p.ndim != 2:
+        raise ValueError(f"pred has shape {p.shape} but gt has shape {g.shape} (need equal (H, W))")
+    bp, bg = boundary_map(p), boundary_map(g)
+    n_p, n_g = int(bp.sum()), int(bg.sum())
+    if n_p == 0 and n_g == 0:
+        return 1.0, 1.0, 1.0
+    if n_p == 0:
+        return 1.0, 0.0, 0.0
+    if n_g == 0:
+        return 0.0, 1.0, 0.0
+    tol = _tolerance_px(tolerance, p.shape)
+    # distanceTransform measures the distance to the nearest zero pixel: zeros on the boundary.
+    dist_to_g = cv2.distanceTransform((~bg).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dist_to_p = cv2.distanceTransform((~bp).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    precision = float(np.mean(dist_to_g[bp] <= tol))
+    recall = float(np.mean(dist_to_p[bg] <= tol))
+    f = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    return precision, recall, float(f)
+
+
+@dataclass(frozen=True)
+class MaskScores:
+    """DAVIS-style scores of predicted label masks against ground-truth masks.
+
+    Attributes:
+        j: region similarity, mean over the scored ground-truth groups of the mean over frames.
+        f: boundary F-measure, averaged the same way.
+        j_per_group: ground-truth id -> mean J over frames.
+        f_per_group: ground-truth id -> mean F over frames.
+        assignment: ground-truth id -> the predicted mask value matched to it (None: unmatched,
+            scored as an empty prediction).
+    """
+
+    j: float
+    f: float
+    j_per_group: dict[int, float]
+    f_per_group: dict[int, float]
+    assignment: dict[int, int | None]
+
+
+def match_masks(
+    pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, unknown: int | None = 0
+) -> dict[int, int | None]:
+    """One-to-one map of ground-truth groups to predicted labels maximising the overlap.
+
+    Overlaps are pixel counts summed over all frames (one assignment per clip, as labels are
+    consistent across frames); the Hungarian method maximises the total. Ground-truth groups left
+    over when there are fewer predicted labels, or matched with zero overlap, map to None.
+
+    Args:
+        pred_masks: (T, H, W) or (H, W) non-negative int predicted labels.
+        gt_masks: same shape, non-negative int ground-truth group ids (background included).
+        unknown: predicted value meaning "no label" (never matched), or None.
+
+    Returns:
+        {gt id: predicted value or None} for every id present in gt_masks.
+
+    Raises:
+        ValueError: shapes differ or values are negative.
+    """
+    p = np.asarray(pred_masks)
+    g = np.asarray(gt_masks)
+    if p.shape != g.shape:
+        raise ValueError(f"pred_masks has shape {p.shape} but gt_masks has shape {g.shape}")
+    p = p.reshape(-1).astype(np.int64)
+    g = g.reshape(-1).astype(np.int64)
+    if p.size and (p.min() < 0 or g.min() < 0):
+        raise ValueError("mask values must be non-negative")
+    gt_ids = np.unique(g)
+    pred_ids = np.unique(p)
+    if unknown is not None:
+        pred_ids = pred_ids[pred_ids != unknown]
+    out: dict[int, int | None] = {int(i): None for i in gt_ids}
+    if pred_ids.size == 0 or gt_ids.size == 0:
+        return out
+    # Pixel-pair histogram via one bincount over a combined index: fast for uint8-sized label sets.
+    pi = np.searchsorted(pred_ids, p)
+    valid = (pi < pred_ids.size) & (pred_ids[np.minimum(pi, pred_ids.size - 1)] == p)
+    gi = np.searchsorted(gt_ids, g)
+    table = np.bincount(
+        pi[valid] * gt_ids.size + gi[valid], minlength=pred_ids.size * gt_ids.size
+    ).reshape(pred_ids.size, gt_ids.size)
+    rows, cols = linear_sum_assignment(table, maximize=True)
+    for r, c in zip(rows, cols):
+        if table[r, c] > 0:
+            out[int(gt_ids[c])] = int(pred_ids[r])
+    return out
+
+
+def mask_scores(
+    pred_masks: npt.ArrayLike,
+    gt_masks: npt.ArrayLike,
+    background: int | None = 0,
+    unknown: int | None = 0,
+    tolerance: float = BOUNDARY_TOLERANCE,
+) -> MaskScores:
+    """Region similarity J and boundary F of label masks, after the best one-to-one label matching.
+
+    Ground-truth groups (the background included) are matched to predicted labels by
+    `match_masks`, so that the background cannot be claimed by a cluster that an object needs.
+    J and F are then computed per group and frame with `jaccard` / `boundary_f`, averaged over
+    frames, and averaged over the scored groups: every ground-truth id except `background`, as
+    DAVIS scores objects only (all ids when background is None, or when the background is the only
+    group). A group absent from a frame, whose matched label is absent there too, scores 1 there.
+
+    Args:
+        pred_masks: (T, H, W) non-negative int predicted labels (pipeline masks: 0 = unknown).
+        gt_masks: (T, H, W) non-negative int ground-truth group ids.
+        background: ground-truth id left out of the averages (still matched), or None.
+        unknown: predicted value meaning "no label", or None.
+        tolerance: boundary tolerance, see `boundary_f`.
+
+    Returns:
+        MaskScores.
+
+    Raises:
+        ValueError: shapes differ or values are negative.
+    """
+    p = np.asarray(pred_masks)
+    g = np.asarray(gt_masks)
+    if p.ndim == 2:
+        p, g = p[None], np.asarray(g)[None]
+    if p.shape != g.shape or p.ndim != 3:
+        raise ValueError(f"pred_masks has shape {p.shape} but gt_masks has shape {g.shape} (need (T, H, W))")
+    assignment = match_masks(p, g, unknown=unknown)
+    scored = [i for i in assignment if i != background] or list(assignment)
+    j_per: dict[int, float] = {}
+    f_per: dict[int, float] = {}
+    for gid in scored:
+        pid = assignment[gid]
+        js, fs = [], []
+        for t in range(g.shape[0]):
+            gm = g[t] == gid
+            pm = p[t] == pid if pid is not None else np.zeros_like(gm)
+            js.append(jaccard(pm, gm))
+            fs.append(boundary_f(pm, gm, tolerance)[2])
+        j_per[gid] = float(np.mean(js))
+        f_per[gid] = float(np.mean(fs))
+    return MaskScores(
+        j=float(np.mean(list(j_per.values()))),
+        f=float(np.mean(list(f_per.values()))),
+        j_per_group=j_per,
+        f_per_group=f_per,
+        assignment=assignment,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Protocols
+
+
+def _with_outlier_group(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Our outliers (-1) as one more predicted group, after the motions."""
+    out = labels.astype(np.int64, copy=True)
+    if (out < 0).any():
+        out[out < 0] = out.max(initial=-1) + 1
+    return out
+
+
+def _score(pred: npt.NDArray[np.int64], gt: npt.NDArray[np.int64]) -> tuple[int, float]:
+    """(k_true among the scored points, misclassification error or NaN when nothing is scored)."""
+    if gt.size == 0:
+        return 0, float("nan")
+    return int(np.unique(gt).size), misclassification_error(pred, gt)
+
+
+def kt3d_video_rows(
+    data_root: str | Path,
+    model: SubspaceNet | None,
+    cfg: PipelineConfig = PipelineConfig(),
+    frames: int | None = None,
+    max_dist_px: float = KT3D_MAX_DIST_PX,
+    names: Sequence[str] | None = None,
+    warmup: bool = True,
+) -> list[dict[str, Any]]:
+    """The full clip pipeline on the first F frames of every KT3DMoSeg sequence.
+
+    Args:
+        data_root: the data folder holding ``kt3dmoseg/``.
+        model: the F-frame model (None = the shipped default).
+        cfg: pipeline settings (its `frames` is replaced by F).
+        frames: F, frames per clip (None = cfg.frames; the paper uses 5).
+        max_dist_px: label-transfer radius in frame 1, pixels (see the module docstring).
+        names: only these sequences (None = all 22).
+        warmup: run the first clip once untimed, so that one-off costs stay out of `seconds`.
+
+    Returns:
+        One row per sequence: name, num_tracks (tracks segmented), num_scored (tracks with a
+        ground-truth label), k_true (ground-truth groups among the scored tracks), k_pred, error
+        (misclassification over the scored tracks, NaN when none), seconds (segment_frames:
+        tracking, embedding, automatic K, masks; reading the JPEGs excluded).
+
+    Raises:
+        DatasetError: the KT3DMoSeg folder is missing or malformed.
+    """
+    from mosegpipe.data.kt3dmoseg import kt3d_frame_paths, list_kt3d_sequences, read_kt3d_sequence
+    from mosegpipe.io import read_image
+
+    f = cfg.frames if frames is None else frames
+    cfg = replace(cfg, frames=f)
+    rows = []
+    for n, name in enumerate(names if names is not None else list_kt3d_sequences(data_root)):
+        seq = read_kt3d_sequence(data_root, name)
+        paths = kt3d_frame_paths(data_root, name)[:f]
+        row: dict[str, Any] = {"name": seq.name, "num_tracks": 0, "num_scored": 0, "k_true": 0, "k_pred": 0}
+        if len(paths) < f or seq.num_frames < f:
+            log.warning("%s: only %d frames, need %d; not scored", name, min(len(paths), seq.num_frames), f)
+            rows.append({**row, "error": float("nan"), "seconds": 0.0})
+            continue
+        clip = Frames(images=np.stack([read_image(p) for p in paths]), source=str(seq.frames_dir))
+        try:
+            if warmup and n == 0:
+                segment_frames(clip, cfg, model)
+            t0 = time.perf_counter()
+            result = segment_frames(clip, cfg, model)
+            seconds = time.perf_counter() - t0
+        except MosegError as exc:
+            log.warning("%s: %s; not scored", name, exc)
+            rows.append({**row, "error": float("nan"), "seconds": 0.0})
+            continue
+        xy = result.tracks.xy[result.trajectories.track_ids]  # (N, F, 2)
+        in_first = np.flatnonzero(seq.visible[:, 0])
+        idx = nearest_within(xy[:, 0], seq.xy[in_first, 0], max_dist_px)
+        matched = idx >= 0
+        gt_rows = np.where(matched, in_first[np.maximum(idx, 0)], -1)
+        # Drop pairs that part ways by frame F: the two points followed different surfaces.
+        last = f - 1
+        seen_last = matched & seq.visible[np.maximum(gt_rows, 0), last]
+        apart = np.linalg.norm(xy[:, last] - seq.xy[np.maximum(gt_rows, 0), last], axis=1) > 2 * max_dist_px
+        scored = matched & ~(seen_last & apart)
+        gt = seq.labels[gt_rows[scored]]
+        k_true, error = _score(result.clustering.labels[scored], gt)
+        rows.append(
+            {
+                **row,
+                "num_tracks": result.trajectories.num_points,
+                "num_scored": int(scored.sum()),
+                "k_true": k_true,
+                "k_pred": result.clustering.k,
+                "error": error,
+                "seconds": seconds,
+            }
+        )
+        log.info("%s: %d/%d tracks scored, error %.4f", name, scored.sum(), scored.size, error)
+    return rows
+
+
+def adelaide_pair_rows(
+    data_root: str | Path,
+    model: SubspaceNet | None,
+    cfg: PipelineConfig = PipelineConfig(frames=2),
+    max_dist_px: float = ADELAIDE_MAX_DIST_PX,
+    names: Sequence[str] | None = None,
+    warmup: bool = True,
+) -> list[dict[str, Any]]:
+    """The full pair pipeline (SIFT matching included) on every AdelaideRMF pair.
+
+    Args:
+        data_root: the data folder holding ``adelaidermf/``.
+        model: the two-frame model (None = the shipped default).
+        cfg: pipeline settings for `segment_pair`.
+        max_dist_px: label-transfer radius, pixels, checked in both images.
+        names: only these pairs (None = all 19).
+        warmup: run the first pair once untimed.
+
+    Returns:
+        One row per pair: name, num_matches (our SIFT matches), num_scored (matches with a
+        ground-truth correspondence within max_dist_px in both images), k_true (ground-truth groups
+        among the scored matches, gross outliers counting as one), k_pred (our clusters, the
+        outlier cluster included), error (misclassification over the scored matches with our
+        outliers as one more group; NaN when none is scored), seconds (segment_pair).
+
+    Raises:
+        DatasetError: the AdelaideRMF folder is missing or malformed.
+    """
+    from mosegpipe.data.adelaidermf import list_adelaide, read_adelaide_pair
+
+    rows = []
+    for n, name in enumerate(names if names is not None else list_adelaide(data_root)):
+        pair = read_adelaide_pair(data_root, name)
+        row: dict[str, Any] = {"name": name, "num_matches": 0, "num_scored": 0, "k_true": 0, "k_pred": 0}
+        try:
+            if warmup and n == 0:
+                segment_pair(pair.img1, pair.img2, cfg, model)
+            t0 = time.perf_counter()
+            result = segment_pair(pair.img1, pair.img2, cfg, model)
+            seconds = time.perf_counter() - t0
+        except MosegError as exc:
+            log.warning("%s: %s; not scored", name, exc)
+            rows.append({**row, "error": float("nan"), "seconds": 0.0})
+            continue
+        m = result.matches
+        idx = nearest_within(m.xy1, pair.xy1, max_dist_px)
+        gt_i = np.maximum(idx, 0)
+        agree2 = np.linalg.norm(m.xy2 - pair.xy2[gt_i], axis=1) <= max_dist_px
+        scored = (idx >= 0) & agree2
+        pred = _with_outlier_group(result.labels)
+        k_true, error = _score(pred[scored], pair.labels[gt_i[scored]])
+        rows.append(
+            {
+                **row,
+                "num_matches": m.num_matches,
+                "num_scored": int(scored.sum()),
+                "k_true": k_true,
+                "k_pred": result.clustering.k,
+                "error": error,
+                "seconds": seconds,
+            }
+        )
+    return rows
+
+
+def rendered_config(seed: int, size_hw: tuple[int, int] = (480, 640), frames: int = 5) -> Any:
+    """The RenderConfig of seed `seed` in `rendered_rows`: 1-3 objects and the camera motions in turn.
+
+    Returns:
+        mosegpipe.render.RenderConfig with num_objects 1 + seed % 3 and camera motion
+        CAMERA_MOTIONS[seed % 4] (static, pan, forward, handheld), so ten seeds cover all twelve
+        pairs but two.
+    """
+    from mosegpipe.render import CAMERA_MOTIONS, RenderConfig
+
+    return RenderConfig(
+        size_hw=size_hw,
+        frames=frames,
+        num_objects=1 + seed % 3,
+        seed=seed,
+        camera_motion=CAMERA_MOTIONS[seed % len(CAMERA_MOTIONS)],
+    )
+
+
+def rendered_rows(
+    model: SubspaceNet | None,
+    cfg: PipelineConfig = PipelineConfig(),
+    seeds: Iterable[int] = range(10),
+    size_hw: tuple[int, int] = (480, 640),
+    frames: int = 5,
+    tolerance: float = BOUNDARY_TOLERANCE,
+    warmup: bool = True,
+) -> list[dict[str, Any]]:
+    """The full clip pipeline on rendered clips, scored on dense masks and on tracks.
+
+    Args:
+        model: the F-frame model (None = the shipped default).
+        cfg: pipeline settings (its `frames` is replaced by `frames`).
+        seeds: one clip per seed, see `rendered_config`.
+        size_hw: (H, W) of the rendered frames, pixels.
+        frames: F, frames per clip.
+        tolerance: boundary tolerance of F, see `boundary_f`.
+        warmup: segment the first clip once untimed.
+
+    Returns:
+        One row per seed: seed, camera, num_tracks, k_true (ground-truth groups, background
+        included, under the segmented tracks in frame 1), k_pred, track_error (misclassification
+        of the tracks against the mask value under each in frame 1), J and F (`mask_scores` of the
+        pipeline's masks, objects only, background matched but not averaged), seconds
+        (segment_frames; rendering excluded). J, F and track_error are NaN when too few tracks
+        survive.
+    """
+    from mosegpipe.render import render_clip
+
+    cfg = replace(cfg, frames=frames)
+    rows = []
+    for n, seed in enumerate(seeds):
+        rcfg = rendered_config(seed, size_hw, frames)
+        clip = render_clip(rcfg)
+        row: dict[str, Any] = {"seed": seed, "camera": rcfg.camera_motion, "num_tracks": 0, "k_true": 0, "k_pred": 0}
+        try:
+            if warmup and n == 0:
+                segment_frames(clip.to_frames(), cfg, model)
+            t0 = time.perf_counter()
+            result = segment_frames(clip.to_frames(), cfg, model)
+            seconds = time.perf_counter() - t0
+        except MosegError as exc:
+            log.warning("seed %d: %s; not scored", seed, exc)
+            nan = float("nan")
+            rows.append({**row, "track_error": nan, "J": nan, "F": nan, "seconds": 0.0})
+            continue
+        ids = result.trajectories.track_ids
+        gt_tracks = clip.label_at(0, result.tracks.xy[ids, 0])
+        k_true, track_error = _score(result.clustering.labels, gt_tracks)
+        scores = mask_scores(result.masks, clip.masks, background=0, unknown=0, tolerance=tolerance)
+        rows.append(
+            {
+                **row,
+                "num_tracks": int(ids.size),
+                "k_true": k_true,
+                "k_pred": result.clustering.k,
+                "track_error": track_error,
+                "J": scores.j,
+                "F": scores.f,
+                "seconds": seconds,
+            }
+        )
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# Summaries
+
+
+_TEXT_COLUMNS = ("name", "seed", "camera")
+
+
+def _numeric_columns(rows: Sequence[dict[str, Any]]) -> list[str]:
+    cols = []
+    for c in rows[0]:
+        if c in _TEXT_COLUMNS:
+            continue
+        if all(isinstance(r.get(c), (int, float, np.integer, np.floating)) for r in rows):
+            cols.append(c)
+    return cols
+
+
+def summarize_rows(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Mean and median of every numeric column over the scored rows, correct-K rate, total time.
+
+    Args:
+        rows: rows from one of the protocols.
+
+    Returns:
+        {"num_rows", "num_unscored" (rows whose error / track_error is NaN), "<column>": {"mean",
+        "median"} for each numeric column over the scored rows (NaN when none is), "correct_k"
+        (fraction of scored rows with k_pred == k_true), "seconds_total" (all rows)}; {} for no rows.
+    """
+    if not rows:
+        return {}
+    err_col = "error" if "error" in rows[0] else "track_error" if "track_error" in rows[0] else None
+    scored = [r for r in rows if err_col is None or np.isfinite(r[err_col])]
+    out: dict[str, Any] = {"num_rows": len(rows), "num_unscored": len(rows) - len(scored)}
+    for c in _numeric_columns(rows):
+        vals = np.array([r[c] for r in scored], dtype=np.float64)
+        vals = vals[np.isfinite(vals)]
+        out[c] = {
+            "mean": float(vals.mean()) if vals.size else float("nan"),
+            "median": float(np.median(vals)) if vals.size else float("nan"),
+        }
+    if scored and "k_true" in rows[0] and "k_pred" in rows[0]:
+        out["correct_k"] = float(np.mean([r["k_pred"] == r["k_true"] for r in scored]))
+    if "seconds" in rows[0]:
+        out["seconds_total"] = float(sum(r["seconds"] for r in rows))
+    return out
+
+
+def _fmt(col: str, val: Any, digits: int = 1) -> str:
+    if isinstance(val, (float, np.floating)) and not np.isfinite(val):
+        return "–"
+    if "error" in col:
+        return f"{100 * val:.2f}"
+    if col == "seconds":
+        return f"{1000 * val:.0f}"
+    if col in ("J", "F"):
+        return f"{val:.3f}"
+    if isinstance(val, (float, np.floating)):
+        return f"{val:.{digits}f}"
+    return str(val)
+
+
+def format_rows(rows: Sequence[dict[str, Any]]) -> str:
+    """A Markdown table of protocol rows with mean and median rows underneath.
+
+    Errors are shown in percent, J and F as fractions, seconds in milliseconds; NaN as "–".
+
+    Args:
+        rows: rows from one of the protocols.
+
+    Returns:
+        The table and a line with the correct-K rate and total time, newline-terminated.
+    """
+    if not rows:
+        return "(no rows)\n"
+    summary = summarize_rows(rows)
+    cols = list(rows[0])
+    heads = [f"{c} (%)" if "error" in c else "ms" if c == "seconds" else c for c in cols]
+    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(c, r.get(c, "")) for c in cols) + " |")
+    for stat in ("mean", "median"):
+        cells = [f"**{stat}**"] + [
+            _fmt(c, summary[c][stat]) if c in summary and isinstance(summary[c], dict) else "" for c in cols[1:]
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    notes = [f"{summary['num_rows']} clips"]
+    if summary["num_unscored"]:
+        notes.append(f"{summary['num_unscored']} not scored (too few tracks or matches)")
+    if "correct_k" in summary:
+        notes.append(f"correct K {100 * summary['correct_k']:.1f} %")
+    if "seconds_total" in summary:
+        notes.append(f"total {summary['seconds_total']:.2f} s")
+    return "\n".join(lines) + "\n\n" + " · ".join(notes) + "\n"
+
+
+def _rendered_protocol(data_root: str | Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
+    """`rendered_rows` with its defaults; data_root is not used (the clips are rendered)."""
+    return rendered_rows(model, cfg, frames=cfg.frames)
+
+
+E2E_PROTOCOLS: dict[str, Callable[[Any, SubspaceNet | None, PipelineConfig], list[dict[str, Any]]]] = {
+    "kt3d-video": kt3d_video_rows,
+    "adelaide-pairs": adelaide_pair_rows,
+    "rendered": _rendered_protocol,
+}
+"""End-to-end protocols as callables (data_root, model, cfg) -> rows (one dict per clip)."""

@@ -1,0 +1,230 @@
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mosegpipe import e2e
+from mosegpipe.e2e import (
+    boundary_f,
+    boundary_map,
+    jaccard,
+    mask_scores,
+    match_masks,
+    nearest_within,
+    transfer_labels,
+)
+from mosegpipe.model import ModelConfig, SubspaceNet
+from mosegpipe.pipeline import PipelineConfig
+from mosegpipe.runtime import set_threads
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread() -> None:
+    set_threads(1)
+
+
+def _small_model(frames: int) -> SubspaceNet:
+    import torch
+
+    torch.manual_seed(0)
+    return SubspaceNet(ModelConfig(in_dim=2 * frames, width=16, num_blocks=2)).eval()
+
+
+def _square(size_hw: tuple[int, int], x0: int, y0: int, side: int) -> np.ndarray:
+    m = np.zeros(size_hw, dtype=bool)
+    m[y0 : y0 + side, x0 : x0 + side] = True
+    return m
+
+
+# ---------------------------------------------------------------- label transfer
+
+
+def test_transfer_labels_nearest_within_radius() -> None:
+    gt_xy = np.array([[0.0, 0.0], [10.0, 0.0], [50.0, 50.0]])
+    gt_labels = np.array([2, 5, 7])
+    ours = np.array(
+        [
+            [1.0, 0.0],  # 1 px from gt 0
+            [8.0, 0.0],  # 2 px from gt 1, 8 px from gt 0
+            [5.0, 0.0],  # 5 px from both: too far
+            [10.0, 3.0],  # exactly at the radius: accepted
+            [53.0, 50.1],  # just beyond the radius
+        ]
+    )
+    out = transfer_labels(ours, gt_xy, gt_labels, max_dist_px=3.0)
+    assert out.dtype == np.int64
+    np.testing.assert_array_equal(out, [2, 5, -1, 5, -1])
+    np.testing.assert_array_equal(nearest_within(ours, gt_xy, 3.0), [0, 1, -1, 1, -1])
+    # A wider radius reaches the 5 px point (tie between equal distances: either neighbour).
+    assert transfer_labels(ours[2:3], gt_xy, gt_labels, max_dist_px=5.0)[0] in (2, 5)
+
+
+def test_transfer_labels_empty_and_bad_inputs() -> None:
+    np.testing.assert_array_equal(transfer_labels(np.zeros((3, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)), [-1] * 3)
+    assert transfer_labels(np.zeros((0, 2)), np.zeros((2, 2)), np.array([0, 1])).shape == (0,)
+    with pytest.raises(ValueError, match="non-negative"):
+        transfer_labels(np.zeros((1, 2)), np.zeros((1, 2)), np.array([-1]))
+    with pytest.raises(ValueError, match="shape"):
+        transfer_labels(np.zeros((1, 3)), np.zeros((1, 2)), np.array([0]))
+    with pytest.raises(ValueError, match=r"gt_labels has shape \(2,\)"):
+        transfer_labels(np.zeros((1, 2)), np.zeros((1, 2)), np.array([0, 1]))
+
+
+# ---------------------------------------------------------------- J and boundary F
+
+
+def test_jaccard_of_shifted_square_is_hand_computed() -> None:
+    a = _square((40, 40), 10, 10, 10)
+    b = _square((40, 40), 13, 10, 10)  # shifted 3 px right: overlap 7 x 10, union 130
+    assert jaccard(b, a) == pytest.approx(70 / 130)
+    assert jaccard(a, a) == 1.0
+    assert jaccard(np.zeros((4, 4), bool), np.zeros((4, 4), bool)) == 1.0
+    assert jaccard(a, np.zeros_like(a)) == 0.0
+
+
+def test_boundary_map_is_inner_contour_without_image_border() -> None:
+    sq = boundary_map(_square((20, 20), 5, 5, 4))
+    assert sq.sum() == 12  # 4 x 4 square: 16 pixels, 2 x 2 interior
+    assert not sq[6:8, 6:8].any()
+    # A mask covering the whole image has no contour: the image border is not a boundary.
+    assert not boundary_map(np.ones((10, 10), bool)).any()
+
+
+def test_boundary_f_of_shifted_square_is_hand_computed() -> None:
+    gt = _square((100, 100), 10, 10, 10)
+    pred = _square((100, 100), 13, 10, 10)
+    # Each contour has 36 pixels. Within 2 px of the other contour: 9 of 10 on the top row, 9 on
+    # the bottom row, 4 of the 8 inner pixels of the near side column, none on the far column.
+    p, r, f = boundary_f(pred, gt, tolerance=2)
+    assert (p, r) == (pytest.approx(22 / 36), pytest.approx(22 / 36))
+    assert f == pytest.approx(22 / 36)
+    # 0.008 of the 100 x 100 diagonal (1.13 px) rounds up to the same 2 px.
+    assert boundary_f(pred, gt, tolerance=0.008) == (p, r, f)
+    # With 3 px the whole shifted contour is within reach.
+    assert boundary_f(pred, gt, tolerance=3)[2] == pytest.approx(1.0)
+    assert boundary_f(gt, gt) == (1.0, 1.0, 1.0)
+
+
+def test_boundary_f_empty_cases() -> None:
+    empty = np.zeros((30, 30), bool)
+    sq = _square((30, 30), 5, 5, 6)
+    assert boundary_f(empty, empty) == (1.0, 1.0, 1.0)
+    assert boundary_f(empty, sq) == (1.0, 0.0, 0.0)
+    assert boundary_f(sq, empty) == (0.0, 1.0, 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        boundary_f(sq, sq[:-1])
+
+
+# ---------------------------------------------------------------- label permutation
+
+
+def _scene() -> np.ndarray:
+    """(2, 40, 60) ground truth: background 0, object 1 (left square), object 2 (right square)."""
+    g = np.zeros((2, 40, 60), dtype=np.uint8)
+    g[:, 5:15, 5:15] = 1
+    g[:, 20:30, 35:50] = 2
+    return g
+
+
+def test_permuted_labels_score_perfectly() -> None:
+    gt = _scene()
+    pred = np.choose(gt, [2, 3, 1]).astype(np.uint8)  # background -> 2, object 1 -> 3, object 2 -> 1
+    assert match_masks(pred, gt) == {0: 2, 1: 3, 2: 1}
+    s = mask_scores(pred, gt)
+    assert (s.j, s.f) == (1.0, 1.0)
+    assert set(s.j_per_group) == {1, 2}  # the background is matched but not averaged
+    assert mask_scores(pred, gt, background=None).j_per_group.keys() == {0, 1, 2}
+
+
+def test_hungarian_keeps_background_cluster_from_the_object() -> None:
+    gt = _scene()
+    pred = np.full(gt.shape, 1, dtype=np.uint8)  # one cluster covers everything ...
+    pred[:, 20:30, 35:42] = 2  # ... except half of object 2, with a second cluster
+    pred[:, 0:2, :] = 0  # a strip of unknown pixels never matches anything
+    # Object 2 overlaps cluster 1 more (80 px) than cluster 2 (70 px), but cluster 1 is worth
+    # more to the background; object 1 is left without a cluster.
+    assert match_masks(pred, gt) == {0: 1, 1: None, 2: 2}
+    s = mask_scores(pred, gt, tolerance=1)
+    assert s.j_per_group[1] == 0.0 and s.f_per_group[1] == 0.0
+    assert s.j_per_group[2] == pytest.approx(70 / 150)
+    assert s.j == pytest.approx((0 + 70 / 150) / 2)
+
+
+def test_object_absent_from_a_frame_counts_as_one_there() -> None:
+    gt = _scene()
+    gt[1][gt[1] == 2] = 0  # object 2 leaves in frame 2
+    pred = gt.copy() + 1  # exact, shifted ids (0 would be "unknown")
+    s = mask_scores(pred, gt)
+    assert s.j_per_group == {1: 1.0, 2: 1.0}
+
+
+def test_outliers_become_one_more_group() -> None:
+    out = e2e._with_outlier_group(np.array([0, -1, 1, -1, 0]))
+    np.testing.assert_array_equal(out, [0, 2, 1, 2, 0])
+    np.testing.assert_array_equal(e2e._with_outlier_group(np.array([-1, -1])), [0, 0])
+
+
+# ---------------------------------------------------------------- rows and tables
+
+
+def test_summary_and_table_leave_unscored_rows_out() -> None:
+    rows = [
+        {"name": "a", "num_scored": 10, "k_true": 2, "k_pred": 2, "error": 0.1, "seconds": 0.5},
+        {"name": "b", "num_scored": 20, "k_true": 3, "k_pred": 2, "error": 0.3, "seconds": 0.25},
+        {"name": "c", "num_scored": 0, "k_true": 0, "k_pred": 0, "error": float("nan"), "seconds": 0.0},
+    ]
+    s = e2e.summarize_rows(rows)
+    assert s["num_rows"] == 3 and s["num_unscored"] == 1
+    assert s["error"] == {"mean": pytest.approx(0.2), "median": pytest.approx(0.2)}
+    assert s["correct_k"] == 0.5
+    assert s["seconds_total"] == 0.75
+    table = e2e.format_rows(rows)
+    assert "| a | 10 | 2 | 2 | 10.00 | 500 |" in table
+    assert "| c | 0 | 0 | 0 | – | 0 |" in table
+    assert "| **mean** | 15.0 | 2.5 | 2.0 | 20.00 | 375 |" in table
+    assert "1 not scored" in table
+    assert e2e.format_rows([]) == "(no rows)\n"
+
+
+def test_protocol_registry() -> None:
+    assert set(e2e.E2E_PROTOCOLS) == {"kt3d-video", "adelaide-pairs", "rendered"}
+    assert all(callable(fn) for fn in e2e.E2E_PROTOCOLS.values())
+
+
+def test_rendered_rows_tiny_run() -> None:
+    rows = e2e.rendered_rows(_small_model(5), PipelineConfig(), seeds=[0], size_hw=(240, 320), warmup=False)
+    assert len(rows) == 1
+    row = rows[0]
+    assert list(row) == ["seed", "camera", "num_tracks", "k_true", "k_pred", "track_error", "J", "F", "seconds"]
+    assert row["seed"] == 0 and row["camera"] == "static"
+    assert row["num_tracks"] >= 50
+    assert row["k_true"] == 2  # seed 0: one object and the background
+    assert 1 <= row["k_pred"] <= 8
+    for key in ("track_error", "J", "F"):
+        assert 0.0 <= row[key] <= 1.0
+    assert row["seconds"] > 0
+    assert e2e.rendered_config(5).num_objects == 3 and e2e.rendered_config(5).camera_motion == "pan"
+
+
+# ---------------------------------------------------------------- real data (skipped without it)
+
+
+def test_kt3d_video_one_sequence(data_root: Path) -> None:
+    rows = e2e.kt3d_video_rows(data_root, _small_model(5), PipelineConfig(), names=["Seq009_Clip01"], warmup=False)
+    (row,) = rows
+    assert row["name"] == "Seq009_Clip01"
+    assert 0 < row["num_scored"] < row["num_tracks"]
+    assert 1 <= row["k_true"] <= 5 and 0.0 <= row["error"] <= 1.0
+    # The ground truth lies on integer pixels and our corners are sub-pixel: nothing within 0 px.
+    (none,) = e2e.kt3d_video_rows(data_root, _small_model(5), names=["Seq009_Clip01"], max_dist_px=0.0, warmup=False)
+    assert none["num_scored"] == 0 and math.isnan(none["error"])
+
+
+def test_adelaide_one_pair(data_root: Path) -> None:
+    (row,) = e2e.adelaide_pair_rows(data_root, _small_model(2), names=["breadcube"], warmup=False)
+    assert row["name"] == "breadcube"
+    assert 0 < row["num_scored"] < row["num_matches"]
+    assert row["k_true"] >= 1 and 0.0 <= row["error"] <= 1.0
