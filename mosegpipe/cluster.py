@@ -13,8 +13,10 @@ first appearance, so results are deterministic for a seed and easy to colour con
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,7 +57,7 @@ class ClusterConfig:
     method: str = "residual"  # no O(N^2) distances; it matched silhouette on every blob test
     k_min: int = 1  # single-motion clips exist (static scene, camera motion only)
     k_max: int = 8  # benchmarks have at most 5 motions; 8 leaves headroom for real videos
-    n_init: int = 10  # sklearn's classic default; fewer restarts make the residual curve noisy
+    n_init: int = 3  # 10 restarts cost 3x the time; see docs/RESULTS.md for the accuracy check
     seed: int = 0  # fixed so that repeated runs give identical labels
     num_threads: int = 1  # see the timing note in kmeans(): 2 threads were 10-400x slower
     # Measured on Gaussian blobs on the unit sphere: one blob with N >= 100 scores at most 0.15
@@ -127,6 +129,28 @@ def relabel_by_size(labels: npt.ArrayLike) -> npt.NDArray[np.int64]:
     return new_id[inverse.ravel()]
 
 
+_limit_cache: list[int | None] = [None]
+
+
+def _current_limit() -> int | None:
+    """The thread limit set by the innermost `_limited` block (None outside one)."""
+    return _limit_cache[0]
+
+
+@contextlib.contextmanager
+def _limited(num_threads: int) -> Iterator[None]:
+    """One threadpool_limits for a whole sweep, so that each fit inside does not pay for its own."""
+    from threadpoolctl import threadpool_limits
+
+    previous = _limit_cache[0]
+    with threadpool_limits(num_threads):
+        _limit_cache[0] = num_threads
+        try:
+            yield
+        finally:
+            _limit_cache[0] = previous
+
+
 def kmeans(
     emb: npt.ArrayLike,
     k: int,
@@ -167,7 +191,12 @@ def kmeans(
         raise InputError(f"k={k} must be at least 1")
     if k > n:
         raise InputError(f"k={k} is larger than the number of points ({n})")
-    with threadpool_limits(num_threads), warnings.catch_warnings(record=True) as caught:
+    # Entering threadpool_limits costs ~4-12 ms (it scans the loaded libraries), more than a small
+    # fit: skip it when the pools are already at the limit (set_threads, or cluster_auto_k's sweep).
+    limit = _current_limit() != num_threads
+    with threadpool_limits(num_threads) if limit else contextlib.nullcontext(), warnings.catch_warnings(
+        record=True
+    ) as caught:
         warnings.simplefilter("always", ConvergenceWarning)
         model = KMeans(n_clusters=k, n_init=n_init, random_state=seed).fit(x)
     for warning in caught:
@@ -239,6 +268,12 @@ def cluster_auto_k(
     Raises:
         InputError: bad embeddings, or k outside 1..N.
     """
+    with _limited(cfg.num_threads):
+        return _cluster_auto_k(emb, cfg, k)
+
+
+def _cluster_auto_k(emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None) -> Clustering:
+    """cluster_auto_k inside one thread limit."""
     x = _check_embeddings(emb)
     n = x.shape[0]
     if k is not None:
