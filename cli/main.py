@@ -6,7 +6,6 @@ Only this layer prints, and only here does a MosegError become one line on stder
 from __future__ import annotations
 
 import functools
-import json
 import logging
 import os
 import sys
@@ -56,15 +55,23 @@ def _friendly(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+def _quiet_native_logs() -> None:
+    """Keeps FFmpeg's and OpenCV's own messages off stderr (they are read when the first video opens).
+
+    FFmpeg inside OpenCV prints decoder complaints ("moov atom not found", "cinepak_decode failed")
+    straight to file descriptor 2; the failure they lead to is reported once, as a moseg error line.
+    A value the user set in the environment wins.
+    """
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+
+
 def _setup(threads: int, verbose: bool) -> None:
     from mosegpipe.runtime import set_threads
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     if not verbose:
-        # FFmpeg inside OpenCV prints decoder complaints ("moov atom not found") straight to stderr;
-        # the failure they cause is reported once, as a moseg error. Read when the first video opens.
-        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
-        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+        _quiet_native_logs()
     set_threads(threads)
 
 
@@ -108,23 +115,29 @@ def _pipeline_cfg(frames: int, k: Optional[int], k_method: str, k_max: int) -> A
     return PipelineConfig(frames=frames, k=k, cluster=replace(ClusterConfig(), method=k_method, k_max=k_max))
 
 
+def _plural(n: int, word: str, plural: str = "") -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {plural or word + 's'}"
+
+
 def _print_summary(summary: dict[str, Any], out: Path) -> None:
-    scores = ", ".join(f"K={k}: {v:.3g}" for k, v in summary["k_scores"].items())
+    """Three or four lines: what was found, the evidence for K, where the time went, what was written."""
     if summary["kind"] == "clip":
         typer.echo(
-            f"{summary['num_tracks_segmented']} tracks over {summary['frames']} frames -> K = {summary['k']} "
+            f"{_plural(summary['num_tracks_segmented'], 'track')} over {summary['frames']} frames -> K = {summary['k']} "
             f"({summary['k_method']}) · tracks per motion {summary['tracks_per_motion']}"
         )
     else:
         typer.echo(
-            f"{summary['num_matches']} matches -> {summary['num_motions']} motions + {summary['num_outliers']} outliers "
-            f"(K = {summary['k']}, {summary['k_method']}) · matches per motion {summary['matches_per_motion']}"
+            f"{_plural(summary['num_matches'], 'match', 'matches')} -> {_plural(summary['num_motions'], 'motion')} + "
+            f"{_plural(summary['num_outliers'], 'outlier')} (K = {summary['k']}, {summary['k_method']}) · "
+            f"matches per motion {summary['matches_per_motion']}"
         )
+    scores = ", ".join(f"K={k}: {v:.3g}" for k, v in summary["k_scores"].items())
     if scores:
         typer.echo(f"scores per K: {scores}")
-    t = summary["timings_s"]
-    typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in t.items()))
-    typer.echo(f"wrote {out}/ (summary.json, labels.npz, masks/, overlay/" + (", recording.rrd)" if (out / "recording.rrd").exists() else ")"))
+    typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in summary["timings_s"].items()))
+    files = "summary.json, labels.npz, masks/, overlay/" + (", recording.rrd" if (out / "recording.rrd").exists() else "")
+    typer.echo(f"wrote {out}/ ({files})")
 
 
 @app.command()

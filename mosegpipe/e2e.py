@@ -45,6 +45,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from mosegpipe.errors import MosegError
+from mosegpipe.masks import labels_to_masks
 from mosegpipe.metrics import misclassification_error
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair
@@ -555,6 +556,7 @@ def rendered_rows(
     frames: int = 5,
     tolerance: float = BOUNDARY_TOLERANCE,
     warmup: bool = True,
+    oracle: bool = True,
 ) -> list[dict[str, Any]]:
     """The full clip pipeline on rendered clips, scored on dense masks and on tracks.
 
@@ -566,14 +568,16 @@ def rendered_rows(
         frames: F, frames per clip.
         tolerance: boundary tolerance of F, see `boundary_f`.
         warmup: segment the first clip once untimed.
+        oracle: also score masks made from the ground-truth labels of the same tracks.
 
     Returns:
         One row per seed: seed, camera, num_tracks, k_true (ground-truth groups, background
         included, under the segmented tracks in frame 1), k_pred, track_error (misclassification
         of the tracks against the mask value under each in frame 1), J and F (`mask_scores` of the
-        pipeline's masks, objects only, background matched but not averaged), seconds
-        (segment_frames; rendering excluded). J, F and track_error are NaN when too few tracks
-        survive.
+        pipeline's masks, objects only, background matched but not averaged), with `oracle`
+        J_oracle and F_oracle (the ground-truth track labels densified by the same mask stage:
+        what perfect clustering would reach), seconds (segment_frames; rendering and scoring
+        excluded). Scores are NaN when too few tracks survive.
     """
     from mosegpipe.render import render_clip
 
@@ -592,24 +596,26 @@ def rendered_rows(
         except MosegError as exc:
             log.warning("seed %d: %s; not scored", seed, exc)
             nan = float("nan")
-            rows.append({**row, "track_error": nan, "J": nan, "F": nan, "seconds": 0.0})
+            row.update(track_error=nan, J=nan, F=nan)
+            if oracle:
+                row.update(J_oracle=nan, F_oracle=nan)
+            rows.append({**row, "seconds": 0.0})
             continue
         ids = result.trajectories.track_ids
         gt_tracks = clip.label_at(0, result.tracks.xy[ids, 0])
         k_true, track_error = _score(result.clustering.labels, gt_tracks)
         scores = mask_scores(result.masks, clip.masks, background=0, unknown=0, tolerance=tolerance)
-        rows.append(
-            {
-                **row,
-                "num_tracks": int(ids.size),
-                "k_true": k_true,
-                "k_pred": result.clustering.k,
-                "track_error": track_error,
-                "J": scores.j,
-                "F": scores.f,
-                "seconds": seconds,
-            }
+        row.update(
+            num_tracks=int(ids.size), k_true=k_true, k_pred=result.clustering.k, track_error=track_error,
+            J=scores.j, F=scores.f,
         )
+        if oracle:
+            # The ground-truth track labels through the same densification: the best J / F that
+            # these tracks and mask settings allow.
+            best = labels_to_masks(result.tracks, ids, gt_tracks, cfg.mask)
+            best_scores = mask_scores(best, clip.masks, background=0, unknown=0, tolerance=tolerance)
+            row.update(J_oracle=best_scores.j, F_oracle=best_scores.f)
+        rows.append({**row, "seconds": seconds})
     return rows
 
 
@@ -667,7 +673,7 @@ def _fmt(col: str, val: Any, digits: int = 1) -> str:
         return f"{100 * val:.2f}"
     if col == "seconds":
         return f"{1000 * val:.0f}"
-    if col in ("J", "F"):
+    if col.startswith(("J", "F")):
         return f"{val:.3f}"
     if isinstance(val, (float, np.floating)):
         return f"{val:.{digits}f}"

@@ -2,7 +2,10 @@
 
 `segment_frames` / `segment_clip` / `segment_pair` return results in memory; `write_clip_outputs` /
 `write_pair_outputs` write them into a fresh output folder atomically (built under a temporary name and
-renamed when complete), so a failure never leaves half an output behind.
+renamed when complete), so a failure never leaves half an output behind. `check_output_dir` lets a
+caller refuse an occupied output folder before spending time on segmentation, and `decode_errors`
+turns whatever OpenCV or the OS raise on a broken input into an InputError. The folder layout and
+summary.json schema are in docs/OUTPUTS.md; whole videos are in mosegpipe.video.
 """
 
 from __future__ import annotations
@@ -230,6 +233,10 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, _model_info(model))
 
 
+def _frames(n: int) -> str:
+    return "1 frame" if n == 1 else f"{n} frames"
+
+
 def _container_frames(path: str | Path) -> int | None:
     """The frame count a video container claims (None for folders, images or when it does not say)."""
     try:
@@ -260,8 +267,10 @@ def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model
         frames = read_video(path, max_frames=cfg.frames)
     if frames.num_frames < cfg.frames:
         claimed = _container_frames(path)
-        hint = f" of the {claimed} its header lists (truncated or corrupt video?)" if claimed and claimed > frames.num_frames else ""
-        raise InputError(f"{path}: only {frames.num_frames} frames could be read{hint}; --frames needs {cfg.frames}")
+        hint = ""
+        if claimed and claimed > frames.num_frames:
+            hint = f" of the {claimed} its header lists (truncated or corrupt video?)"
+        raise InputError(f"{path}: only {_frames(frames.num_frames)} could be read{hint}; --frames needs {cfg.frames}")
     read_s = time.perf_counter() - t0
     result = segment_frames(frames, cfg, model)
     result.timings = {"read": read_s, **result.timings}
@@ -469,7 +478,11 @@ def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
 
 
 def write_clip_outputs(
-    result: ClipResult, out_dir: str | Path, cfg: PipelineConfig = PipelineConfig(), overwrite: bool = False, rrd: bool = True
+    result: ClipResult,
+    out_dir: str | Path,
+    cfg: PipelineConfig = PipelineConfig(),
+    overwrite: bool = False,
+    rrd: bool = True,
 ) -> dict[str, Any]:
     """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg and recording.rrd atomically.
 

@@ -35,6 +35,7 @@ from mosegpipe.pipeline import (
     PipelineConfig,
     _embed,
     _model_info,
+    _frames,
     _OutputDir,
     check_output_dir,
     decode_errors,
@@ -271,7 +272,7 @@ def segment_video(
                     write_frames(window if first else window[1:], labels_by_id)
                     window = [window[-1]]
             if not windows:
-                raise InputError(f"{path}: only {num_frames} frames could be read; --frames needs {f}")
+                raise InputError(f"{path}: only {_frames(num_frames)} could be read; --frames needs {f}")
             if len(window) > 1:
                 write_frames(window[1:], label_window(window))
         if not label_ids:

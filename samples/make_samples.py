@@ -2,8 +2,9 @@
 
     python samples/make_samples.py [--data-root ../shared/data]
 
-1. rendered/: a synthetic clip from mosegpipe.render (static camera, 3 moving objects), frames as an
-   MJPG .avi and ground-truth masks as palette PNGs (value = motion group: 0 background, 1..3 objects).
+1. rendered/: a synthetic clip from mosegpipe.render (static camera, 3 moving objects): a frame folder
+   (JPEG, quality 95: a sixth of the PNG size) and ground-truth masks as palette PNGs (value = motion
+   group: 0 background, 1..3 objects).
 2. vtest_8f.avi: the first 8 frames of OpenCV's vtest.avi, resized to 384x288, MJPG.
 3. basketball1.png, basketball2.png: an image pair from OpenCV's sample data, copied unchanged.
 """
@@ -22,17 +23,20 @@ from mosegpipe.render import RenderConfig, render_clip
 HERE = Path(__file__).resolve().parent
 RENDER = RenderConfig(size_hw=(240, 320), frames=8, num_objects=3, seed=0, camera_motion="static")
 """The rendered sample: 320x240, 8 frames, 3 objects on a static textured wall."""
+JPEG_QUALITY = 95
 FPS = 10.0
 VTEST_FRAMES = 8
 VTEST_SIZE_WH = (384, 288)
 
 
 def make_rendered(out: Path) -> None:
-    """rendered/clip.avi, rendered/gt/NNNNNN.png and rendered/render_config.json."""
+    """rendered/frames/NNNNNN.jpg, rendered/gt/NNNNNN.png and rendered/render_config.json."""
     clip = render_clip(RENDER)
-    out.mkdir(parents=True, exist_ok=True)
-    write_video(out / "clip.avi", iter(clip.frames), FPS)
-    for t, mask in enumerate(clip.masks):
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    for t, (frame, mask) in enumerate(zip(clip.frames, clip.masks)):
+        path = out / "frames" / f"{t:06d}.jpg"
+        if not cv2.imwrite(str(path), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
+            raise OSError(f"{path}: could not write")
         write_palette_png(out / "gt" / f"{t:06d}.png", mask)
     config = {
         "size_hw": list(RENDER.size_hw),

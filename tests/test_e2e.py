@@ -198,13 +198,17 @@ def test_rendered_rows_tiny_run() -> None:
     rows = e2e.rendered_rows(_small_model(5), PipelineConfig(), seeds=[0], size_hw=(240, 320), warmup=False)
     assert len(rows) == 1
     row = rows[0]
-    assert list(row) == ["seed", "camera", "num_tracks", "k_true", "k_pred", "track_error", "J", "F", "seconds"]
+    assert list(row) == [
+        "seed", "camera", "num_tracks", "k_true", "k_pred", "track_error", "J", "F", "J_oracle", "F_oracle", "seconds",
+    ]
     assert row["seed"] == 0 and row["camera"] == "static"
     assert row["num_tracks"] >= 50
     assert row["k_true"] == 2  # seed 0: one object and the background
     assert 1 <= row["k_pred"] <= 8
-    for key in ("track_error", "J", "F"):
+    for key in ("track_error", "J", "F", "J_oracle", "F_oracle"):
         assert 0.0 <= row[key] <= 1.0
+    # Ground-truth labels on the same tracks beat an untrained model's clusters.
+    assert row["J_oracle"] > 0.5 and row["J_oracle"] >= row["J"]
     assert row["seconds"] > 0
     assert e2e.rendered_config(5).num_objects == 3 and e2e.rendered_config(5).camera_motion == "pan"
 

@@ -1,0 +1,165 @@
+"""Whole-video mode: windows, labels consistent across windows, streaming memory, outputs."""
+
+from __future__ import annotations
+
+import json
+import weakref
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from mosegpipe import video as video_module
+from mosegpipe.cli.main import app
+from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.io import iter_video, read_palette_png
+from mosegpipe.model import SubspaceNet
+from mosegpipe.pipeline import PipelineConfig
+from mosegpipe.render import RenderedClip
+from mosegpipe.video import LabelBook, match_labels, segment_video
+from test_pipeline import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
+
+runner = CliRunner(env={"COLUMNS": "200"})
+T = 15  # windows of 5 share their boundary frame: 0-4, 4-8, 8-12, 12-14 (a short last window)
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return motion_checkpoint(tmp_path_factory.mktemp("models") / "motion5.pt", 5)
+
+
+@pytest.fixture(scope="module")
+def scene() -> RenderedClip:
+    return render_scene(T)
+
+
+@pytest.fixture(scope="module")
+def frames_dir(tmp_path_factory: pytest.TempPathFactory, scene: RenderedClip) -> Path:
+    return write_frames(tmp_path_factory.mktemp("video") / "frames", scene.frames)
+
+
+# ---------------------------------------------------------------------------------------------
+# Label matching across windows (hand-computed)
+# ---------------------------------------------------------------------------------------------
+
+
+def test_match_labels_follows_shared_tracks() -> None:
+    book = LabelBook(next_label=2)
+    prev = {10: 0, 11: 0, 12: 0, 20: 1, 21: 1}
+    ids = np.array([10, 11, 12, 20, 21, 30, 31])
+    clusters = np.array([1, 1, 1, 0, 0, 2, 2])  # K-means numbers clusters anew in every window
+    labels = match_labels(prev, ids, clusters, 3, book, window=1)
+    assert labels.tolist() == [0, 0, 0, 1, 1, 2, 2]  # tracks 30, 31 are new: a new motion
+    assert book.next_label == 3 and book.last_window == {0: 1, 1: 1, 2: 1}
+
+
+def test_match_labels_needs_a_majority_of_shared_tracks() -> None:
+    book = LabelBook(next_label=2)
+    prev = {1: 0, 2: 0, 3: 0, 4: 1, 5: 0, 6: 0}
+    # Overlaps: cluster 0 = {motion 0: 3}, cluster 1 = {motion 0: 2, motion 1: 1}. The best pairing
+    # is 0 -> 0, 1 -> 1, but only 1 of cluster 1's 3 shared tracks was motion 1: a new motion.
+    labels = match_labels(prev, np.array([1, 2, 3, 4, 5, 6, 7]), np.array([0, 0, 0, 1, 1, 1, 1]), 2, book)
+    assert labels.tolist() == [0, 0, 0, 2, 2, 2, 2]
+
+
+def test_label_book_reuses_the_least_recently_used_label() -> None:
+    book = LabelBook(max_label=2)
+    assert [book.new_label(set()) for _ in range(3)] == [0, 1, 2]
+    book.last_window = {0: 5, 1: 3, 2: 4}
+    assert book.new_label(busy={1}) == 2 and book.num_reused == 1
+    with pytest.raises(InputError, match="more than 3 motions live at once"):
+        book.new_label(busy={0, 1, 2})
+
+
+# ---------------------------------------------------------------------------------------------
+# A whole rendered video
+# ---------------------------------------------------------------------------------------------
+
+
+def test_whole_video_keeps_each_object_on_one_label(
+    tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path
+) -> None:
+    out = tmp_path / "out"
+    summary = segment_video(frames_dir, out, PipelineConfig(frames=5), SubspaceNet.from_checkpoint(model_path))
+    assert sorted(p.name for p in out.iterdir()) == ["labels.npz", "masks", "overlay.avi", "recording.rrd", "summary.json"]
+    assert summary == json.loads((out / "summary.json").read_text())
+    assert summary["kind"] == "video" and summary["frames"] == T and summary["size_hw"] == [240, 320]
+    assert [(w["start"], w["frames"]) for w in summary["windows"]] == [(0, 5), (4, 5), (8, 5), (12, 3)]
+    assert summary["num_windows"] == summary["num_windows_labelled"] == 4
+    assert all(w["k"] == 3 for w in summary["windows"][:3])
+
+    masks = np.stack([read_palette_png(out / "masks" / f"{t:06d}.png") for t in range(T)])
+    assert sorted(p.name for p in (out / "masks").iterdir()) == [f"{t:06d}.png" for t in range(T)]
+    known = masks > 0
+    assert known.mean() > 0.95
+    # One relabelling for the whole video: a swap between windows would break it.
+    assert best_permutation_accuracy(masks[known].astype(np.int64), scene.masks[known].astype(np.int64)) >= 0.85
+    # Each object's pixels carry the same mask value in every frame.
+    for obj in (0, 1, 2):
+        majority = {int(np.bincount(masks[t][(scene.masks[t] == obj) & known[t]]).argmax()) for t in range(T)}
+        assert len(majority) == 1, f"object {obj} changes label across frames: {majority}"
+
+    with np.load(out / "labels.npz") as z:
+        assert sorted(z.files) == ["labels", "track_ids", "window"]
+        n = sum(w["num_tracks"] for w in summary["windows"])
+        assert z["track_ids"].shape == z["labels"].shape == z["window"].shape == (n,)
+        assert set(np.unique(z["window"])) == {0, 1, 2, 3}
+        assert z["labels"].max() + 1 <= summary["num_motions"]
+    cap = cv2.VideoCapture(str(out / "overlay.avi"))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == T
+    cap.release()
+    rows = read_rrd(out / "recording.rrd")
+    assert rows["/video/frame"] == T and rows["/video/mask"] == T
+
+
+def test_cli_whole_with_max_frames(tmp_path: Path, frames_dir: Path, model_path: Path) -> None:
+    out = tmp_path / "out"
+    args = ["run", frames_dir, "--whole", "--max-frames", 9, "--k", 3, "--no-rrd", "--model", model_path, "-o", out]
+    result = runner.invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.startswith("9 frames in 2 windows of 5 (2 labelled) -> 3 motion labels\n")
+    assert f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.avi)" in result.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 9 and summary["k_method"] == "fixed"
+    assert len(list((out / "masks").iterdir())) == 9 and not (out / "recording.rrd").exists()
+
+
+def test_memory_holds_one_window_of_frames(
+    tmp_path: Path, frames_dir: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    alive: list[weakref.ref[np.ndarray]] = []
+    most = 0
+
+    def tracked(path: Path, max_frames: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        nonlocal most
+        for t, frame in iter_video(path, max_frames=max_frames):
+            alive.append(weakref.ref(frame))
+            most = max(most, sum(r() is not None for r in alive))
+            yield t, frame
+            del frame
+
+    monkeypatch.setattr(video_module, "iter_video", tracked)
+    model3 = SubspaceNet.from_checkpoint(motion_checkpoint(tmp_path / "m3.pt", 3))
+    segment_video(frames_dir, tmp_path / "out", PipelineConfig(frames=3, k=3), model3, rrd=False)
+    assert len(alive) == T
+    assert most <= 3 + 1  # the current window and the frame being read, never the video
+
+
+def test_failures_leave_nothing(tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path) -> None:
+    model = SubspaceNet.from_checkpoint(model_path)
+    with pytest.raises(InputError, match=r"frames: only 4 frames could be read; --frames needs 5"):
+        segment_video(frames_dir, tmp_path / "a", PipelineConfig(frames=5), model, max_frames=4)
+    blank = write_frames(tmp_path / "blank", np.full((6, 240, 320, 3), 128, np.uint8))
+    with pytest.raises(TooFewTracksError, match="blank: no window had at least 10 tracks"):
+        segment_video(blank, tmp_path / "b", PipelineConfig(frames=5), model)
+    with pytest.raises(InputError, match="--frames 1: whole-video mode needs windows of at least 2 frames"):
+        segment_video(frames_dir, tmp_path / "c", PipelineConfig(frames=1), model)
+    # A failure after some windows were written (frame 7 has another size) aborts the recording too.
+    odd = write_frames(tmp_path / "odd", scene.frames[:8])
+    cv2.imwrite(str(odd / "000007.png"), cv2.resize(scene.frames[7], (160, 120)))
+    with pytest.raises(InputError, match="000007.png: image is 160x120 but earlier images in .* are 320x240"):
+        segment_video(odd, tmp_path / "d", PipelineConfig(frames=5, k=3), model)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blank", "odd"]
