@@ -378,7 +378,7 @@ def train(
 @app.command("eval")
 @_friendly
 def eval_(
-    protocol: Annotated[str, typer.Argument(help="kt3d-test, kt3d-loo, adelaide-test, adelaide-loo, hopkins-test, lce.")],
+    protocol: Annotated[str, typer.Argument(help="kt3d-test, kt3d-loo, adelaide-test, adelaide-loo, hopkins-test, lce; end to end: kt3d-video, adelaide-pairs, rendered.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Results folder (results.md/csv/json; per-fold files to resume).")],
     model: ModelOpt = None,
     variant: Annotated[str, typer.Option("--variant", help="kt3d-loo: 'vanilla' or 'augment'.")] = "vanilla",
@@ -403,8 +403,14 @@ def eval_(
     from mosegpipe.model import SubspaceNet
     from mosegpipe.train import TrainConfig, with_overrides
 
+    from mosegpipe.e2e import E2E_PROTOCOLS
+
+    if protocol in E2E_PROTOCOLS:
+        _eval_e2e(protocol, out, model, frames, k_method, k_max, data_root)
+        return
     if protocol not in PROTOCOLS:
-        raise InputError(f"unknown protocol {protocol!r}; choose from {', '.join(PROTOCOLS)}")
+        names = [*PROTOCOLS, *E2E_PROTOCOLS]
+        raise InputError(f"unknown protocol {protocol!r}; choose from {', '.join(names)}")
     if variant not in ("vanilla", "augment"):
         raise InputError(f"--variant {variant!r}: choose 'vanilla' or 'augment'")
     f = frames or (2 if protocol.startswith("adelaide") else 1 if protocol == "lce" else 5)
@@ -428,9 +434,30 @@ def eval_(
         net = SubspaceNet.from_checkpoint(model)
     start = SubspaceNet.from_checkpoint(init) if init else None
     try:
-        _, _, table = run_protocol(cfg, _data_root(data_root), out, model=net, init=start, progress=typer.echo)
+        root = data_root or Path(".") if protocol == "lce" else _data_root(data_root)  # lce is generated
+        _, _, table = run_protocol(cfg, root, out, model=net, init=start, progress=typer.echo)
     except ValueError as exc:
         raise InputError(str(exc)) from None
+    typer.echo(table)
+    typer.echo(f"wrote {out}/results.md, results.csv, results.json")
+
+
+def _eval_e2e(
+    protocol: str, out: Path, model: Optional[Path], frames: Optional[int], k_method: str, k_max: int, data_root: Optional[Path]
+) -> None:
+    """The full video pipeline (KLT / SIFT, embedding, automatic K, masks) scored against ground truth."""
+    from mosegpipe.e2e import E2E_PROTOCOLS, format_rows, summarize_rows
+    from mosegpipe.evaluate import write_results
+    from mosegpipe.pipeline import load_model
+
+    f = frames or (2 if protocol == "adelaide-pairs" else 5)
+    cfg = _pipeline_cfg(f, None, k_method, k_max)
+    root = None if protocol == "rendered" else _data_root(data_root)
+    net = load_model(f, model)
+    rows = E2E_PROTOCOLS[protocol](root, net, cfg)
+    config = {"protocol": protocol, "frames": f, "k_method": k_method, "k_max": k_max, "model": str(model or "shipped default")}
+    table = format_rows(rows)
+    write_results(out, rows, summarize_rows(rows), config, table)
     typer.echo(table)
     typer.echo(f"wrote {out}/results.md, results.csv, results.json")
 

@@ -165,13 +165,17 @@ def format_table(rows: Sequence[dict[str, Any]], summary: dict[str, Any]) -> str
     return "\n".join(lines) + "\n\n" + "\n".join(extra) + "\n"
 
 
-def _write_results(out_dir: Path, rows: list[dict[str, Any]], summary: dict[str, Any], config: dict[str, Any]) -> str:
+def write_results(
+    out_dir: Path, rows: list[dict[str, Any]], summary: dict[str, Any], config: dict[str, Any], table: str | None = None
+) -> str:
+    """Writes results.json (config, summary, rows), results.csv (rows) and results.md (config + table)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    table = format_table(rows, summary)
+    table = table if table is not None else format_table(rows, summary)
     with atomic_write(out_dir / "results.json") as tmp:
-        Path(tmp).write_text(json.dumps({"config": config, "summary": summary, "rows": rows}, indent=2))
+        Path(tmp).write_text(json.dumps({"config": config, "summary": summary, "rows": rows}, indent=2, default=float))
     buf = _io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0].keys()) if rows else ["name"])
+    fields = list(dict.fromkeys(k for r in rows for k in r)) or ["name"]
+    writer = csv.DictWriter(buf, fieldnames=fields)
     writer.writeheader()
     writer.writerows(rows)
     with atomic_write(out_dir / "results.csv") as tmp:
@@ -249,7 +253,7 @@ def run_protocol(
             raise ValueError(f"protocol {cfg.protocol} needs a model (--model or the shipped default)")
         rows = evaluate_clips(model, clips, cfg.cluster, cfg.baselines)
         summary = summarize(rows)
-        return rows, summary, _write_results(out_dir, rows, summary, config)
+        return rows, summary, write_results(out_dir, rows, summary, config)
 
     fold_dir = out_dir / "folds"
     fold_dir.mkdir(parents=True, exist_ok=True)
@@ -287,4 +291,4 @@ def run_protocol(
         errs = ", ".join(f"{r['name']}: {100 * r['error']:.2f} % (K {r['k_pred']}/{r['k_true']})" for r in fold_rows[:3])
         say(f"{held_out}: trained {result.steps_done} steps in {result.seconds:.0f} s; {errs}")
     summary = summarize(rows)
-    return rows, summary, _write_results(out_dir, rows, summary, config)
+    return rows, summary, write_results(out_dir, rows, summary, config)

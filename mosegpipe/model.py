@@ -48,7 +48,7 @@ from mosegpipe.errors import CheckpointError, InputError
 logger = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "mosegpipe.subspacenet/1"
-INPUT_NORMS = ("shared", "channel")
+INPUT_NORMS = ("shared", "channel", "motion")
 
 # Context normalisation eps, added to the variance (same role and value as BatchNorm's default): it
 # keeps a channel that is constant over a clip (a dead ReLU, a clip of coincident points) at 0
@@ -72,7 +72,11 @@ class ModelConfig:
         input_norm: fixed per-clip normalisation of the input. "shared": subtract each channel's
             mean, divide all channels by one scalar (the RMS distance of the centred points), which
             keeps the relative geometry between frames and between x and y. "channel": z-score each
-            channel separately (context normalisation applied to the input).
+            channel separately (context normalisation applied to the input). "motion": frame 1's
+            positions (centred, divided by their RMS) followed by each later frame's displacement from
+            frame 1 (divided by the RMS displacement), so that motion, often 1 % of the positions'
+            spread, reaches the network at unit scale. All three are invariant to translating or
+            scaling the whole clip and have no learned parameters.
     """
 
     in_dim: int = 10
@@ -146,7 +150,7 @@ def normalize_input(x: Tensor, w: Tensor, mode: str = "shared", eps: float = _IN
     Args:
         x: (B, N, D) coordinates (pixels), channels last.
         w: (B, 1, N) point weights mask/count.
-        mode: "shared" or "channel".
+        mode: "shared", "channel" or "motion".
         eps: floor of the scale (input units), reached only when all points coincide.
 
     Returns:
@@ -160,6 +164,14 @@ def normalize_input(x: Tensor, w: Tensor, mode: str = "shared", eps: float = _IN
         scale = mean_sq.sqrt().clamp_min(eps)
     elif mode == "channel":
         scale = torch.bmm(w64, xc * xc).sqrt().clamp_min(eps)  # (B, 1, D)
+    elif mode == "motion":
+        pos, disp = xc[..., :2], xc[..., 2:] - xc[..., :2].repeat(1, 1, max(0, xc.shape[-1] // 2 - 1))
+        pos_scale = torch.bmm(w64, (pos * pos).sum(-1, keepdim=True)).sqrt().clamp_min(eps)
+        # Displacements are centred already (differences of centred channels); their scale floor is
+        # relative to the positions' so that a motionless clip stays finite without amplifying noise.
+        disp_sq = torch.bmm(w64, (disp * disp).sum(-1, keepdim=True)) / max(1, disp.shape[-1] // 2)
+        disp_scale = torch.maximum(disp_sq.sqrt(), 1e-4 * pos_scale)
+        return torch.cat([pos / pos_scale, disp / disp_scale], dim=-1).to(torch.float32)
     else:
         raise InputError(f"input_norm={mode!r}: expected one of {INPUT_NORMS}")
     return (xc / scale).to(torch.float32)

@@ -67,7 +67,7 @@ def test_padded_batch_equals_clips_alone() -> None:
     assert np.allclose(net.embed(a), alone_a[0].T.numpy(), atol=1e-6)
 
 
-@pytest.mark.parametrize("input_norm", ["shared", "channel"])
+@pytest.mark.parametrize("input_norm", ["shared", "channel", "motion"])
 def test_invariant_to_translation_and_scale(input_norm: str) -> None:
     net = _net(ModelConfig(input_norm=input_norm))
     traj = _traj(80, seed=4)
@@ -96,6 +96,16 @@ def test_normalize_input_hand_computed() -> None:
     assert torch.allclose(channel, torch.tensor([[[-1.0, -1.0], [1.0, 1.0]]]))
     shared = normalize_input(x, w, "shared")
     assert torch.allclose(shared, torch.tensor([[[-1.0, -10.0], [1.0, 10.0]]]) / 101**0.5)
+
+
+def test_motion_norm_hand_computed() -> None:
+    # Two points over two frames: (0, 0) -> (1, 0) and (4, 0) -> (4, 0).
+    x = torch.tensor([[[0.0, 0.0, 1.0, 0.0], [4.0, 0.0, 4.0, 0.0]]])
+    w = torch.full((1, 1, 2), 0.5)
+    # Positions centred: (-2, 0), (2, 0), RMS 2. Displacements (1, 0), (0, 0) centred: (0.5, 0),
+    # (-0.5, 0), RMS 0.5.
+    out = normalize_input(x, w, "motion")
+    assert torch.allclose(out, torch.tensor([[[-1.0, 0.0, 1.0, 0.0], [1.0, 0.0, -1.0, 0.0]]]))
 
 
 def test_coincident_points_give_finite_output() -> None:

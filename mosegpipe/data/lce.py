@@ -18,13 +18,13 @@ nothing until read and sample i is the same whether or not samples 0..i-1 were r
 from __future__ import annotations
 
 import zlib
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
-from typing import overload
 
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.data.seeded import SeededClips
 from mosegpipe.errors import InputError
 from mosegpipe.types import LabeledClip
 
@@ -134,7 +134,7 @@ def lce_sample(
     )
 
 
-class LCEDataset(Sequence[LabeledClip]):
+class LCEDataset(SeededClips):
     """A fixed-size, lazily generated LCE split; item i depends only on (seed, split, i).
 
     Args:
@@ -150,28 +150,13 @@ class LCEDataset(Sequence[LabeledClip]):
         if num_samples < 0:
             raise InputError(f"num_samples={num_samples} must be >= 0")
         self.num_samples = int(num_samples)
+        self.length = self.num_samples
         self.seed = int(seed)
         self.split = split
         self.cfg = cfg
         self._split_key = zlib.crc32(split.encode())
 
-    def __len__(self) -> int:
-        return self.num_samples
-
-    @overload
-    def __getitem__(self, index: int) -> LabeledClip: ...
-
-    @overload
-    def __getitem__(self, index: slice) -> list[LabeledClip]: ...
-
-    def __getitem__(self, index: int | slice) -> LabeledClip | list[LabeledClip]:
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(self.num_samples))]
-        i = int(index)
-        if i < 0:
-            i += self.num_samples
-        if not 0 <= i < self.num_samples:
-            raise IndexError(f"LCE index {index} out of range for {self.num_samples} samples")
+    def _make(self, i: int) -> LabeledClip:
         rng = np.random.default_rng([self.seed, self._split_key, i])
         prefix = f"{self.split}/" if self.split else ""
         clip = lce_sample(rng, self.cfg, name=f"lce/{prefix}{i:05d}")

@@ -29,11 +29,12 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any, overload
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.data.seeded import SeededClips
 from mosegpipe.errors import InputError
 from mosegpipe.types import LabeledClip
 
@@ -757,7 +758,7 @@ def _generate(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: 
     )
 
 
-class SyntheticDataset(Sequence[LabeledClip]):
+class SyntheticDataset(SeededClips):
     """A fixed-length, lazily generated sequence of synthetic clips.
 
     Clip i is drawn from np.random.default_rng((base_seed, i)), so it is the same on every call
@@ -786,23 +787,7 @@ class SyntheticDataset(Sequence[LabeledClip]):
         self.base_seed = base_seed
         self.pair = pair
 
-    def __len__(self) -> int:
-        return self.length
-
-    @overload
-    def __getitem__(self, index: int) -> LabeledClip: ...
-
-    @overload
-    def __getitem__(self, index: slice) -> list[LabeledClip]: ...
-
-    def __getitem__(self, index: int | slice) -> LabeledClip | list[LabeledClip]:
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(self.length))]
-        i = int(index)
-        if i < 0:
-            i += self.length
-        if not 0 <= i < self.length:
-            raise IndexError(f"clip {index} out of range for a dataset of {self.length}")
+    def _make(self, i: int) -> LabeledClip:
         rng = np.random.default_rng((self.base_seed, i))
         name = f"synthetic/{self.base_seed}/{i:07d}"
         if self.pair:
