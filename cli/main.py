@@ -382,11 +382,12 @@ def eval_(
     out: Annotated[Path, typer.Option("--out", "-o", help="Results folder (results.md/csv/json; per-fold files to resume).")],
     model: ModelOpt = None,
     variant: Annotated[str, typer.Option("--variant", help="kt3d-loo: 'vanilla' or 'augment'.")] = "vanilla",
-    frames: Annotated[Optional[int], typer.Option("--frames", "-f", help="Trajectory length (default: 5; 2 for adelaide).")] = None,
+    frames: Annotated[Optional[int], typer.Option("--frames", "-f", help="Trajectory length (default: 5; 2 for adelaide; hopkins-test 0 = all frames, resampled to the model's).")] = None,
     init: Annotated[Optional[Path], typer.Option("--init", help="LOO folds start from this checkpoint.")] = None,
     steps: Annotated[Optional[int], typer.Option("--steps", min=1, help="Training steps per fold.")] = None,
     batch_size: Annotated[Optional[int], typer.Option("--batch-size", min=1)] = None,
     lr: Annotated[Optional[float], typer.Option("--lr")] = None,
+    loss: Annotated[Optional[str], typer.Option("--loss", help="Per-fold training loss: l2 (default), ce or mimi.")] = None,
     synthetic_weight: Annotated[float, typer.Option("--synthetic-weight", help="LOO: weight of synthetic clips mixed into each fold.")] = 0.0,
     baselines: Annotated[str, typer.Option("--baselines", help="Comma-separated baselines ('' for none).")] = "kmeans-raw,spectral-raw,ssc",
     folds: Annotated[Optional[str], typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
@@ -413,8 +414,8 @@ def eval_(
         raise InputError(f"unknown protocol {protocol!r}; choose from {', '.join(names)}")
     if variant not in ("vanilla", "augment"):
         raise InputError(f"--variant {variant!r}: choose 'vanilla' or 'augment'")
-    f = frames or (2 if protocol.startswith("adelaide") else 1 if protocol == "lce" else 5)
-    train_cfg = with_overrides(TrainConfig(frames=f, steps=500), steps=steps, batch_size=batch_size, lr=lr)
+    f = frames if frames is not None else (2 if protocol.startswith("adelaide") else 1 if protocol == "lce" else 5)
+    train_cfg = with_overrides(TrainConfig(frames=f, steps=500), steps=steps, batch_size=batch_size, lr=lr, loss=loss)
     cfg = EvalConfig(
         protocol=protocol,
         variant=variant,

@@ -48,7 +48,10 @@ class TrainConfig:
     """
 
     frames: int = 5
-    loss: str = "mimi"
+    # The dense L2 affinity loss trains several times faster than MaxInterMinIntra, whose min/max
+    # terms send gradient through one pair of means and one point per step: after 300 steps on
+    # KT3DMoSeg windows, in-sample error with the true K was 10 % (l2) against 33 % (mimi).
+    loss: str = "l2"
     alpha: float = 0.5
     steps: int = 2000
     batch_size: int = 8
