@@ -272,7 +272,7 @@ def run_protocol(
     fold_dir.mkdir(parents=True, exist_ok=True)
     # Folds are keyed by what training depends on: re-running with other clustering settings or
     # baselines re-scores the stored fold models instead of training again.
-    chash = _config_hash({k: v for k, v in config.items() if k not in ("cluster", "baselines")})
+    chash = _config_hash({k: v for k, v in config.items() if k not in ("cluster", "baselines", "folds")})
     rows = []
     if cfg.protocol == "lce":
         folds = [("all", clips, ("lce", 1.0))]
@@ -298,11 +298,12 @@ def run_protocol(
             sources.append(("synthetic-pair" if cfg.frames == 2 else "synthetic", cfg.synthetic_weight))
         exclude = () if cfg.protocol == "lce" else (held_out,)
         sampler, described = build_sampler(sources, data_root, cfg.frames, exclude=exclude, seed=cfg.train.seed)
-        result = train_model(sampler, replace(cfg.train, frames=cfg.frames), init=init)
+        train_cfg = replace(cfg.train, frames=cfg.frames)
+        result = train_model(sampler, train_cfg, init=init)
         fold_rows = evaluate_clips(result.model, test, cfg.cluster, cfg.baselines)
         for r in fold_rows:
             r["train_seconds"] = round(result.seconds, 1)
-        recipe = recipe_of(cfg.train, described, result)
+        recipe = recipe_of(train_cfg, described, result)
         result.model.save(model_path, recipe={**recipe, "name": f"{cfg.protocol}/{held_out}"})
         with atomic_write(path) as tmp:
             Path(tmp).write_text(json.dumps({"config_hash": chash, "recipe": recipe, "rows": fold_rows}))

@@ -60,10 +60,10 @@ RECIPES: dict[str, Recipe] = {
     for r in (
         Recipe(
             "clip-f5",
-            "shipped 5-frame model: synthetic clips mixed with KT3DMoSeg and Hopkins155 windows",
-            TrainConfig(frames=5, steps=3000, batch_size=8, lr=1e-3),
+            "shipped 5-frame model: fine-tunes base-f5 on KT3DMoSeg and Hopkins155 windows plus synthetic clips",
+            TrainConfig(frames=5, steps=1500, batch_size=8, lr=1e-3),
             _F5,
-            (("synthetic", 0.5), ("kt3d", 0.3), ("hopkins", 0.2)),
+            (("kt3d", 0.5), ("hopkins", 0.25), ("synthetic", 0.25)),
         ),
         Recipe(
             "base-f5",
@@ -122,6 +122,8 @@ def source_clips(
         frames: F of the clips to produce.
         exclude: sequence / pair names to leave out (held-out folds).
     """
+    if source not in SOURCES or source.startswith("synthetic"):
+        raise ValueError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
     if source == "lce":
         from mosegpipe.data.lce import lce_splits
 

@@ -91,7 +91,7 @@ def clip_sampler(clips: Sequence[LabeledClip]) -> Sampler:
 def mixture_sampler(parts: Sequence[tuple[float, Sampler]]) -> Sampler:
     """Draws from one of several samplers with the given (unnormalised) weights."""
     weights = np.array([w for w, _ in parts], dtype=np.float64)
-    if weights.size == 0 or np.any(weights < 0) or weights.sum() <= 0:
+    if weights.size == 0 or not np.all(np.isfinite(weights)) or np.any(weights < 0) or weights.sum() <= 0:
         raise ValueError(f"mixture weights must be non-negative with a positive sum, got {weights.tolist()}")
     probs = weights / weights.sum()
     samplers = [s for _, s in parts]
@@ -114,8 +114,12 @@ def augment(clip: LabeledClip, rng: np.random.Generator, cfg: TrainConfig) -> tu
         keep = rng.choice(n, size=cfg.max_points, replace=False)
         missing = np.setdiff1d(np.unique(labels), np.unique(labels[keep]))
         if missing.size:
-            extra = [int(rng.choice(np.flatnonzero(labels == g))) for g in missing]
-            keep = np.concatenate([keep[: cfg.max_points - len(extra)], np.array(extra)])
+            extra = np.array([int(rng.choice(np.flatnonzero(labels == g))) for g in missing])
+            # Make room only at points whose group keeps another member, so no kept group vanishes.
+            _, first = np.unique(labels[keep], return_index=True)
+            spare = np.setdiff1d(np.arange(keep.size), first)
+            drop = rng.choice(spare, size=min(extra.size, spare.size), replace=False)
+            keep = np.concatenate([np.delete(keep, drop), extra])
         traj, labels = traj[keep], labels[keep]
     f = traj.shape[1] // 2
     xy = traj.reshape(-1, f, 2).copy()
