@@ -99,7 +99,7 @@ def main(
 Threads = Annotated[int, typer.Option("--threads", min=1, help="CPU threads (1 is fastest for one clip on small machines).")]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Log progress.")]
 KOpt = Annotated[Optional[int], typer.Option("--k", min=1, help="Force this many motions (default: automatic K).")]
-KMethod = Annotated[str, typer.Option("--k-method", help="Automatic K: 'residual' or 'silhouette'.")]
+KMethod = Annotated[str, typer.Option("--k-method", help="Automatic K: 'silhouette' (default) or 'residual' (faster).")]
 KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered by automatic K.")]
 ModelOpt = Annotated[Optional[Path], typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results already in the output folder.")]
@@ -149,7 +149,7 @@ def run(
     whole: Annotated[bool, typer.Option("--whole", help="Segment the whole video in consecutive windows of --frames frames.")] = False,
     max_frames: Annotated[Optional[int], typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")] = None,
     k: KOpt = None,
-    k_method: KMethod = "residual",
+    k_method: KMethod = "silhouette",
     k_max: KMax = 8,
     model: ModelOpt = None,
     overwrite: Overwrite = False,
@@ -196,7 +196,7 @@ def pair(
     img2: Annotated[Path, typer.Argument(help="Second image (may differ in size).")],
     out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg').")] = None,
     k: KOpt = None,
-    k_method: KMethod = "residual",
+    k_method: KMethod = "silhouette",
     k_max: KMax = 8,
     model: ModelOpt = None,
     overwrite: Overwrite = False,
@@ -226,7 +226,7 @@ def batch(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder: one sub-folder per clip plus batch_summary.csv/json.")],
     frames: Annotated[int, typer.Option("--frames", "-f", min=2)] = 5,
     k: KOpt = None,
-    k_method: KMethod = "residual",
+    k_method: KMethod = "silhouette",
     k_max: KMax = 8,
     model: ModelOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")] = False,
@@ -391,7 +391,7 @@ def eval_(
     synthetic_weight: Annotated[float, typer.Option("--synthetic-weight", help="LOO: weight of synthetic clips mixed into each fold.")] = 0.0,
     baselines: Annotated[str, typer.Option("--baselines", help="Comma-separated baselines ('' for none).")] = "kmeans-raw,spectral-raw,ssc",
     folds: Annotated[Optional[str], typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
-    k_method: KMethod = "residual",
+    k_method: KMethod = "silhouette",
     k_max: KMax = 8,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1)] = 1,

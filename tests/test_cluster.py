@@ -19,6 +19,9 @@ def _one_thread() -> Iterator[None]:
         yield
 
 
+RESIDUAL = ClusterConfig(method="residual")
+
+
 def sphere_blobs(
     k: int, n: int = 200, e: int = 8, noise: float = 0.05, seed: int = 0
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
@@ -110,7 +113,7 @@ def test_residual_scores_match_hand_computed_elbow() -> None:
     # r(K) is known in closed form, so score(K) = d(K) - d(K+1) with d(K) = 1 - r(K)/r(K-1).
     centres = np.repeat([0.0, 10.0, 20.0, 30.0], 2)
     x = (centres + np.tile([-0.05, 0.05], 4))[:, None]
-    result = cluster_auto_k(x, ClusterConfig(k_max=4, n_init=10))
+    result = cluster_auto_k(x, ClusterConfig(method="residual", k_max=4, n_init=10))
     r1 = float(((x - x.mean()) ** 2).sum())  # 1000.02
     r2 = 2 * (2 * 25.0 + 2 * 25.0) + 8 * 0.0025  # groups {0,10} and {20,30}: 200.02
     r3 = 2 * 25.0 * 2 + 8 * 0.0025  # one merged pair: 100.02
@@ -125,7 +128,7 @@ def test_residual_scores_match_hand_computed_elbow() -> None:
 
 def test_residual_picks_one_cluster_for_a_single_blob() -> None:
     x, _ = sphere_blobs(1, n=300, noise=0.1)
-    result = cluster_auto_k(x)
+    result = cluster_auto_k(x, RESIDUAL)
     assert result.k == 1
     assert np.all(result.labels == 0)
     assert max(v for kk, v in result.scores.items() if kk > 1) < ClusterConfig().min_elbow
@@ -138,7 +141,7 @@ def test_silhouette_picks_one_cluster_for_a_single_blob() -> None:
 
 def test_identical_embeddings_give_one_cluster_without_sweep() -> None:
     x = np.tile([[0.6, 0.8]], (50, 1)) + 1e-7 * np.random.default_rng(0).normal(size=(50, 2))
-    result = cluster_auto_k(x)
+    result = cluster_auto_k(x, RESIDUAL)
     assert (result.k, result.scores) == (1, {1: 1.0})
 
 
@@ -147,10 +150,10 @@ def test_wide_spread_never_gives_one_cluster() -> None:
     x, gt = sphere_blobs(2, n=200, noise=0.6, seed=3)
     spread = float(((x - x.mean(axis=0)) ** 2).sum() / (x**2).sum())
     assert spread > ClusterConfig().one_motion_spread
-    result = cluster_auto_k(x)
+    result = cluster_auto_k(x, RESIDUAL)
     assert result.k >= 2
     assert 1 not in result.scores
-    gated = cluster_auto_k(x, ClusterConfig(one_motion_spread=1.0))
+    gated = cluster_auto_k(x, ClusterConfig(method="residual", one_motion_spread=1.0))
     assert 1 in gated.scores
 
 

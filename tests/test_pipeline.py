@@ -257,7 +257,7 @@ def test_clip_outputs(tmp_path: Path, clip_result: pipeline.ClipResult) -> None:
     n = clip_result.trajectories.num_points
     assert on_disk["schema"] == "mosegpipe.summary/1" and on_disk["kind"] == "clip"
     assert on_disk["frames"] == 5 and on_disk["start"] == 0 and on_disk["size_hw"] == [240, 320]
-    assert on_disk["k"] == 3 and on_disk["k_method"] == "residual"
+    assert on_disk["k"] == 3 and on_disk["k_method"] == "silhouette"
     assert on_disk["num_tracks_segmented"] == n <= on_disk["num_tracks_detected"]
     assert sum(on_disk["tracks_per_motion"]) == n and len(on_disk["tracks_per_motion"]) == 3
     assert {str(k) for k in range(2, 9)} <= set(on_disk["k_scores"])  # the candidates of --k-max 8
