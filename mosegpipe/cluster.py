@@ -22,6 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+# Imported here rather than on first use: scikit-learn's first import costs 1-2 s, which belongs to
+# start-up, not to the first clip's clustering time.
+from sklearn.cluster import KMeans
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.metrics import silhouette_score
+
 from mosegpipe.errors import InputError
 from mosegpipe.types import Clustering
 
@@ -183,8 +189,6 @@ def kmeans(
     Raises:
         InputError: bad shape, non-finite values, or k outside 1..N.
     """
-    from sklearn.cluster import KMeans
-    from sklearn.exceptions import ConvergenceWarning
     from threadpoolctl import threadpool_limits
 
     x = _check_embeddings(emb)
@@ -312,7 +316,6 @@ def _cluster_auto_k(emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None) -> Cl
         scores = _elbow_scores(residuals, candidates)
         threshold = cfg.min_elbow
     else:
-        from sklearn.metrics import silhouette_score
         from threadpoolctl import threadpool_limits
 
         scores = {}
