@@ -454,6 +454,23 @@ def _write_jpg(path: Path, rgb: npt.NDArray[np.uint8]) -> None:
     path.write_bytes(buf.tobytes())
 
 
+def _write_masks_and_overlays(
+    folder: Path,
+    indices: list[int],
+    images: Any,
+    masks: Any,
+    xys: list[npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+) -> None:
+    """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source."""
+    palette = default_palette()
+    (folder / "masks").mkdir()
+    (folder / "overlay").mkdir()
+    for index, image, mask, xy in zip(indices, images, masks, xys):
+        write_palette_png(folder / "masks" / f"{index:06d}.png", mask, palette)
+        _write_jpg(folder / "overlay" / f"{index:06d}.jpg", overlay_image(image, mask, xy, labels))
+
+
 def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
     """The JSON summary of a clip run (schema: docs/OUTPUTS.md)."""
     c = result.clustering
@@ -512,15 +529,14 @@ def write_clip_outputs(
             xy=result.tracks.xy[traj.track_ids],
             embeddings=result.embeddings,
         )
-        palette = default_palette()
-        (tmp / "masks").mkdir()
-        (tmp / "overlay").mkdir()
-        for t in range(result.frames.num_frames):
-            name = f"{result.frames.start + t:06d}"
-            write_palette_png(tmp / "masks" / f"{name}.png", result.masks[t], palette)
-            xy = result.tracks.xy[traj.track_ids, t]
-            overlay = overlay_image(result.frames.images[t], result.masks[t], xy, result.clustering.labels)
-            _write_jpg(tmp / "overlay" / f"{name}.jpg", overlay)
+        _write_masks_and_overlays(
+            tmp,
+            [result.frames.start + t for t in range(result.frames.num_frames)],
+            result.frames.images,
+            result.masks,
+            [result.tracks.xy[traj.track_ids, t] for t in range(result.frames.num_frames)],
+            result.clustering.labels,
+        )
         if rrd:
             from mosegpipe.viz import write_recording
 
@@ -601,12 +617,7 @@ def write_pair_outputs(
             clusters=result.clustering.labels,
             embeddings=result.embeddings,
         )
-        palette = default_palette()
-        (tmp / "masks").mkdir()
-        (tmp / "overlay").mkdir()
-        for i, (img, mask, xy) in enumerate(zip(result.images, result.masks, (m.xy1, m.xy2))):
-            write_palette_png(tmp / "masks" / f"{i:06d}.png", mask, palette)
-            _write_jpg(tmp / "overlay" / f"{i:06d}.jpg", overlay_image(img, mask, xy, result.labels))
+        _write_masks_and_overlays(tmp, [0, 1], result.images, result.masks, [m.xy1, m.xy2], result.labels)
         if rrd:
             from mosegpipe.viz import write_pair_recording
 

@@ -263,7 +263,7 @@ def test_clip_outputs(tmp_path: Path, clip_result: pipeline.ClipResult) -> None:
     assert {str(k) for k in range(2, 9)} <= set(on_disk["k_scores"])  # the candidates of --k-max 8
     assert set(on_disk["timings_s"]) == {"read", "track", "embed", "cluster", "masks", "rrd"}
     assert on_disk["model"]["recipe"] == "test-displacement-f5" and on_disk["model"]["model_frames"] == 5
-    assert on_disk["config"]["frames"] == 5 and on_disk["config"]["cluster"]["method"] == "residual"
+    assert on_disk["config"]["frames"] == 5 and on_disk["config"]["cluster"]["method"] == "silhouette"
 
     with np.load(out / "labels.npz") as z:
         assert sorted(z.files) == ["embeddings", "labels", "track_ids", "xy"]
