@@ -26,7 +26,7 @@ import numpy.typing as npt
 # start-up, not to the first clip's clustering time.
 from sklearn.cluster import KMeans
 from sklearn.exceptions import ConvergenceWarning
-from sklearn.metrics import silhouette_score
+from sklearn.metrics import pairwise_distances, silhouette_score
 
 from mosegpipe.errors import InputError
 from mosegpipe.types import Clustering
@@ -316,16 +316,15 @@ def _cluster_auto_k(emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None) -> Cl
         scores = _elbow_scores(residuals, candidates)
         threshold = cfg.min_elbow
     else:
-        from threadpoolctl import threadpool_limits
-
         scores = {}
+        # One distance matrix for every K: silhouette_score would recompute it per call.
+        distances = pairwise_distances(x)
         for kk in candidates:
             fits[kk] = fit(kk)[0]
             if np.unique(fits[kk]).size < 2:
                 scores[kk] = -1.0  # duplicate points gave one cluster: no evidence for K
                 continue
-            with threadpool_limits(cfg.num_threads):
-                scores[kk] = float(silhouette_score(x, fits[kk]))
+            scores[kk] = float(silhouette_score(distances, fits[kk], metric="precomputed"))
         threshold = cfg.min_silhouette
     if cfg.k_min == 1 and spread <= cfg.one_motion_spread * total:
         scores = {1: float(threshold), **scores}
