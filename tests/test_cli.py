@@ -247,7 +247,11 @@ def test_decoder_noise_is_kept_off_stderr(tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k not in ("OPENCV_FFMPEG_LOGLEVEL", "OPENCV_LOG_LEVEL")}
 
     def stderr_of(mode: str) -> str:
-        proc = subprocess.run([sys.executable, "-c", script, str(bad), mode], capture_output=True, text=True, env=env, timeout=60)
+        # cwd away from the checkout: `python -c` puts the working folder first on sys.path, where the
+        # source tree's mosegpipe/ (without cli/, which is mapped in at install) would shadow the install.
+        proc = subprocess.run(
+            [sys.executable, "-c", script, str(bad), mode], capture_output=True, text=True, env=env, timeout=60, cwd=tmp_path
+        )
         assert proc.returncode == 0, proc.stderr
         return proc.stderr
 
