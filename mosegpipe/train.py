@@ -196,20 +196,23 @@ def train_model(
         running += float(loss.detach())
         count += 1
         if (step + 1) % log_every == 0 or step + 1 == cfg.steps:
-            entry = {
-                "step": float(step + 1),
-                "loss": running / count,
-                "lr": _lr_at(step, cfg),
-                "seconds": time.perf_counter() - t0,
-            }
-            history.append(entry)
-            if on_log is not None:
-                on_log(entry)
+            history.append(_log_entry(step + 1, running / count, _lr_at(step, cfg), time.perf_counter() - t0, on_log))
             running, count = 0.0, 0
     else:
         step = cfg.steps
+    if count:  # stopped by the time budget between two log points: keep the last losses
+        history.append(_log_entry(step, running / count, _lr_at(step - 1, cfg), time.perf_counter() - t0, on_log))
     model.eval()
     return TrainResult(model=model, history=history, seconds=time.perf_counter() - t0, steps_done=step)
+
+
+def _log_entry(
+    step: int, loss: float, lr: float, seconds: float, on_log: Callable[[dict[str, float]], None] | None
+) -> dict[str, float]:
+    entry = {"step": float(step), "loss": loss, "lr": lr, "seconds": seconds}
+    if on_log is not None:
+        on_log(entry)
+    return entry
 
 
 def recipe_of(cfg: TrainConfig, sources: dict[str, Any], result: TrainResult | None = None) -> dict[str, Any]:

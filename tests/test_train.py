@@ -243,6 +243,18 @@ def test_train_model_time_budget_stops_early() -> None:
     assert not result.model.training
 
 
+def test_time_budget_stop_keeps_the_losses_since_the_last_log_point() -> None:
+    def slow(rng: np.random.Generator) -> LabeledClip:
+        time.sleep(0.01)
+        return affine_clip(rng)
+
+    cfg = TrainConfig(frames=2, steps=1000, batch_size=1, time_budget_s=0.1)
+    result = train_model(slow, cfg, TINY, log_every=500)
+    assert 1 <= result.steps_done < 500
+    assert [e["step"] for e in result.history] == [float(result.steps_done)]
+    assert np.isfinite(result.history[-1]["loss"])
+
+
 def test_train_model_init_copies_and_leaves_argument_untouched() -> None:
     torch.manual_seed(3)
     init = SubspaceNet(TINY).eval()
