@@ -231,25 +231,23 @@ def test_train_model_history_keys_and_schedule() -> None:
     assert result.seconds >= result.history[-1]["seconds"]
 
 
-def test_train_model_time_budget_stops_early() -> None:
-    def slow(rng: np.random.Generator) -> LabeledClip:
-        time.sleep(0.01)
-        return affine_clip(rng)
+def slow_clip(rng: np.random.Generator) -> LabeledClip:
+    """A sampler slow enough (10 ms a clip) for a time budget to stop training."""
+    time.sleep(0.01)
+    return affine_clip(rng)
 
+
+def test_train_model_time_budget_stops_early() -> None:
     cfg = TrainConfig(frames=2, steps=1000, batch_size=1, time_budget_s=0.05)
-    result = train_model(slow, cfg, TINY, log_every=1)
+    result = train_model(slow_clip, cfg, TINY, log_every=1)
     assert 1 <= result.steps_done < 1000
     assert len(result.history) == result.steps_done
     assert not result.model.training
 
 
 def test_time_budget_stop_keeps_the_losses_since_the_last_log_point() -> None:
-    def slow(rng: np.random.Generator) -> LabeledClip:
-        time.sleep(0.01)
-        return affine_clip(rng)
-
     cfg = TrainConfig(frames=2, steps=1000, batch_size=1, time_budget_s=0.1)
-    result = train_model(slow, cfg, TINY, log_every=500)
+    result = train_model(slow_clip, cfg, TINY, log_every=500)
     assert 1 <= result.steps_done < 500
     assert [e["step"] for e in result.history] == [float(result.steps_done)]
     assert np.isfinite(result.history[-1]["loss"])
