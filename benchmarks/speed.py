@@ -183,7 +183,7 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory(prefix="moseg_speed_") as tmp:
         work = Path(tmp)
         if "clip" not in args.skip:
-            from mosegpipe.render import RenderConfig, render_clip, write_clip
+            from mosegpipe.synth.render import RenderConfig, render_clip, write_clip
 
             rendered = render_clip(RenderConfig(size_hw=(480, 640), frames=5, num_objects=2, seed=0, camera_motion="handheld"))
             clips = {"rendered": write_clip(rendered, work / "rendered", video=True) / "clip.avi"}
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> None:
             print("## (a) `moseg run` on 5 frames at 640x480 (stage times in ms)\n")
             print(clip_table(clips, model, args.repeats, work) + "\n")
         if "video" not in args.skip:
-            from mosegpipe.render import RenderConfig, render_clip
+            from mosegpipe.synth.render import RenderConfig, render_clip
 
             n = args.video_frames
             long_clip = render_clip(RenderConfig(size_hw=(480, 640), frames=n, num_objects=3, seed=1, camera_motion="handheld"))

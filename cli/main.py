@@ -343,8 +343,8 @@ def train(
     """Train a SubspaceNet checkpoint from a named recipe (synthetic data generated on the fly)."""
     _setup(threads, verbose)
     from mosegpipe.model import SubspaceNet
-    from mosegpipe.recipes import build_sampler, get_recipe
-    from mosegpipe.train import recipe_of, train_model, with_overrides
+    from mosegpipe.training.recipes import build_sampler, get_recipe
+    from mosegpipe.training.loop import recipe_of, train_model, with_overrides
 
     try:
         recipe = get_recipe(preset)
@@ -400,11 +400,11 @@ def eval_(
     """Run a benchmark protocol: per-clip table, mean/median error, NMI, correct K, time, baselines."""
     _setup(threads, verbose)
     from mosegpipe.cluster import ClusterConfig
-    from mosegpipe.evaluate import PROTOCOLS, EvalConfig, run_protocol
+    from mosegpipe.evaluation.benchmark import PROTOCOLS, EvalConfig, run_protocol
     from mosegpipe.model import SubspaceNet
-    from mosegpipe.train import TrainConfig, with_overrides
+    from mosegpipe.training.loop import TrainConfig, with_overrides
 
-    from mosegpipe.e2e import E2E_PROTOCOLS
+    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS
 
     if protocol in E2E_PROTOCOLS:
         _eval_e2e(protocol, out, model, frames, k_method, k_max, data_root)
@@ -447,8 +447,8 @@ def _eval_e2e(
     protocol: str, out: Path, model: Optional[Path], frames: Optional[int], k_method: str, k_max: int, data_root: Optional[Path]
 ) -> None:
     """The full video pipeline (KLT / SIFT, embedding, automatic K, masks) scored against ground truth."""
-    from mosegpipe.e2e import E2E_PROTOCOLS, format_rows, summarize_rows
-    from mosegpipe.evaluate import write_results
+    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS, format_rows, summarize_rows
+    from mosegpipe.evaluation.benchmark import write_results
     from mosegpipe.pipeline import load_model
 
     f = frames or (2 if protocol == "adelaide-pairs" else 5)

@@ -27,7 +27,7 @@ _EXPORTS = {
     "mosegpipe.io": ("read_image", "read_video"),
     "mosegpipe.masks": ("MaskConfig", "labels_to_mask", "labels_to_masks"),
     "mosegpipe.match": ("MatchConfig", "match_sift"),
-    "mosegpipe.metrics": ("misclassification_error", "nmi"),
+    "mosegpipe.evaluation.metrics": ("misclassification_error", "nmi"),
     "mosegpipe.model": ("ModelConfig", "SubspaceNet"),
     "mosegpipe.pipeline": (
         "PipelineConfig", "segment_clip", "segment_frames", "segment_pair", "write_clip_outputs", "write_pair_outputs",

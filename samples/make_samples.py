@@ -2,7 +2,7 @@
 
     python samples/make_samples.py [--data-root ../shared/data]
 
-1. rendered/: a synthetic clip from mosegpipe.render (static camera, 3 moving objects): a frame folder
+1. rendered/: a synthetic clip from mosegpipe.synth.render (static camera, 3 moving objects): a frame folder
    (JPEG, quality 95: a sixth of the PNG size) and ground-truth masks as palette PNGs (value = motion
    group: 0 background, 1..3 objects).
 2. vtest_8f.avi: the first 8 frames of OpenCV's vtest.avi, resized to 384x288, MJPG.
@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 
 from mosegpipe.io import iter_video, write_json, write_palette_png, write_video
-from mosegpipe.render import RenderConfig, render_clip
+from mosegpipe.synth.render import RenderConfig, render_clip
 
 HERE = Path(__file__).resolve().parent
 RENDER = RenderConfig(size_hw=(240, 320), frames=8, num_objects=3, seed=0, camera_motion="static")

@@ -19,7 +19,7 @@ from mosegpipe.cli import main as cli
 from mosegpipe.cli.main import app
 from mosegpipe.io import read_palette_png
 from mosegpipe.model import available_default_frames
-from mosegpipe.render import RenderedClip
+from mosegpipe.synth.render import RenderedClip
 from test_pipeline import motion_checkpoint, read_rrd, render_scene, write_avi, write_frames
 
 runner = CliRunner(env={"COLUMNS": "200"})

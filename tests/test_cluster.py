@@ -8,7 +8,7 @@ import pytest
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, relabel_by_size
 from mosegpipe.errors import InputError
-from mosegpipe.metrics import misclassification_error
+from mosegpipe.evaluation.metrics import misclassification_error
 
 
 @pytest.fixture(autouse=True)

@@ -13,7 +13,7 @@ from sklearn.cluster import KMeans
 import mosegpipe
 import mosegpipe.model as model_mod
 from mosegpipe.errors import CheckpointError, InputError
-from mosegpipe.losses import mimi_loss
+from mosegpipe.training.losses import mimi_loss
 from mosegpipe.model import (
     CHECKPOINT_FORMAT,
     ModelConfig,

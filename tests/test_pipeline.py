@@ -35,7 +35,7 @@ from mosegpipe.pipeline import (
     write_clip_outputs,
     write_pair_outputs,
 )
-from mosegpipe.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
+from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
 from mosegpipe.runtime import set_threads
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"

@@ -18,7 +18,7 @@ from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.io import iter_video, read_palette_png
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig
-from mosegpipe.render import RenderedClip
+from mosegpipe.synth.render import RenderedClip
 from mosegpipe.video import LabelBook, match_labels, segment_video
 from test_pipeline import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 

@@ -1,4 +1,7 @@
-"""Dataset readers and synthetic generators. Readers take a root folder and never download."""
+"""Benchmark readers (KT3DMoSeg, Hopkins155, AdelaideRMF, FBMS59). Each takes a root folder and never downloads.
+
+Generated data lives in `mosegpipe.synth`.
+"""
 
 from __future__ import annotations
 
@@ -13,11 +16,10 @@ from mosegpipe.data.kt3dmoseg import (
     list_kt3d_sequences,
     read_kt3d_sequence,
 )
-from mosegpipe.data.lce import LCEConfig, LCEDataset, lce_splits, make_lce
 
 __all__ = [
-    "AdelaidePair", "KT3DSequence", "LCEConfig", "LCEDataset", "fbms_track_labels", "fbms_windows",
-    "kt3d_frame_paths", "kt3d_test_clips", "kt3d_windows", "lce_splits", "list_adelaide", "list_hopkins_sequences",
-    "list_kt3d_sequences", "load_adelaide", "load_hopkins", "make_lce", "read_adelaide_pair", "read_fbms_groundtruth",
+    "AdelaidePair", "KT3DSequence", "fbms_track_labels", "fbms_windows",
+    "kt3d_frame_paths", "kt3d_test_clips", "kt3d_windows", "list_adelaide", "list_hopkins_sequences",
+    "list_kt3d_sequences", "load_adelaide", "load_hopkins", "read_adelaide_pair", "read_fbms_groundtruth",
     "read_fbms_tracks", "read_hopkins", "read_kt3d_sequence",
 ]

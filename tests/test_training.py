@@ -13,8 +13,8 @@ from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
 from mosegpipe.model import ModelConfig, SubspaceNet
-from mosegpipe.recipes import RECIPES, build_sampler, get_recipe
-from mosegpipe.train import (
+from mosegpipe.training.recipes import RECIPES, build_sampler, get_recipe
+from mosegpipe.training.loop import (
     TrainConfig,
     augment,
     clip_sampler,

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.data.seeded import SeededClips
+from mosegpipe.synth.seeded import SeededClips
 from mosegpipe.errors import InputError
 from mosegpipe.types import LabeledClip
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.data.seeded import SeededClips
+from mosegpipe.synth.seeded import SeededClips
 from mosegpipe.errors import InputError
 from mosegpipe.types import LabeledClip
 

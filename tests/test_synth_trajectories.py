@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mosegpipe.data.synthetic import (
+from mosegpipe.synth.trajectories import (
     PAIR_CONFIG,
     SyntheticConfig,
     SyntheticDataset,
@@ -225,7 +225,7 @@ def test_config_that_cannot_fit_its_bodies_raises() -> None:
 
 def test_gives_up_after_many_failed_draws(monkeypatch: pytest.MonkeyPatch) -> None:
     # Every draw culls all but one body: the generator must stop and say why, not loop forever.
-    import mosegpipe.data.synthetic as synthetic
+    import mosegpipe.synth.trajectories as synthetic
 
     monkeypatch.setattr(synthetic, "_draw", lambda *args: None)
     with pytest.raises(InputError, match="8 visible points"):

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from mosegpipe.model import ModelConfig
-from mosegpipe.train import Sampler, TrainConfig, clip_sampler, mixture_sampler
+from mosegpipe.training.loop import Sampler, TrainConfig, clip_sampler, mixture_sampler
 from mosegpipe.types import LabeledClip
 
 SOURCES = {
@@ -125,7 +125,7 @@ def source_clips(
     if source not in SOURCES or source.startswith("synthetic"):
         raise ValueError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
     if source == "lce":
-        from mosegpipe.data.lce import lce_splits
+        from mosegpipe.synth.lce import lce_splits
 
         return list(lce_splits()["train"])
     if data_root is None:
@@ -187,7 +187,7 @@ def build_sampler(
         if weight <= 0:
             continue
         if name in ("synthetic", "synthetic-pair"):
-            from mosegpipe.data.synthetic import SyntheticConfig, generate_clip, generate_pair
+            from mosegpipe.synth.trajectories import SyntheticConfig, generate_clip, generate_pair
 
             if name == "synthetic":
                 scfg = SyntheticConfig(frames=frames)
@@ -195,7 +195,7 @@ def build_sampler(
                 def draw(rng: Any, _c: SyntheticConfig = scfg) -> LabeledClip:
                     return generate_clip(rng, _c)
             else:
-                from mosegpipe.data.synthetic import PAIR_CONFIG
+                from mosegpipe.synth.trajectories import PAIR_CONFIG
 
                 def draw(rng: Any, _c: SyntheticConfig = PAIR_CONFIG) -> LabeledClip:
                     return generate_pair(rng, _c)

@@ -7,7 +7,7 @@ import torch
 import torch.nn.functional as F
 
 from mosegpipe.errors import InputError
-from mosegpipe.losses import LOSSES, MIMI_EPS, ce_affinity_loss, l2_affinity_loss, mimi_loss
+from mosegpipe.training.losses import LOSSES, MIMI_EPS, ce_affinity_loss, l2_affinity_loss, mimi_loss
 
 
 @pytest.fixture(autouse=True)

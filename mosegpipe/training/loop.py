@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mosegpipe.losses import LOSSES
+from mosegpipe.training.losses import LOSSES
 from mosegpipe.model import ModelConfig, SubspaceNet, pad_batch
 from mosegpipe.types import LabeledClip
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosegpipe.data.lce import CURVE_TYPES, LCEConfig, LCEDataset, lce_sample, lce_splits, make_lce
+from mosegpipe.synth.lce import CURVE_TYPES, LCEConfig, LCEDataset, lce_sample, lce_splits, make_lce
 from mosegpipe.errors import InputError
 from mosegpipe.types import LabeledClip
 

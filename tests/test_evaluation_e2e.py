@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosegpipe import e2e
-from mosegpipe.e2e import (
+from mosegpipe.evaluation import e2e
+from mosegpipe.evaluation.e2e import (
     boundary_f,
     boundary_map,
     jaccard,

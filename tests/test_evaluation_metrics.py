@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosegpipe.metrics import (
+from mosegpipe.evaluation.metrics import (
     contingency,
     correct_k_rate,
     error_summary,

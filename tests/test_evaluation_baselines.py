@@ -6,7 +6,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from mosegpipe.baselines import (
+from mosegpipe.evaluation.baselines import (
     BASELINES,
     Baseline,
     kmeans_raw,
@@ -18,7 +18,7 @@ from mosegpipe.baselines import (
     zscore_columns,
 )
 from mosegpipe.errors import InputError
-from mosegpipe.metrics import misclassification_error
+from mosegpipe.evaluation.metrics import misclassification_error
 
 Data = tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.render import ObjectSpec, RenderConfig, render_clip, write_clip
+from mosegpipe.synth.render import ObjectSpec, RenderConfig, render_clip, write_clip
 from mosegpipe.runtime import set_threads
 
 

@@ -13,13 +13,13 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-import mosegpipe.evaluate as ev
+import mosegpipe.evaluation.benchmark as ev
 from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.evaluate import EvalConfig, embed_clip, evaluate_clips, format_table, run_protocol, summarize, write_results
-from mosegpipe.metrics import misclassification_error
+from mosegpipe.evaluation.benchmark import EvalConfig, embed_clip, evaluate_clips, format_table, run_protocol, summarize, write_results
+from mosegpipe.evaluation.metrics import misclassification_error
 from mosegpipe.model import ModelConfig, SubspaceNet
-from mosegpipe.train import TrainConfig
+from mosegpipe.training.loop import TrainConfig
 from mosegpipe.types import LabeledClip
 
 TINY = ModelConfig(in_dim=4, width=16, num_blocks=2, embed_dim=5)

@@ -19,7 +19,7 @@ ground truth is carried over to them:
   keypoints in x and y (measured: median offset of nearby points on every pair; a 1-based,
   VLFeat-style convention), well inside the radius. Ground-truth gross outliers (label 0) count as
   one group and our outliers (label -1) as one more predicted group, as in the dataset protocol.
-- "rendered": synthetic clips from mosegpipe.render with exact per-pixel masks; the dense masks are
+- "rendered": synthetic clips from mosegpipe.synth.render with exact per-pixel masks; the dense masks are
   scored with the DAVIS region similarity J and boundary F-measure (see `mask_scores`), and the
   tracks with the misclassification error against the mask value under each track in frame 1.
 
@@ -46,7 +46,7 @@ from scipy.spatial import cKDTree
 
 from mosegpipe.errors import MosegError
 from mosegpipe.masks import labels_to_masks
-from mosegpipe.metrics import misclassification_error
+from mosegpipe.evaluation.metrics import misclassification_error
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair
 from mosegpipe.types import Frames
@@ -533,11 +533,11 @@ def rendered_config(seed: int, size_hw: tuple[int, int] = (480, 640), frames: in
     """The RenderConfig of seed `seed` in `rendered_rows`: 1-3 objects and the camera motions in turn.
 
     Returns:
-        mosegpipe.render.RenderConfig with num_objects 1 + seed % 3 and camera motion
+        mosegpipe.synth.render.RenderConfig with num_objects 1 + seed % 3 and camera motion
         CAMERA_MOTIONS[seed % 4] (static, pan, forward, handheld), so ten seeds cover all twelve
         pairs but two.
     """
-    from mosegpipe.render import CAMERA_MOTIONS, RenderConfig
+    from mosegpipe.synth.render import CAMERA_MOTIONS, RenderConfig
 
     return RenderConfig(
         size_hw=size_hw,
@@ -579,7 +579,7 @@ def rendered_rows(
         what perfect clustering would reach), seconds (segment_frames; rendering and scoring
         excluded). Scores are NaN when too few tracks survive.
     """
-    from mosegpipe.render import render_clip
+    from mosegpipe.synth.render import render_clip
 
     cfg = replace(cfg, frames=frames)
     rows = []

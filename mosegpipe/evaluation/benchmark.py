@@ -22,10 +22,10 @@ import numpy as np
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.io import atomic_write
-from mosegpipe.metrics import correct_k_rate, misclassification_error, nmi
+from mosegpipe.evaluation.metrics import correct_k_rate, misclassification_error, nmi
 from mosegpipe.model import SubspaceNet
-from mosegpipe.recipes import build_sampler, source_clips
-from mosegpipe.train import TrainConfig, recipe_of, train_model
+from mosegpipe.training.recipes import build_sampler, source_clips
+from mosegpipe.training.loop import TrainConfig, recipe_of, train_model
 from mosegpipe.types import LabeledClip
 
 log = logging.getLogger(__name__)
@@ -98,7 +98,7 @@ def evaluate_clips(
         One row per clip: name, num_points, k_true, k_pred, error (automatic K), error_true_k, nmi,
         seconds (embedding + automatic K), and `<baseline>@K` / `<baseline>@auto` errors.
     """
-    from mosegpipe.baselines import BASELINES
+    from mosegpipe.evaluation.baselines import BASELINES
 
     unknown = [b for b in baselines if b not in BASELINES]
     if unknown:
@@ -217,7 +217,7 @@ def _test_clips(cfg: EvalConfig, data_root: Path) -> list[LabeledClip]:
 
         return load_hopkins(data_root, frames=cfg.frames or None)  # 0: all frames
     if cfg.protocol == "lce":
-        from mosegpipe.data.lce import lce_splits
+        from mosegpipe.synth.lce import lce_splits
 
         return list(lce_splits()["test"])
     raise ValueError(f"unknown protocol {cfg.protocol!r}; choose from {', '.join(PROTOCOLS)}")
