@@ -4,7 +4,7 @@
 
 Writes one synthetic video (a textured background panning back and forth and two textured
 rectangles moving across it, MJPG) as long as the longest length, then segments its first L frames
-in a fresh subprocess per length (mosegpipe.video.segment_video, as `moseg run --whole`). Each
+in a fresh subprocess per length (mosegpipe.outputs.write_video_outputs, as `moseg run --whole`). Each
 subprocess reports its peak resident set size (resource.getrusage ru_maxrss) right after the
 imports and the model (the baseline) and after the run. Flat memory means the peak does not grow
 with L. One thread throughout.
@@ -71,7 +71,7 @@ def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     from mosegpipe.model import ModelConfig, SubspaceNet
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.runtime import set_threads
-    from mosegpipe.video import segment_video
+    from mosegpipe.outputs import write_video_outputs
 
     set_threads(1)
     if model_path is not None:
@@ -85,7 +85,7 @@ def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     baseline = _maxrss_mib()
     with tempfile.TemporaryDirectory(prefix="moseg_mem_") as tmp:
         t0 = time.perf_counter()
-        summary = segment_video(video, Path(tmp) / "out", PipelineConfig(frames=5), model, rrd=rrd, max_frames=frames)
+        summary = write_video_outputs(video, Path(tmp) / "out", PipelineConfig(frames=5), model, rrd=rrd, max_frames=frames)
         seconds = time.perf_counter() - t0
     tracks = [w["num_tracks"] for w in summary["windows"]]
     print(json.dumps({

@@ -5,7 +5,7 @@
 (a) `moseg run` on 5 frames at 640x480 (a rendered clip and the first frames of vtest.avi resized),
     stage by stage: the first (cold) call after the imports, then the median of --repeats calls
     after one warm-up call. "write" is masks + overlays + labels + summary, "rrd" the recording.
-(b) whole-video mode (`moseg run --whole`, mosegpipe.video.segment_video) on --video-frames frames
+(b) whole-video mode (`moseg run --whole`, mosegpipe.outputs.write_video_outputs) on --video-frames frames
     of a rendered 640x480 video (~900 tracks) and of vtest.avi resized to 640x480 (~400 tracks):
     frames per second, vtest.avi with and without the Rerun recording.
 (c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
@@ -35,7 +35,8 @@ import torch  # noqa: E402
 
 from mosegpipe.cluster import cluster_auto_k  # noqa: E402
 from mosegpipe.model import ModelConfig, SubspaceNet  # noqa: E402
-from mosegpipe.pipeline import PipelineConfig, segment_clip, write_clip_outputs  # noqa: E402
+from mosegpipe.outputs import write_clip_outputs  # noqa: E402
+from mosegpipe.pipeline import PipelineConfig, segment_clip  # noqa: E402
 from mosegpipe.runtime import set_threads  # noqa: E402
 
 _IMPORT_S = time.perf_counter() - _T_START
@@ -131,13 +132,13 @@ def clip_table(clips: dict[str, Path], model: SubspaceNet, repeats: int, work: P
 
 def video_table(runs: list[tuple[str, Path, bool]], model: SubspaceNet, work: Path) -> str:
     """Whole-video mode on each (name, video, with recording) run."""
-    from mosegpipe.video import segment_video
+    from mosegpipe.outputs import write_video_outputs
 
     cfg = PipelineConfig(frames=5)
     lines = ["| input | recording | frames | windows | mean tracks / window | motion labels | wall s | frames/s |", "|---|---|---|---|---|---|---|---|"]
     for i, (name, video, rrd) in enumerate(runs):
         t0 = time.perf_counter()
-        s = segment_video(video, work / f"video_{i}", cfg, model, overwrite=True, rrd=rrd)
+        s = write_video_outputs(video, work / f"video_{i}", cfg, model, overwrite=True, rrd=rrd)
         seconds = time.perf_counter() - t0
         tracks = np.mean([w["num_tracks"] for w in s["windows"]])
         lines.append(

@@ -163,7 +163,8 @@ def run(
     output folder; see docs/OUTPUTS.md. Exit code 1 with one 'moseg: error:' line on failure.
     """
     _setup(threads, verbose)
-    from mosegpipe.pipeline import check_output_dir, load_model, segment_clip, write_clip_outputs
+    from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
+    from mosegpipe.pipeline import load_model, segment_clip
 
     cfg = _pipeline_cfg(frames, k, k_method, k_max)
     if not clip.exists():
@@ -174,9 +175,7 @@ def run(
     check_output_dir(out, overwrite)
     net = load_model(frames, model)
     if whole:
-        from mosegpipe.video import segment_video
-
-        summary = segment_video(clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=max_frames)
+        summary = write_video_outputs(clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=max_frames)
         typer.echo(
             f"{summary['frames']} frames in {summary['num_windows']} windows of {summary['window_frames']} "
             f"({summary['num_windows_labelled']} labelled) -> {summary['num_motions']} motion labels"
@@ -206,7 +205,8 @@ def pair(
 ) -> None:
     """Segment the motions between two images from SIFT matches; outliers get their own label."""
     _setup(threads, verbose)
-    from mosegpipe.pipeline import check_output_dir, load_model, segment_pair, write_pair_outputs
+    from mosegpipe.outputs import check_output_dir, write_pair_outputs
+    from mosegpipe.pipeline import load_model, segment_pair
 
     cfg = _pipeline_cfg(2, k, k_method, k_max)
     for p in (img1, img2):

@@ -6,7 +6,7 @@ The public API, stage by stage (see README.md):
     tracks = track_klt(frames)                           # Tracks xy (N, T, 2), visible (N, T)
     traj = build_trajectories(tracks)                    # Trajectories (N, 2T)
     model = SubspaceNet.default(frames=5)                # shipped weights, offline, eval mode
-    result = cluster_auto_k(model.embed(traj.data))      # Clustering labels (N,), k, scores
+    result = cluster_auto_k(model.embed(traj))           # Clustering labels (N,), k, scores
     seg = segment_clip("clip.mp4")                       # the whole recipe in one call
 """
 
@@ -29,9 +29,8 @@ _EXPORTS = {
     "mosegpipe.match": ("MatchConfig", "match_sift"),
     "mosegpipe.evaluation.metrics": ("misclassification_error", "nmi"),
     "mosegpipe.model": ("ModelConfig", "SubspaceNet"),
-    "mosegpipe.pipeline": (
-        "PipelineConfig", "segment_clip", "segment_frames", "segment_pair", "write_clip_outputs", "write_pair_outputs",
-    ),
+    "mosegpipe.outputs": ("write_clip_outputs", "write_pair_outputs", "write_video_outputs"),
+    "mosegpipe.pipeline": ("PipelineConfig", "segment_clip", "segment_frames", "segment_pair", "segment_video"),
     "mosegpipe.track": ("KLTTracker", "TrackConfig", "track_klt"),
     "mosegpipe.trajectories": ("build_trajectories", "resample_frames", "trajectories_from_matches"),
     "mosegpipe.types": (

@@ -20,7 +20,8 @@ from typing import Any
 from mosegpipe.errors import InputError, MosegError
 from mosegpipe.io import IMAGE_SUFFIXES, atomic_write, write_json
 from mosegpipe.model import SubspaceNet
-from mosegpipe.pipeline import PipelineConfig, segment_clip, write_clip_outputs
+from mosegpipe.outputs import write_clip_outputs
+from mosegpipe.pipeline import PipelineConfig, segment_clip
 
 log = logging.getLogger(__name__)
 

@@ -482,6 +482,24 @@ def write_npz(path: str | os.PathLike[str], **arrays: npt.ArrayLike) -> None:
         np.savez_compressed(fh, **arrays)
 
 
+def write_jpeg(path: str | os.PathLike[str], rgb: npt.NDArray[np.uint8], quality: int = 90) -> None:
+    """Write an RGB image as JPEG (OpenCV's encoder), atomically.
+
+    Args:
+        path: output .jpg path.
+        rgb: (H, W, 3) uint8 RGB.
+        quality: JPEG quality, 0..100.
+
+    Raises:
+        ValueError: OpenCV could not encode the image (not a valid (H, W, 3) uint8 array).
+    """
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError(f"{path}: OpenCV could not encode a JPEG of shape {rgb.shape}")
+    with atomic_write(path) as tmp:
+        tmp.write_bytes(buf.tobytes())
+
+
 def write_video(
     path: str | os.PathLike[str],
     frames_iter: Iterable[npt.NDArray[np.uint8]],

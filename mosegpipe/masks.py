@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
+from mosegpipe.io import default_palette
 from mosegpipe.types import Tracks
 
 MAX_LABEL = 254
@@ -207,3 +208,35 @@ def overlay_mask(
     blended = image.astype(np.float32) * (1.0 - alpha) + colours * alpha
     out = np.where((mask > 0)[:, :, None], blended, image.astype(np.float32))
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def overlay_image(
+    image: npt.NDArray[np.uint8],
+    mask: npt.NDArray[np.uint8] | None,
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    alpha: float = 0.45,
+) -> npt.NDArray[np.uint8]:
+    """An RGB picture for people: the mask blended over the image and each track as a dot in its label's colour.
+
+    Args:
+        image: (H, W, 3) uint8 RGB.
+        mask: (H, W) uint8 mask values (0 = unknown, left unblended) or None.
+        xy: (N, 2) float32 pixel positions of the tracks in this image.
+        labels: (N,) int64 labels (-1 = outlier, drawn as a small grey cross); colour = palette[label + 1],
+            the colour of the mask value label + 1.
+        alpha: weight of the mask colour, 0..1.
+
+    Returns:
+        (H, W, 3) uint8 RGB.
+    """
+    palette = default_palette()
+    out = overlay_mask(image, mask, palette, alpha) if mask is not None else image.copy()
+    for (x, y), lab in zip(np.round(xy).astype(int), labels):
+        if lab < 0:
+            cv2.drawMarker(out, (int(x), int(y)), (160, 160, 160), cv2.MARKER_TILTED_CROSS, 5, 1)
+        else:
+            c = tuple(int(v) for v in palette[lab + 1])
+            cv2.circle(out, (int(x), int(y)), 3, c, -1, lineType=cv2.LINE_AA)
+            cv2.circle(out, (int(x), int(y)), 3, (0, 0, 0), 1, lineType=cv2.LINE_AA)
+    return out

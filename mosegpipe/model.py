@@ -44,6 +44,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from mosegpipe.errors import CheckpointError, InputError
+from mosegpipe.trajectories import resample_frames
+from mosegpipe.types import Trajectories
 
 logger = logging.getLogger(__name__)
 
@@ -246,22 +248,31 @@ class SubspaceNet(nn.Module):
                              f"({x.shape[0]}, {x.shape[2]})")
         return self._embed_points(x.transpose(1, 2).to(torch.float32), mask).transpose(1, 2)
 
-    def embed(self, traj: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
-        """Embed one clip's trajectory matrix without gradients.
+    @property
+    def num_frames(self) -> int:
+        """F, the trajectory length the model takes (its input is (N, 2F))."""
+        return self.cfg.in_dim // 2
+
+    def embed(self, traj: Trajectories | npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
+        """Embed one clip's trajectories without gradients.
 
         Args:
-            traj: (N, D) trajectory matrix, columns x_1, y_1, ..., x_F, y_F in pixels, D = cfg.in_dim.
+            traj: Trajectories of any length F' (resampled in time to the model's F first, see
+                trajectories.resample_frames), or an (N, D) trajectory matrix with columns
+                x_1, y_1, ..., x_F, y_F in pixels and D = cfg.in_dim exactly.
 
         Returns:
             (N, E) float32 unit-norm embeddings.
 
         Raises:
-            InputError: traj is not 2-D, has D != cfg.in_dim columns, or holds NaN/inf.
+            InputError: the matrix is not 2-D, has D != cfg.in_dim columns, or holds NaN/inf.
         """
+        if isinstance(traj, Trajectories):
+            traj = resample_frames(traj, self.num_frames).data
         arr = np.asarray(traj)
         if arr.ndim != 2 or arr.shape[1] != self.cfg.in_dim:
             raise InputError(f"trajectory matrix shape {arr.shape}: this model expects (N, {self.cfg.in_dim}) "
-                             f"({self.cfg.in_dim // 2} frames)")
+                             f"({self.num_frames} frames)")
         if not np.all(np.isfinite(arr)):
             raise InputError("trajectory matrix holds NaN or inf values")
         if arr.shape[0] == 0:

@@ -1,43 +1,44 @@
-"""The recipe, stage by stage: frames -> tracks -> trajectories -> embeddings -> clusters -> masks -> files.
+"""The recipe, stage by stage: frames -> tracks -> trajectories -> embeddings -> clusters -> masks.
 
-`segment_frames` / `segment_clip` / `segment_pair` return results in memory; `write_clip_outputs` /
-`write_pair_outputs` write them into a fresh output folder atomically (built under a temporary name and
-renamed when complete), so a failure never leaves half an output behind. `check_output_dir` lets a
-caller refuse an occupied output folder before spending time on segmentation, and `decode_errors`
-turns whatever OpenCV or the OS raise on a broken input into an InputError. The folder layout and
-summary.json schema are in docs/OUTPUTS.md; whole videos are in mosegpipe.video.
+Compute only: `segment_frames` / `segment_clip` / `segment_pair` return immutable results with their
+timings, and `segment_video` walks a whole video as a stream of window results. Writing any of them
+into an output folder is `mosegpipe.outputs`. `decode_errors` turns whatever OpenCV or the OS raise on a
+broken input into an InputError.
+
+Whole videos: consecutive F-frame windows, streamed, with motion labels kept consistent across windows.
+Windows share their boundary frame (window w covers frames w(F-1) .. w(F-1)+F-1) and the tracker
+re-seeds corners at every window start, so tracks run on from one window into the next. A window's
+clusters take the global label of the previous window's cluster they share most tracks with
+(Hungarian matching on the overlap counts); a cluster that matches nothing starts a new global label.
+Only the current window's frames (at most F images) are held.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import shutil
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
+from scipy.optimize import linear_sum_assignment
 
-from mosegpipe import __version__
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.errors import CheckpointError, InputError, OutputExistsError, TooFewTracksError
-from mosegpipe.io import default_palette, read_image, read_video, video_info, write_json, write_npz, write_palette_png
-from mosegpipe.masks import MaskConfig, labels_to_mask, labels_to_masks, overlay_mask
+from mosegpipe.errors import CheckpointError, InputError, TooFewTracksError
+from mosegpipe.io import iter_video, read_image, read_video, video_info
+from mosegpipe.masks import MAX_LABEL, MaskConfig, labels_to_mask, labels_to_masks
 from mosegpipe.match import MatchConfig, match_sift
 from mosegpipe.model import SubspaceNet, available_default_frames
-from mosegpipe.track import TrackConfig, track_klt
-from mosegpipe.trajectories import build_trajectories, resample_frames, trajectories_from_matches
+from mosegpipe.track import KLTTracker, TrackConfig, track_klt
+from mosegpipe.trajectories import build_trajectories, trajectories_from_matches
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
 
 log = logging.getLogger(__name__)
-
-SUMMARY_SCHEMA = "mosegpipe.summary/1"
-
 
 @dataclass(frozen=True)
 class PipelineConfig:
@@ -65,7 +66,7 @@ class PipelineConfig:
     outlier_inlier_ratio: float = 0.5
 
 
-@dataclass
+@dataclass(frozen=True)
 class ClipResult:
     """Everything one clip's segmentation produced.
 
@@ -90,7 +91,7 @@ class ClipResult:
     model_info: dict[str, Any]
 
 
-@dataclass
+@dataclass(frozen=True)
 class PairResult:
     """Everything one image pair's segmentation produced.
 
@@ -142,20 +143,19 @@ def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet
         raise CheckpointError(f"{exc}; pass --model CHECKPOINT to use other weights") from exc
 
 
-def _model_info(model: SubspaceNet) -> dict[str, Any]:
+def model_info(model: SubspaceNet) -> dict[str, Any]:
+    """The model's recipe name, input frame count and configuration, as recorded in summary.json."""
     recipe = getattr(model, "recipe", None) or {}
     return {
         "recipe": recipe.get("name", "unknown"),
-        "model_frames": model.cfg.in_dim // 2,
+        "model_frames": model.num_frames,
         "model_config": model.cfg.to_dict(),
     }
 
 
-def _embed(model: SubspaceNet, traj: Trajectories) -> npt.NDArray[np.float32]:
-    model_frames = model.cfg.in_dim // 2
-    if traj.num_frames != model_frames:
-        traj = resample_frames(traj, model_frames)
-    return model.embed(traj.data)
+def embed_at_model_frames(model: SubspaceNet, traj: Trajectories) -> npt.NDArray[np.float32]:
+    """(N, E) embeddings of trajectories of any length, resampled in time to the model's F first."""
+    return model.embed(traj)
 
 
 def _check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
@@ -222,7 +222,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
         )
     _check_k(cfg.k, traj.num_points, frames.source or "clip")
     t0 = time.perf_counter()
-    emb = _embed(model, traj)
+    emb = embed_at_model_frames(model, traj)
     timings["embed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k)
@@ -230,7 +230,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     t0 = time.perf_counter()
     masks = labels_to_masks(tracks, traj.track_ids, clustering.labels, cfg.mask)
     timings["masks"] = time.perf_counter() - t0
-    return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, _model_info(model))
+    return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, model_info(model))
 
 
 def _frames(n: int) -> str:
@@ -273,8 +273,7 @@ def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model
         raise InputError(f"{path}: only {_frames(frames.num_frames)} could be read{hint}; --frames needs {cfg.frames}")
     read_s = time.perf_counter() - t0
     result = segment_frames(frames, cfg, model)
-    result.timings = {"read": read_s, **result.timings}
-    return result
+    return replace(result, timings={"read": read_s, **result.timings})
 
 
 def _outlier_cluster(matches: Matches, labels: npt.NDArray[np.int64], k: int, min_ratio: float) -> int | None:
@@ -337,7 +336,7 @@ def segment_pair(
     _check_k(cfg.k, matches.num_matches, names, "matches")
     traj = trajectories_from_matches(matches)
     t0 = time.perf_counter()
-    emb = _embed(model, traj)
+    emb = embed_at_model_frames(model, traj)
     timings["embed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k)
@@ -354,284 +353,263 @@ def segment_pair(
         labels_to_mask(matches.xy2[inl], labels[inl], im2.shape[:2], cfg.mask),
     )
     timings["masks"] = time.perf_counter() - t0
-    return PairResult((im1, im2), matches, emb, clustering, labels, outlier, masks, timings, _model_info(model))
+    return PairResult((im1, im2), matches, emb, clustering, labels, outlier, masks, timings, model_info(model))
 
 
-def check_output_dir(out_dir: str | Path, overwrite: bool) -> None:
-    """Fails early when `out_dir` cannot receive a run's outputs.
-
-    An absent or empty folder is fine. A folder holding files is refused unless `overwrite`, and
-    even then only when it is a moseg output folder (holds summary.json): --overwrite never deletes
-    a folder of other files (an input folder given as --out by mistake, a home directory).
-
-    Raises:
-        OutputExistsError: it holds results and overwrite is False.
-        InputError: it is a file, or it holds files that are not a moseg output.
-    """
-    out = Path(out_dir)
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder; choose another --out")
-    if not any(out.iterdir()):
-        return
-    if not overwrite:
-        raise OutputExistsError(f"{out}: already holds results; pass --overwrite to replace them")
-    if not (out / "summary.json").is_file():
-        raise InputError(f"{out}: holds files but no summary.json, so it is not a moseg output; refusing to replace it")
+_MIN_SHARE = 0.5  # a cluster continues a global label only if most of its shared tracks carried it
 
 
-class _OutputDir:
-    """Builds an output folder under a temporary name; renames it into place only when complete.
+@dataclass
+class LabelBook:
+    """Global motion labels across windows, with reuse once the uint8 mask range is spent.
 
-    The temporary folder `.NAME.partial` sits beside the final one (same file system, so the rename
-    is atomic). On an exception (KeyboardInterrupt included) it is removed and the final folder is
-    left as it was; on success an existing final folder is replaced (see check_output_dir).
+    Attributes:
+        next_label: the next never-used label.
+        last_window: label -> the last window that used it.
+        num_reused: how many times a label was handed out again (only after 255 labels).
+        max_label: largest label a mask can hold (mask value = label + 1 <= 255).
     """
 
-    def __init__(self, out_dir: Path, overwrite: bool) -> None:
-        check_output_dir(out_dir, overwrite)
-        # absolute(): "." or "" has no name to build the temporary sibling from.
-        self.final = Path(out_dir).absolute()
-        self.tmp = self.final.with_name(f".{self.final.name}.partial")
+    next_label: int = 0
+    last_window: dict[int, int] = field(default_factory=dict)
+    num_reused: int = 0
+    max_label: int = MAX_LABEL
 
-    def __enter__(self) -> Path:
-        if self.tmp.exists():
-            shutil.rmtree(self.tmp)
-        self.tmp.mkdir(parents=True)
-        return self.tmp
-
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-            return
-        if self.final.exists():
-            old = self.final.with_name(f".{self.final.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            self.final.rename(old)
-            self.tmp.rename(self.final)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            self.tmp.rename(self.final)
+    def new_label(self, busy: set[int]) -> int:
+        """A label for a motion that continues none seen before: the next unused one, else the least
+        recently used label that is not in `busy`."""
+        if self.next_label <= self.max_label:
+            self.next_label += 1
+            return self.next_label - 1
+        free = [lab for lab in self.last_window if lab not in busy]
+        if not free:
+            raise InputError(f"more than {self.max_label + 1} motions live at once; masks cannot hold them")
+        self.num_reused += 1
+        return min(free, key=lambda lab: self.last_window[lab])
 
 
-def overlay_image(
-    image: npt.NDArray[np.uint8],
-    mask: npt.NDArray[np.uint8] | None,
-    xy: npt.NDArray[np.float32],
-    labels: npt.NDArray[np.int64],
-    alpha: float = 0.45,
-) -> npt.NDArray[np.uint8]:
-    """An RGB picture for people: the mask blended over the image and each track as a dot in its label's colour.
+def match_labels(
+    prev: dict[int, int],
+    ids: npt.NDArray[np.int64],
+    clusters: npt.NDArray[np.int64],
+    k: int,
+    book: LabelBook,
+    window: int = 0,
+) -> npt.NDArray[np.int64]:
+    """Maps this window's clusters to global labels through the tracks shared with the previous window.
+
+    Clusters and previous labels are paired by the Hungarian method on their overlap counts
+    (maximum total overlap, one-to-one). A pair is kept only when at least half of the cluster's
+    shared tracks carried that label, so a new object that happens to share a few mislabelled
+    tracks with an old one does not inherit its label.
 
     Args:
+        prev: track id -> global label from the previous labelled window.
+        ids: (N,) int64 track ids of this window's trajectories.
+        clusters: (N,) int64 cluster of each, in 0..k-1.
+        k: number of clusters in this window.
+        book: the global label state (updated).
+        window: index of this window (for least-recently-used label reuse).
+
+    Returns:
+        (N,) int64 global labels.
+    """
+    old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
+    shared = old >= 0
+    mapping: dict[int, int] = {}
+    if shared.any():
+        olds = np.unique(old[shared])
+        overlap = np.zeros((k, olds.size), dtype=np.int64)
+        np.add.at(overlap, (clusters[shared], np.searchsorted(olds, old[shared])), 1)
+        per_cluster = overlap.sum(axis=1)
+        rows, cols = linear_sum_assignment(-overlap)
+        for r, c in zip(rows, cols):
+            if overlap[r, c] > 0 and overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
+                mapping[int(r)] = int(olds[c])
+    busy = set(mapping.values()) | set(prev.values())
+    for c in range(k):
+        if c not in mapping:
+            mapping[c] = book.new_label(busy)
+            busy.add(mapping[c])
+    for lab in mapping.values():
+        book.last_window[lab] = window
+    return np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
+
+
+_Frame = tuple[int, npt.NDArray[np.uint8], npt.NDArray[np.int64], npt.NDArray[np.float32]]
+
+
+@dataclass(frozen=True)
+class VideoFrame:
+    """One frame of a whole-video run with the labels of its tracks.
+
+    Attributes:
+        index: frame index in the source (0-based).
         image: (H, W, 3) uint8 RGB.
-        mask: (H, W) uint8 mask values (0 = unknown, left unblended) or None.
-        xy: (N, 2) float32 pixel positions of the tracks in this image.
-        labels: (N,) int64 labels (-1 = outlier, drawn as a small grey cross); colour = palette[label + 1],
-            the colour of the mask value label + 1.
-        alpha: weight of the mask colour, 0..1.
-
-    Returns:
-        (H, W, 3) uint8 RGB.
+        track_ids: (N,) int64 ids of the tracks live in this frame.
+        xy: (N, 2) float32 pixel positions of those tracks.
+        labels: (N,) int64 global motion label of each track, -1 = unlabelled.
+        mask: (H, W) uint8, 0 = unknown, label + 1 = motion.
     """
-    palette = default_palette()
-    out = overlay_mask(image, mask, palette, alpha) if mask is not None else image.copy()
-    for (x, y), lab in zip(np.round(xy).astype(int), labels):
-        if lab < 0:
-            cv2.drawMarker(out, (int(x), int(y)), (160, 160, 160), cv2.MARKER_TILTED_CROSS, 5, 1)
-        else:
-            c = tuple(int(v) for v in palette[lab + 1])
-            cv2.circle(out, (int(x), int(y)), 3, c, -1, lineType=cv2.LINE_AA)
-            cv2.circle(out, (int(x), int(y)), 3, (0, 0, 0), 1, lineType=cv2.LINE_AA)
-    return out
+
+    index: int
+    image: npt.NDArray[np.uint8]
+    track_ids: npt.NDArray[np.int64]
+    xy: npt.NDArray[np.float32]
+    labels: npt.NDArray[np.int64]
+    mask: npt.NDArray[np.uint8]
 
 
-def _write_jpg(path: Path, rgb: npt.NDArray[np.uint8]) -> None:
-    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 90])
-    if not ok:
-        raise InputError(f"{path}: could not encode overlay image")
-    path.write_bytes(buf.tobytes())
+@dataclass(frozen=True)
+class WindowResult:
+    """One F-frame window of a whole video.
+
+    Attributes:
+        start: index of the window's first frame.
+        num_frames: frames in the window (F, or fewer for the last one).
+        num_tracks: tracks live through the whole window.
+        k: motions found in it (0 = left unlabelled: too few tracks).
+        track_ids: (N,) int64 ids of the labelled tracks (empty when unlabelled).
+        labels: (N,) int64 their global labels.
+        frames: the frames this window adds (its first frame belongs to the previous window, except
+            for the first window), with labels and masks.
+        num_motions: global labels handed out so far.
+        num_labels_reused: labels handed out again so far (only after 255 labels).
+        num_frames_read: frames read from the source so far.
+    """
+
+    start: int
+    num_frames: int
+    num_tracks: int
+    k: int
+    track_ids: npt.NDArray[np.int64]
+    labels: npt.NDArray[np.int64]
+    frames: tuple[VideoFrame, ...]
+    num_motions: int
+    num_labels_reused: int
+    num_frames_read: int
+
+    @property
+    def is_labelled(self) -> bool:
+        """Whether the window had enough tracks to be segmented."""
+        return self.k > 0
+
+    def record(self) -> dict[str, int]:
+        """The window's row in summary.json."""
+        return {"start": self.start, "frames": self.num_frames, "num_tracks": self.num_tracks, "k": self.k}
 
 
-def _write_masks_and_overlays(
-    folder: Path,
-    indices: list[int],
-    images: Any,
-    masks: Any,
-    xys: list[npt.NDArray[np.float32]],
-    labels: npt.NDArray[np.int64],
-) -> None:
-    """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source."""
-    palette = default_palette()
-    (folder / "masks").mkdir()
-    (folder / "overlay").mkdir()
-    for index, image, mask, xy in zip(indices, images, masks, xys):
-        write_palette_png(folder / "masks" / f"{index:06d}.png", mask, palette)
-        _write_jpg(folder / "overlay" / f"{index:06d}.jpg", overlay_image(image, mask, xy, labels))
+def check_video_settings(cfg: PipelineConfig, max_frames: int | None) -> None:
+    """Fails early on settings a whole-video run cannot use.
+
+    Raises:
+        InputError: cfg.frames < 2 or max_frames < 1.
+    """
+    if cfg.frames < 2:
+        raise InputError(f"--frames {cfg.frames}: whole-video mode needs windows of at least 2 frames")
+    if max_frames is not None and max_frames < 1:
+        raise InputError(f"--max-frames {max_frames} must be >= 1")
 
 
-def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
-    """The JSON summary of a clip run (schema: docs/OUTPUTS.md)."""
-    c = result.clustering
-    return {
-        "schema": SUMMARY_SCHEMA,
-        "kind": "clip",
-        "source": result.frames.source,
-        "version": __version__,
-        "start": result.frames.start,
-        "frames": result.frames.num_frames,
-        "size_hw": list(result.frames.size_hw),
-        "k": c.k,
-        "k_method": c.method,
-        "k_scores": {str(k): float(v) for k, v in c.scores.items()},
-        "num_tracks_detected": result.tracks.num_tracks,
-        "num_tracks_segmented": result.trajectories.num_points,
-        "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
-        "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
-        "model": result.model_info,
-        "config": asdict(cfg),
-    }
-
-
-def write_clip_outputs(
-    result: ClipResult,
-    out_dir: str | Path,
+def segment_video(
+    path: str | Path,
     cfg: PipelineConfig = PipelineConfig(),
-    overwrite: bool = False,
-    rrd: bool = True,
-) -> dict[str, Any]:
-    """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg and recording.rrd atomically.
-
-    The folder layout and every field are documented in docs/OUTPUTS.md. Mask and overlay files are
-    named after the source frame index (000000.png, ...).
+    model: SubspaceNet | None = None,
+    max_frames: int | None = None,
+) -> Iterator[WindowResult]:
+    """Segments a whole video window by window, streamed: yields each window as soon as it is labelled.
 
     Args:
-        result: what segment_clip / segment_frames returned.
-        out_dir: output folder; built under a temporary name and renamed when complete.
-        cfg: the settings the result was computed with (recorded in summary.json).
-        overwrite: replace an existing moseg output folder.
-        rrd: also write the Rerun recording.
+        path: video file or frame folder.
+        cfg: pipeline settings; cfg.frames is the window length F (>= 2).
+        model: the model (None = shipped default for cfg.frames).
+        max_frames: stop after this many frames (None = whole video).
 
-    Returns:
-        The summary dict that was written.
-
-    Raises:
-        OutputExistsError, InputError: see check_output_dir.
-    """
-    summary = clip_summary(result, cfg)
-    with _OutputDir(Path(out_dir), overwrite) as tmp:
-        traj = result.trajectories
-        write_npz(
-            tmp / "labels.npz",
-            track_ids=traj.track_ids,
-            labels=result.clustering.labels,
-            xy=result.tracks.xy[traj.track_ids],
-            embeddings=result.embeddings,
-        )
-        _write_masks_and_overlays(
-            tmp,
-            [result.frames.start + t for t in range(result.frames.num_frames)],
-            result.frames.images,
-            result.masks,
-            [result.tracks.xy[traj.track_ids, t] for t in range(result.frames.num_frames)],
-            result.clustering.labels,
-        )
-        if rrd:
-            from mosegpipe.viz import write_recording
-
-            t0 = time.perf_counter()
-            write_recording(
-                tmp / "recording.rrd",
-                result.frames,
-                result.tracks,
-                traj.track_ids,
-                result.clustering.labels,
-                result.embeddings,
-                result.masks,
-                result.clustering.scores,
-                result.clustering.k,
-            )
-            summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
-        write_json(tmp / "summary.json", summary)
-    return summary
-
-
-def pair_summary(result: PairResult, cfg: PipelineConfig, sources: tuple[str, str]) -> dict[str, Any]:
-    """The JSON summary of a pair run (schema: docs/OUTPUTS.md)."""
-    c = result.clustering
-    motions = result.labels[result.labels >= 0]
-    num_motions = int(motions.max()) + 1 if motions.size else 0
-    return {
-        "schema": SUMMARY_SCHEMA,
-        "kind": "pair",
-        "source": list(sources),
-        "version": __version__,
-        "size_hw": [list(result.images[0].shape[:2]), list(result.images[1].shape[:2])],
-        "k": c.k,
-        "num_motions": num_motions,
-        "outlier_cluster": result.outlier_cluster,
-        "num_outliers": int((result.labels < 0).sum()),
-        "k_method": c.method,
-        "k_scores": {str(k): float(v) for k, v in c.scores.items()},
-        "num_matches": result.matches.num_matches,
-        "matches_per_motion": np.bincount(motions, minlength=num_motions).tolist(),
-        "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
-        "model": result.model_info,
-        "config": asdict(cfg),
-    }
-
-
-def write_pair_outputs(
-    result: PairResult,
-    out_dir: str | Path,
-    cfg: PipelineConfig = PipelineConfig(frames=2),
-    overwrite: bool = False,
-    sources: tuple[str, str] = ("", ""),
-    rrd: bool = True,
-) -> dict[str, Any]:
-    """Writes summary.json, labels.npz, masks/00000{0,1}.png, overlay/00000{0,1}.jpg and recording.rrd atomically.
-
-    Args:
-        result: what segment_pair returned.
-        out_dir: output folder; built under a temporary name and renamed when complete.
-        cfg: the settings the result was computed with (recorded in summary.json).
-        overwrite: replace an existing moseg output folder.
-        sources: the two image paths, for summary.json.
-        rrd: also write the Rerun recording.
-
-    Returns:
-        The summary dict that was written.
+    Yields:
+        WindowResult per window, in order; together their `frames` cover every frame read once.
 
     Raises:
-        OutputExistsError, InputError: see check_output_dir.
+        InputError: unreadable input, fewer than F frames, F < 2 or max_frames < 1.
+        TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
+            the video is exhausted).
     """
-    summary = pair_summary(result, cfg, sources)
-    with _OutputDir(Path(out_dir), overwrite) as tmp:
-        m = result.matches
-        write_npz(
-            tmp / "labels.npz",
-            xy1=m.xy1,
-            xy2=m.xy2,
-            labels=result.labels,
-            clusters=result.clustering.labels,
-            embeddings=result.embeddings,
-        )
-        _write_masks_and_overlays(tmp, [0, 1], result.images, result.masks, [m.xy1, m.xy2], result.labels)
-        if rrd:
-            from mosegpipe.viz import write_pair_recording
+    check_video_settings(cfg, max_frames)
+    f = cfg.frames
+    model = model or load_model(f)
+    with decode_errors(path):
+        info = video_info(path)
+    tracker = KLTTracker(replace(cfg.track, reseed=True, reseed_every=f - 1))
+    book = LabelBook()
+    prev: dict[int, int] = {}
+    num_windows = 0
+    num_labelled = 0
+    num_frames = 0
 
-            t0 = time.perf_counter()
-            write_pair_recording(
-                tmp / "recording.rrd",
-                result.images,
-                m,
-                result.labels,
-                result.embeddings,
-                result.masks,
-                result.clustering.scores,
-                result.clustering.k,
-            )
-            summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
-        write_json(tmp / "summary.json", summary)
-    return summary
+    def label_window(window: list[_Frame], new: list[_Frame]) -> WindowResult:
+        """Clusters the tracks live through the whole window and labels the frames in `new`."""
+        nonlocal prev, num_windows, num_labelled
+        common = window[0][2]
+        for _, _, ids, _ in window[1:]:
+            common = np.intersect1d(common, ids)
+        k = 0
+        labels_by_id: dict[int, int] = {}
+        glob = np.zeros(0, dtype=np.int64)
+        if common.size >= max(cfg.min_tracks, 2):
+            data = np.concatenate([xy[np.searchsorted(ids, common)] for _, _, ids, xy in window], axis=1)
+            emb = embed_at_model_frames(model, Trajectories(data=data.astype(np.float32), track_ids=common))
+            forced = None if cfg.k is None else min(cfg.k, common.size)
+            clustering = cluster_auto_k(emb, cfg.cluster, k=forced)
+            k = clustering.k
+            glob = match_labels(prev, common, clustering.labels, k, book, num_windows)
+            labels_by_id = {int(i): int(g) for i, g in zip(common, glob)}
+            prev = labels_by_id
+            num_labelled += 1
+        else:
+            log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
+        log.info("frames %d-%d: %d tracks, K = %d", window[0][0], window[-1][0], common.size, k)
+        labelled = []
+        for t, img, ids, xy in new:
+            lab = np.array([labels_by_id.get(int(i), -1) for i in ids], dtype=np.int64)
+            keep = lab >= 0
+            mask = labels_to_mask(xy[keep], lab[keep], img.shape[:2], cfg.mask)
+            labelled.append(VideoFrame(t, img, ids, xy, lab, mask))
+        num_windows += 1
+        return WindowResult(
+            start=window[0][0],
+            num_frames=len(window),
+            num_tracks=int(common.size),
+            k=k,
+            track_ids=common if k else np.zeros(0, dtype=np.int64),
+            labels=glob,
+            frames=tuple(labelled),
+            num_motions=book.next_label,
+            num_labels_reused=book.num_reused,
+            num_frames_read=num_frames,
+        )
+
+    window: list[_Frame] = []
+    frames_iter = iter_video(path, max_frames=max_frames)
+    while True:
+        with decode_errors(path):
+            item = next(frames_iter, None)
+        if item is None:
+            break
+        t, frame = item
+        ids, xy = tracker.step(frame)
+        window.append((t, frame, ids, xy))
+        num_frames += 1
+        if len(window) == f:
+            # Later windows start on the previous one's last frame, already labelled there.
+            yield label_window(window, window if num_windows == 0 else window[1:])
+            window = [window[-1]]
+    if num_windows == 0:
+        raise InputError(f"{path}: only {_frames(num_frames)} could be read; --frames needs {f}")
+    if len(window) > 1:
+        yield label_window(window, window[1:])
+    if num_labelled == 0:
+        raise TooFewTracksError(
+            f"{path}: no window had at least {cfg.min_tracks} tracks through its {f} frames (textureless video?)"
+        )
+    claimed = info.get("num_frames")
+    if max_frames is None and info["kind"] == "video" and claimed and num_frames < claimed:
+        log.warning("%s: decoding stopped after %d of the %d frames the header lists", path, num_frames, claimed)

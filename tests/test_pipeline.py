@@ -23,18 +23,10 @@ from scipy.optimize import linear_sum_assignment
 from mosegpipe import pipeline
 from mosegpipe.errors import InputError, OutputExistsError, TooFewTracksError
 from mosegpipe.io import read_palette_png, read_video, write_video
-from mosegpipe.masks import overlay_mask
+from mosegpipe.masks import overlay_image, overlay_mask
 from mosegpipe.model import ModelConfig, SubspaceNet
-from mosegpipe.pipeline import (
-    PipelineConfig,
-    check_output_dir,
-    overlay_image,
-    segment_clip,
-    segment_frames,
-    segment_pair,
-    write_clip_outputs,
-    write_pair_outputs,
-)
+from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_pair_outputs
+from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_frames, segment_pair
 from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
 from mosegpipe.runtime import set_threads
 

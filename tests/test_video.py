@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from mosegpipe import video as video_module
+from mosegpipe import pipeline as pipeline_module
 from mosegpipe.cli.main import app
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.io import iter_video, read_palette_png
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.synth.render import RenderedClip
-from mosegpipe.video import LabelBook, match_labels, segment_video
+from mosegpipe.outputs import write_video_outputs
+from mosegpipe.pipeline import LabelBook, match_labels
 from test_pipeline import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 
 runner = CliRunner(env={"COLUMNS": "200"})
@@ -83,7 +84,7 @@ def test_whole_video_keeps_each_object_on_one_label(
     tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path
 ) -> None:
     out = tmp_path / "out"
-    summary = segment_video(frames_dir, out, PipelineConfig(frames=5), SubspaceNet.from_checkpoint(model_path))
+    summary = write_video_outputs(frames_dir, out, PipelineConfig(frames=5), SubspaceNet.from_checkpoint(model_path))
     assert sorted(p.name for p in out.iterdir()) == ["labels.npz", "masks", "overlay.avi", "recording.rrd", "summary.json"]
     assert summary == json.loads((out / "summary.json").read_text())
     assert summary["kind"] == "video" and summary["frames"] == T and summary["size_hw"] == [240, 320]
@@ -141,9 +142,9 @@ def test_memory_holds_one_window_of_frames(
             yield t, frame
             del frame
 
-    monkeypatch.setattr(video_module, "iter_video", tracked)
+    monkeypatch.setattr(pipeline_module, "iter_video", tracked)
     model3 = SubspaceNet.from_checkpoint(motion_checkpoint(tmp_path / "m3.pt", 3))
-    segment_video(frames_dir, tmp_path / "out", PipelineConfig(frames=3, k=3), model3, rrd=False)
+    write_video_outputs(frames_dir, tmp_path / "out", PipelineConfig(frames=3, k=3), model3, rrd=False)
     assert len(alive) == T
     assert most <= 3 + 1  # the current window and the frame being read, never the video
 
@@ -151,15 +152,15 @@ def test_memory_holds_one_window_of_frames(
 def test_failures_leave_nothing(tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path) -> None:
     model = SubspaceNet.from_checkpoint(model_path)
     with pytest.raises(InputError, match=r"frames: only 4 frames could be read; --frames needs 5"):
-        segment_video(frames_dir, tmp_path / "a", PipelineConfig(frames=5), model, max_frames=4)
+        write_video_outputs(frames_dir, tmp_path / "a", PipelineConfig(frames=5), model, max_frames=4)
     blank = write_frames(tmp_path / "blank", np.full((6, 240, 320, 3), 128, np.uint8))
     with pytest.raises(TooFewTracksError, match="blank: no window had at least 10 tracks"):
-        segment_video(blank, tmp_path / "b", PipelineConfig(frames=5), model)
+        write_video_outputs(blank, tmp_path / "b", PipelineConfig(frames=5), model)
     with pytest.raises(InputError, match="--frames 1: whole-video mode needs windows of at least 2 frames"):
-        segment_video(frames_dir, tmp_path / "c", PipelineConfig(frames=1), model)
+        write_video_outputs(frames_dir, tmp_path / "c", PipelineConfig(frames=1), model)
     # A failure after some windows were written (frame 7 has another size) aborts the recording too.
     odd = write_frames(tmp_path / "odd", scene.frames[:8])
     cv2.imwrite(str(odd / "000007.png"), cv2.resize(scene.frames[7], (160, 120)))
     with pytest.raises(InputError, match="000007.png: image is 160x120 but earlier images in .* are 320x240"):
-        segment_video(odd, tmp_path / "d", PipelineConfig(frames=5, k=3), model)
+        write_video_outputs(odd, tmp_path / "d", PipelineConfig(frames=5, k=3), model)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blank", "odd"]

@@ -75,15 +75,9 @@ class EvalConfig:
 
 def embed_clip(model: SubspaceNet, clip: LabeledClip) -> np.ndarray:
     """Embeds a clip, resampling its trajectories in time when its F differs from the model's."""
-    from mosegpipe.trajectories import resample_frames
     from mosegpipe.types import Trajectories
 
-    model_frames = model.cfg.in_dim // 2
-    traj = clip.traj
-    if clip.num_frames != model_frames and model_frames > 1:
-        ids = np.arange(clip.num_points, dtype=np.int64)
-        traj = resample_frames(Trajectories(clip.traj, ids), model_frames).data
-    return model.embed(traj)
+    return model.embed(Trajectories(clip.traj, np.arange(clip.num_points, dtype=np.int64)))
 
 
 def evaluate_clips(

@@ -1,0 +1,390 @@
+"""Writing results: any pipeline result into an output folder, built atomically.
+
+Each folder is built under a temporary name and renamed when complete, so a failure never leaves half
+an output behind; `check_output_dir` lets a caller refuse an occupied folder before spending time on
+segmentation. One summary builder per kind of result (clip, pair, video); the folder layout and the
+summary.json schema are in docs/OUTPUTS.md.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe import __version__
+from mosegpipe.errors import InputError, OutputExistsError
+from mosegpipe.io import default_palette, video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
+from mosegpipe.masks import overlay_image
+from mosegpipe.model import SubspaceNet
+from mosegpipe.pipeline import (
+    ClipResult,
+    PairResult,
+    PipelineConfig,
+    WindowResult,
+    check_video_settings,
+    decode_errors,
+    load_model,
+    model_info,
+    segment_video,
+)
+
+SUMMARY_SCHEMA = "mosegpipe.summary/1"
+_FALLBACK_FPS = 10.0  # frame folders carry no rate; the overlay video needs one
+
+
+def check_output_dir(out_dir: str | Path, overwrite: bool) -> None:
+    """Fails early when `out_dir` cannot receive a run's outputs.
+
+    An absent or empty folder is fine. A folder holding files is refused unless `overwrite`, and
+    even then only when it is a moseg output folder (holds summary.json): --overwrite never deletes
+    a folder of other files (an input folder given as --out by mistake, a home directory).
+
+    Raises:
+        OutputExistsError: it holds results and overwrite is False.
+        InputError: it is a file, or it holds files that are not a moseg output.
+    """
+    out = Path(out_dir)
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder; choose another --out")
+    if not any(out.iterdir()):
+        return
+    if not overwrite:
+        raise OutputExistsError(f"{out}: already holds results; pass --overwrite to replace them")
+    if not (out / "summary.json").is_file():
+        raise InputError(f"{out}: holds files but no summary.json, so it is not a moseg output; refusing to replace it")
+
+
+class _OutputDir:
+    """Builds an output folder under a temporary name; renames it into place only when complete.
+
+    The temporary folder `.NAME.partial` sits beside the final one (same file system, so the rename
+    is atomic). On an exception (KeyboardInterrupt included) it is removed and the final folder is
+    left as it was; on success an existing final folder is replaced (see check_output_dir).
+    """
+
+    def __init__(self, out_dir: Path, overwrite: bool) -> None:
+        check_output_dir(out_dir, overwrite)
+        # absolute(): "." or "" has no name to build the temporary sibling from.
+        self.final = Path(out_dir).absolute()
+        self.tmp = self.final.with_name(f".{self.final.name}.partial")
+
+    def __enter__(self) -> Path:
+        if self.tmp.exists():
+            shutil.rmtree(self.tmp)
+        self.tmp.mkdir(parents=True)
+        return self.tmp
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            return
+        if self.final.exists():
+            old = self.final.with_name(f".{self.final.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            self.final.rename(old)
+            self.tmp.rename(self.final)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            self.tmp.rename(self.final)
+
+
+def _write_masks_and_overlays(
+    folder: Path,
+    indices: list[int],
+    images: Any,
+    masks: Any,
+    xys: list[npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+) -> None:
+    """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source."""
+    palette = default_palette()
+    (folder / "masks").mkdir()
+    (folder / "overlay").mkdir()
+    for index, image, mask, xy in zip(indices, images, masks, xys):
+        write_palette_png(folder / "masks" / f"{index:06d}.png", mask, palette)
+        write_jpeg(folder / "overlay" / f"{index:06d}.jpg", overlay_image(image, mask, xy, labels), quality=90)
+
+
+def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
+    """The JSON summary of a clip run (schema: docs/OUTPUTS.md)."""
+    c = result.clustering
+    return {
+        "schema": SUMMARY_SCHEMA,
+        "kind": "clip",
+        "source": result.frames.source,
+        "version": __version__,
+        "start": result.frames.start,
+        "frames": result.frames.num_frames,
+        "size_hw": list(result.frames.size_hw),
+        "k": c.k,
+        "k_method": c.method,
+        "k_scores": {str(k): float(v) for k, v in c.scores.items()},
+        "num_tracks_detected": result.tracks.num_tracks,
+        "num_tracks_segmented": result.trajectories.num_points,
+        "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
+        "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
+        "model": result.model_info,
+        "config": asdict(cfg),
+    }
+
+
+def write_clip_outputs(
+    result: ClipResult,
+    out_dir: str | Path,
+    cfg: PipelineConfig = PipelineConfig(),
+    overwrite: bool = False,
+    rrd: bool = True,
+) -> dict[str, Any]:
+    """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg and recording.rrd atomically.
+
+    The folder layout and every field are documented in docs/OUTPUTS.md. Mask and overlay files are
+    named after the source frame index (000000.png, ...).
+
+    Args:
+        result: what segment_clip / segment_frames returned.
+        out_dir: output folder; built under a temporary name and renamed when complete.
+        cfg: the settings the result was computed with (recorded in summary.json).
+        overwrite: replace an existing moseg output folder.
+        rrd: also write the Rerun recording.
+
+    Returns:
+        The summary dict that was written.
+
+    Raises:
+        OutputExistsError, InputError: see check_output_dir.
+    """
+    summary = clip_summary(result, cfg)
+    with _OutputDir(Path(out_dir), overwrite) as tmp:
+        traj = result.trajectories
+        write_npz(
+            tmp / "labels.npz",
+            track_ids=traj.track_ids,
+            labels=result.clustering.labels,
+            xy=result.tracks.xy[traj.track_ids],
+            embeddings=result.embeddings,
+        )
+        _write_masks_and_overlays(
+            tmp,
+            [result.frames.start + t for t in range(result.frames.num_frames)],
+            result.frames.images,
+            result.masks,
+            [result.tracks.xy[traj.track_ids, t] for t in range(result.frames.num_frames)],
+            result.clustering.labels,
+        )
+        if rrd:
+            from mosegpipe.viz import write_recording
+
+            t0 = time.perf_counter()
+            write_recording(
+                tmp / "recording.rrd",
+                result.frames,
+                result.tracks,
+                traj.track_ids,
+                result.clustering.labels,
+                result.embeddings,
+                result.masks,
+                result.clustering.scores,
+                result.clustering.k,
+            )
+            summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
+        write_json(tmp / "summary.json", summary)
+    return summary
+
+
+def pair_summary(result: PairResult, cfg: PipelineConfig, sources: tuple[str, str]) -> dict[str, Any]:
+    """The JSON summary of a pair run (schema: docs/OUTPUTS.md)."""
+    c = result.clustering
+    motions = result.labels[result.labels >= 0]
+    num_motions = int(motions.max()) + 1 if motions.size else 0
+    return {
+        "schema": SUMMARY_SCHEMA,
+        "kind": "pair",
+        "source": list(sources),
+        "version": __version__,
+        "size_hw": [list(result.images[0].shape[:2]), list(result.images[1].shape[:2])],
+        "k": c.k,
+        "num_motions": num_motions,
+        "outlier_cluster": result.outlier_cluster,
+        "num_outliers": int((result.labels < 0).sum()),
+        "k_method": c.method,
+        "k_scores": {str(k): float(v) for k, v in c.scores.items()},
+        "num_matches": result.matches.num_matches,
+        "matches_per_motion": np.bincount(motions, minlength=num_motions).tolist(),
+        "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
+        "model": result.model_info,
+        "config": asdict(cfg),
+    }
+
+
+def write_pair_outputs(
+    result: PairResult,
+    out_dir: str | Path,
+    cfg: PipelineConfig = PipelineConfig(frames=2),
+    overwrite: bool = False,
+    sources: tuple[str, str] = ("", ""),
+    rrd: bool = True,
+) -> dict[str, Any]:
+    """Writes summary.json, labels.npz, masks/00000{0,1}.png, overlay/00000{0,1}.jpg and recording.rrd atomically.
+
+    Args:
+        result: what segment_pair returned.
+        out_dir: output folder; built under a temporary name and renamed when complete.
+        cfg: the settings the result was computed with (recorded in summary.json).
+        overwrite: replace an existing moseg output folder.
+        sources: the two image paths, for summary.json.
+        rrd: also write the Rerun recording.
+
+    Returns:
+        The summary dict that was written.
+
+    Raises:
+        OutputExistsError, InputError: see check_output_dir.
+    """
+    summary = pair_summary(result, cfg, sources)
+    with _OutputDir(Path(out_dir), overwrite) as tmp:
+        m = result.matches
+        write_npz(
+            tmp / "labels.npz",
+            xy1=m.xy1,
+            xy2=m.xy2,
+            labels=result.labels,
+            clusters=result.clustering.labels,
+            embeddings=result.embeddings,
+        )
+        _write_masks_and_overlays(tmp, [0, 1], result.images, result.masks, [m.xy1, m.xy2], result.labels)
+        if rrd:
+            from mosegpipe.viz import write_pair_recording
+
+            t0 = time.perf_counter()
+            write_pair_recording(
+                tmp / "recording.rrd",
+                result.images,
+                m,
+                result.labels,
+                result.embeddings,
+                result.masks,
+                result.clustering.scores,
+                result.clustering.k,
+            )
+            summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
+        write_json(tmp / "summary.json", summary)
+    return summary
+
+
+def video_summary(
+    path: str | Path,
+    info: dict[str, Any],
+    windows: list[WindowResult],
+    cfg: PipelineConfig,
+    model: SubspaceNet,
+    seconds: float,
+) -> dict[str, Any]:
+    """The JSON summary of a whole-video run (schema: docs/OUTPUTS.md)."""
+    last = windows[-1]
+    num_frames = last.num_frames_read
+    return {
+        "schema": SUMMARY_SCHEMA,
+        "kind": "video",
+        "source": str(path),
+        "version": __version__,
+        "frames": num_frames,
+        "size_hw": list(info["size_hw"]),
+        "video_fps": float(info.get("fps") or 0.0),
+        "window_frames": cfg.frames,
+        "num_windows": len(windows),
+        "num_windows_labelled": sum(w.is_labelled for w in windows),
+        "num_motions": last.num_motions,
+        "num_labels_reused": last.num_labels_reused,
+        "k_method": "fixed" if cfg.k is not None else cfg.cluster.method,
+        "windows": [w.record() for w in windows],
+        "seconds": round(seconds, 3),
+        "processing_fps": round(num_frames / seconds, 3) if seconds > 0 else 0.0,
+        "model": model_info(model),
+        "config": asdict(cfg),
+    }
+
+
+def write_video_outputs(
+    path: str | Path,
+    out_dir: str | Path,
+    cfg: PipelineConfig = PipelineConfig(),
+    model: SubspaceNet | None = None,
+    overwrite: bool = False,
+    rrd: bool = True,
+    max_frames: int | None = None,
+) -> dict[str, Any]:
+    """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
+
+    Output folder (built atomically; see docs/OUTPUTS.md): masks/NNNNNN.png for every frame (palette
+    PNG, value = global motion label + 1, 0 = unknown), overlay.avi (MJPG), labels.npz, summary.json
+    and recording.rrd. Only one window's frames are held at a time.
+
+    Args:
+        path: video file or frame folder.
+        out_dir: output folder.
+        cfg: pipeline settings; cfg.frames is the window length F (>= 2).
+        model: the model (None = shipped default for cfg.frames).
+        overwrite: replace an existing moseg output folder.
+        rrd: also write a Rerun recording (frames downscaled to keep it small).
+        max_frames: stop after this many frames (None = whole video).
+
+    Returns:
+        The summary dict written to summary.json.
+
+    Raises:
+        InputError: unreadable input, fewer than F frames, F < 2 or max_frames < 1.
+        TooFewTracksError: no window had cfg.min_tracks tracks through all its frames.
+        OutputExistsError: out_dir holds results and overwrite is False.
+    """
+    check_video_settings(cfg, max_frames)
+    check_output_dir(out_dir, overwrite)
+    model = model or load_model(cfg.frames)
+    with decode_errors(path):
+        info = video_info(path)
+    fps = float(info.get("fps") or 0.0) or _FALLBACK_FPS
+    palette = default_palette()
+    windows: list[WindowResult] = []
+    t_start = time.perf_counter()
+    with _OutputDir(Path(out_dir), overwrite) as tmp:
+        (tmp / "masks").mkdir()
+        with ExitStack() as stack:
+            recorder = None
+            if rrd:
+                from mosegpipe.viz import VideoRecorder
+
+                recorder = stack.enter_context(VideoRecorder(tmp / "recording.rrd"))
+
+            def overlays() -> Iterator[npt.NDArray[np.uint8]]:
+                """Writes each frame's mask (and recording) as the windows arrive; yields its overlay."""
+                for window in segment_video(path, cfg, model, max_frames):
+                    # Keep what the summary and labels.npz need, not the images (flat memory).
+                    windows.append(replace(window, frames=()))
+                    for fr in window.frames:
+                        keep = fr.labels >= 0
+                        write_palette_png(tmp / "masks" / f"{fr.index:06d}.png", fr.mask, palette)
+                        if recorder is not None:
+                            recorder.log_frame(fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], fr.mask)
+                        yield overlay_image(fr.image, fr.mask, fr.xy[keep], fr.labels[keep])
+                    del window, fr  # before the next window is read: hold one window's frames at most
+
+            write_video(tmp / "overlay.avi", overlays(), fps)
+        labelled = [w for w in windows if w.is_labelled]
+        write_npz(
+            tmp / "labels.npz",
+            track_ids=np.concatenate([w.track_ids for w in labelled]),
+            labels=np.concatenate([w.labels for w in labelled]),
+            window=np.concatenate([np.full(w.track_ids.size, i, dtype=np.int64) for i, w in enumerate(windows) if w.is_labelled]),
+        )
+        summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
+        write_json(tmp / "summary.json", summary)
+    return summary
