@@ -69,9 +69,9 @@ def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     import torch
 
     from mosegpipe.model import ModelConfig, SubspaceNet
+    from mosegpipe.outputs import write_video_outputs
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.runtime import set_threads
-    from mosegpipe.outputs import write_video_outputs
 
     set_threads(1)
     if model_path is not None:
@@ -85,16 +85,22 @@ def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     baseline = _maxrss_mib()
     with tempfile.TemporaryDirectory(prefix="moseg_mem_") as tmp:
         t0 = time.perf_counter()
-        summary = write_video_outputs(video, Path(tmp) / "out", PipelineConfig(frames=5), model, rrd=rrd, max_frames=frames)
+        summary = write_video_outputs(
+            video, Path(tmp) / "out", PipelineConfig(frames=5), model, rrd=rrd, max_frames=frames
+        )
         seconds = time.perf_counter() - t0
     tracks = [w["num_tracks"] for w in summary["windows"]]
-    print(json.dumps({
-        "frames": summary["frames"],
-        "baseline_mib": baseline,
-        "peak_mib": _maxrss_mib(),
-        "seconds": seconds,
-        "mean_tracks": sum(tracks) / max(len(tracks), 1),
-    }))
+    print(
+        json.dumps(
+            {
+                "frames": summary["frames"],
+                "baseline_mib": baseline,
+                "peak_mib": _maxrss_mib(),
+                "seconds": seconds,
+                "mean_tracks": sum(tracks) / max(len(tracks), 1),
+            }
+        )
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -119,7 +125,9 @@ def main(argv: list[str] | None = None) -> None:
         video = Path(tmp) / "synthetic.avi"
         t0 = time.perf_counter()
         make_video(video, max(args.lengths), (w, h))
-        print(f"wrote {max(args.lengths)} frames ({video.stat().st_size / 2**20:.0f} MiB) in {time.perf_counter() - t0:.1f} s\n")
+        print(
+            f"wrote {max(args.lengths)} frames ({video.stat().st_size / 2**20:.0f} MiB) in {time.perf_counter() - t0:.1f} s\n"
+        )
         for n in args.lengths:
             cmd = [sys.executable, __file__, "--child", str(video), "--frames", str(n)]
             cmd += ["--rrd"] if args.rrd else []
@@ -128,7 +136,9 @@ def main(argv: list[str] | None = None) -> None:
             if out.returncode != 0:
                 sys.exit(f"memory.py: the run on {n} frames failed:\n{out.stderr}")
             rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    print("| frames | mean tracks / window | peak RSS after imports + model (MiB) | peak RSS after the run (MiB) | growth (MiB) | wall s | frames/s |")
+    print(
+        "| frames | mean tracks / window | peak RSS after imports + model (MiB) | peak RSS after the run (MiB) | growth (MiB) | wall s | frames/s |"
+    )
     print("|---|---|---|---|---|---|---|")
     for r in rows:
         print(
@@ -138,8 +148,10 @@ def main(argv: list[str] | None = None) -> None:
     if len(rows) > 1:
         first, last = rows[0], rows[-1]
         slope = (last["peak_mib"] - first["peak_mib"]) / max(last["frames"] - first["frames"], 1)
-        print(f"\npeak growth from {first['frames']} to {last['frames']} frames: {last['peak_mib'] - first['peak_mib']:+.1f} MiB "
-              f"({1024 * slope:+.1f} KiB per frame; one {w}x{h} RGB frame is {w * h * 3 / 2**10:.0f} KiB)")
+        print(
+            f"\npeak growth from {first['frames']} to {last['frames']} frames: {last['peak_mib'] - first['peak_mib']:+.1f} MiB "
+            f"({1024 * slope:+.1f} KiB per frame; one {w}x{h} RGB frame is {w * h * 3 / 2**10:.0f} KiB)"
+        )
 
 
 if __name__ == "__main__":

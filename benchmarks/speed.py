@@ -73,7 +73,9 @@ def load_model(path: Path | None, frames: int = 5) -> tuple[SubspaceNet, str]:
         return SubspaceNet.default(frames=frames), f"shipped weights for {frames} frames"
     except Exception:  # noqa: BLE001 - any failure means: no usable shipped weights
         torch.manual_seed(0)
-        return SubspaceNet(ModelConfig(in_dim=2 * frames)).eval(), "untrained SubspaceNet (no shipped weights; accuracy meaningless)"
+        return SubspaceNet(
+            ModelConfig(in_dim=2 * frames)
+        ).eval(), "untrained SubspaceNet (no shipped weights; accuracy meaningless)"
 
 
 def write_video(frames: list[np.ndarray], path: Path, fps: float = 10.0) -> Path:
@@ -112,7 +114,10 @@ def run_once(clip: Path, out: Path, model: SubspaceNet, cfg: PipelineConfig) -> 
 def clip_table(clips: dict[str, Path], model: SubspaceNet, repeats: int, work: Path) -> str:
     cfg = PipelineConfig(frames=5)
     cols = [*STAGES, "total"]
-    lines = ["| input | call | tracks | K | " + " | ".join(f"{c} ms" for c in cols) + " |", "|" + "---|" * (len(cols) + 4)]
+    lines = [
+        "| input | call | tracks | K | " + " | ".join(f"{c} ms" for c in cols) + " |",
+        "|" + "---|" * (len(cols) + 4),
+    ]
     first = True
     for name, path in clips.items():
         out = work / f"out_{name}"
@@ -135,7 +140,10 @@ def video_table(runs: list[tuple[str, Path, bool]], model: SubspaceNet, work: Pa
     from mosegpipe.outputs import write_video_outputs
 
     cfg = PipelineConfig(frames=5)
-    lines = ["| input | recording | frames | windows | mean tracks / window | motion labels | wall s | frames/s |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| input | recording | frames | windows | mean tracks / window | motion labels | wall s | frames/s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for i, (name, video, rrd) in enumerate(runs):
         t0 = time.perf_counter()
         s = write_video_outputs(video, work / f"video_{i}", cfg, model, overwrite=True, rrd=rrd)
@@ -167,7 +175,9 @@ def kt3d_line(data_root: Path, model: SubspaceNet) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", type=Path, default=None, help="5-frame checkpoint (default: shipped weights or untrained)")
+    ap.add_argument(
+        "--model", type=Path, default=None, help="5-frame checkpoint (default: shipped weights or untrained)"
+    )
     ap.add_argument("--data-root", type=Path, default=Path(os.environ.get("MOSEG_DATA", _DEFAULT_DATA)))
     ap.add_argument("--video-frames", type=int, default=200, help="frames of the videos in whole-video mode")
     ap.add_argument("--repeats", type=int, default=3, help="warm calls per input in (a)")
@@ -186,7 +196,9 @@ def main(argv: list[str] | None = None) -> None:
         if "clip" not in args.skip:
             from mosegpipe.synth.render import RenderConfig, render_clip, write_clip
 
-            rendered = render_clip(RenderConfig(size_hw=(480, 640), frames=5, num_objects=2, seed=0, camera_motion="handheld"))
+            rendered = render_clip(
+                RenderConfig(size_hw=(480, 640), frames=5, num_objects=2, seed=0, camera_motion="handheld")
+            )
             clips = {"rendered": write_clip(rendered, work / "rendered", video=True) / "clip.avi"}
             if vtest.is_file():
                 clips["vtest.avi"] = write_video(resized_frames(vtest, 5), work / "vtest5.avi")
@@ -196,11 +208,18 @@ def main(argv: list[str] | None = None) -> None:
             from mosegpipe.synth.render import RenderConfig, render_clip
 
             n = args.video_frames
-            long_clip = render_clip(RenderConfig(size_hw=(480, 640), frames=n, num_objects=3, seed=1, camera_motion="handheld"))
-            runs = [(f"rendered {n} frames 640x480", write_video(list(long_clip.frames), work / "rendered_long.avi"), False)]
+            long_clip = render_clip(
+                RenderConfig(size_hw=(480, 640), frames=n, num_objects=3, seed=1, camera_motion="handheld")
+            )
+            runs = [
+                (f"rendered {n} frames 640x480", write_video(list(long_clip.frames), work / "rendered_long.avi"), False)
+            ]
             if vtest.is_file():
                 video = write_video(resized_frames(vtest, n), work / "vtest_long.avi")
-                runs += [(f"vtest.avi {n} frames 640x480", video, False), (f"vtest.avi {n} frames 640x480", video, True)]
+                runs += [
+                    (f"vtest.avi {n} frames 640x480", video, False),
+                    (f"vtest.avi {n} frames 640x480", video, True),
+                ]
             print("## (b) whole-video mode (`moseg run --whole`, windows of 5 frames)\n")
             print(video_table(runs, model, work) + "\n")
         if "kt3d" not in args.skip:

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Any, Optional, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import typer
 
@@ -69,7 +69,9 @@ def _quiet_native_logs() -> None:
 def _setup(threads: int, verbose: bool) -> None:
     from mosegpipe.runtime import set_threads
 
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
     if not verbose:
         _quiet_native_logs()
     set_threads(threads)
@@ -96,17 +98,19 @@ def main(
     """moseg: which tracked points move together, dense masks and a Rerun recording."""
 
 
-Threads = Annotated[int, typer.Option("--threads", min=1, help="CPU threads (1 is fastest for one clip on small machines).")]
+Threads = Annotated[
+    int, typer.Option("--threads", min=1, help="CPU threads (1 is fastest for one clip on small machines).")
+]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Log progress.")]
-KOpt = Annotated[Optional[int], typer.Option("--k", min=1, help="Force this many motions (default: automatic K).")]
+KOpt = Annotated[int | None, typer.Option("--k", min=1, help="Force this many motions (default: automatic K).")]
 KMethod = Annotated[str, typer.Option("--k-method", help="Automatic K: 'silhouette' (default) or 'residual' (faster).")]
 KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered by automatic K.")]
-ModelOpt = Annotated[Optional[Path], typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
+ModelOpt = Annotated[Path | None, typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results already in the output folder.")]
 NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
 
 
-def _pipeline_cfg(frames: int, k: Optional[int], k_method: str, k_max: int) -> Any:
+def _pipeline_cfg(frames: int, k: int | None, k_method: str, k_max: int) -> Any:
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.pipeline import PipelineConfig
 
@@ -136,7 +140,9 @@ def _print_summary(summary: dict[str, Any], out: Path) -> None:
     if scores:
         typer.echo(f"scores per K: {scores}")
     typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in summary["timings_s"].items()))
-    files = "summary.json, labels.npz, masks/, overlay/" + (", recording.rrd" if (out / "recording.rrd").exists() else "")
+    files = "summary.json, labels.npz, masks/, overlay/" + (
+        ", recording.rrd" if (out / "recording.rrd").exists() else ""
+    )
     typer.echo(f"wrote {out}/ ({files})")
 
 
@@ -144,10 +150,22 @@ def _print_summary(summary: dict[str, Any], out: Path) -> None:
 @_friendly
 def run(
     clip: Annotated[Path, typer.Argument(help="A video file OpenCV can read, or a folder of frames.")],
-    frames: Annotated[int, typer.Option("--frames", "-f", min=2, help="Frames to segment (the paper uses 5); with --whole, the window length.")] = 5,
-    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: beside the clip, named after it + '_moseg').")] = None,
-    whole: Annotated[bool, typer.Option("--whole", help="Segment the whole video in consecutive windows of --frames frames.")] = False,
-    max_frames: Annotated[Optional[int], typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")] = None,
+    frames: Annotated[
+        int,
+        typer.Option(
+            "--frames", "-f", min=2, help="Frames to segment (the paper uses 5); with --whole, the window length."
+        ),
+    ] = 5,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder (default: beside the clip, named after it + '_moseg')."),
+    ] = None,
+    whole: Annotated[
+        bool, typer.Option("--whole", help="Segment the whole video in consecutive windows of --frames frames.")
+    ] = False,
+    max_frames: Annotated[
+        int | None, typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")
+    ] = None,
     k: KOpt = None,
     k_method: KMethod = "silhouette",
     k_max: KMax = 8,
@@ -181,7 +199,9 @@ def run(
             f"({summary['num_windows_labelled']} labelled) -> {summary['num_motions']} motion labels"
         )
         typer.echo(f"{summary['seconds']:.1f} s, {summary['processing_fps']:.1f} frames/s")
-        typer.echo(f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.avi" + (", recording.rrd)" if not no_rrd else ")"))
+        typer.echo(
+            f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.avi" + (", recording.rrd)" if not no_rrd else ")")
+        )
         return
     result = segment_clip(clip, cfg, net)
     summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
@@ -193,7 +213,10 @@ def run(
 def pair(
     img1: Annotated[Path, typer.Argument(help="First image.")],
     img2: Annotated[Path, typer.Argument(help="Second image (may differ in size).")],
-    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg').")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg')."),
+    ] = None,
     k: KOpt = None,
     k_method: KMethod = "silhouette",
     k_max: KMax = 8,
@@ -223,13 +246,17 @@ def pair(
 @_friendly
 def batch(
     folder: Annotated[Path, typer.Argument(help="Folder searched for video files and frame folders.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder: one sub-folder per clip plus batch_summary.csv/json.")],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Output folder: one sub-folder per clip plus batch_summary.csv/json.")
+    ],
     frames: Annotated[int, typer.Option("--frames", "-f", min=2)] = 5,
     k: KOpt = None,
     k_method: KMethod = "silhouette",
     k_max: KMax = 8,
     model: ModelOpt = None,
-    overwrite: Annotated[bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")] = False,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")
+    ] = False,
     no_rrd: NoRrd = False,
     threads: Threads = 1,
     verbose: Verbose = False,
@@ -295,7 +322,9 @@ def _has_display() -> bool:
 @_friendly
 def view(
     recording: Annotated[Path, typer.Argument(help="A .rrd recording written by moseg.")],
-    web: Annotated[bool, typer.Option("--web", help="Serve the viewer to a web browser instead of opening a window.")] = False,
+    web: Annotated[
+        bool, typer.Option("--web", help="Serve the viewer to a web browser instead of opening a window.")
+    ] = False,
 ) -> None:
     """Open a recording in the Rerun viewer (the 'rerun' program that ships with rerun-sdk)."""
     if not recording.is_file():
@@ -313,29 +342,35 @@ def view(
     os.execv(exe, args)
 
 
-def _data_root(data_root: Optional[Path]) -> Path:
+def _data_root(data_root: Path | None) -> Path:
     root = data_root or Path(os.environ.get("MOSEG_DATA", "../shared/data"))
     if not root.is_dir():
         raise InputError(f"{root}: benchmark data folder not found (use --data-root or MOSEG_DATA)")
     return root
 
 
-DataRoot = Annotated[Optional[Path], typer.Option("--data-root", help="Benchmark folder (default: $MOSEG_DATA or ../shared/data).")]
+DataRoot = Annotated[
+    Path | None, typer.Option("--data-root", help="Benchmark folder (default: $MOSEG_DATA or ../shared/data).")
+]
 
 
 @app.command()
 @_friendly
 def train(
-    preset: Annotated[str, typer.Option("--preset", help="Named recipe: clip-f5, synthetic-f5, pair-f2, synthetic-f2, lce.")] = "clip-f5",
+    preset: Annotated[
+        str, typer.Option("--preset", help="Named recipe: clip-f5, synthetic-f5, pair-f2, synthetic-f2, lce.")
+    ] = "clip-f5",
     out: Annotated[Path, typer.Option("--out", "-o", help="Checkpoint file to write.")] = Path("runs/model.pt"),
-    steps: Annotated[Optional[int], typer.Option("--steps", min=1, help="Override the recipe's step count.")] = None,
-    batch_size: Annotated[Optional[int], typer.Option("--batch-size", min=1)] = None,
-    lr: Annotated[Optional[float], typer.Option("--lr")] = None,
-    loss: Annotated[Optional[str], typer.Option("--loss", help="mimi, l2 or ce.")] = None,
-    seed: Annotated[Optional[int], typer.Option("--seed")] = None,
-    init: Annotated[Optional[Path], typer.Option("--init", help="Fine-tune from this checkpoint.")] = None,
-    exclude: Annotated[Optional[str], typer.Option("--exclude", help="Comma-separated source names to leave out (leave-one-dataset-out).")] = None,
-    time_budget: Annotated[Optional[float], typer.Option("--time-budget", help="Stop after this many seconds.")] = None,
+    steps: Annotated[int | None, typer.Option("--steps", min=1, help="Override the recipe's step count.")] = None,
+    batch_size: Annotated[int | None, typer.Option("--batch-size", min=1)] = None,
+    lr: Annotated[float | None, typer.Option("--lr")] = None,
+    loss: Annotated[str | None, typer.Option("--loss", help="mimi, l2 or ce.")] = None,
+    seed: Annotated[int | None, typer.Option("--seed")] = None,
+    init: Annotated[Path | None, typer.Option("--init", help="Fine-tune from this checkpoint.")] = None,
+    exclude: Annotated[
+        str | None, typer.Option("--exclude", help="Comma-separated source names to leave out (leave-one-dataset-out).")
+    ] = None,
+    time_budget: Annotated[float | None, typer.Option("--time-budget", help="Stop after this many seconds.")] = None,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1)] = 2,
     verbose: Verbose = False,
@@ -343,8 +378,8 @@ def train(
     """Train a SubspaceNet checkpoint from a named recipe (synthetic data generated on the fly)."""
     _setup(threads, verbose)
     from mosegpipe.model import SubspaceNet
-    from mosegpipe.training.recipes import build_sampler, get_recipe
     from mosegpipe.training.loop import recipe_of, train_model, with_overrides
+    from mosegpipe.training.recipes import build_sampler, get_recipe
 
     try:
         recipe = get_recipe(preset)
@@ -354,7 +389,9 @@ def train(
     sources = tuple((s, w) for s, w in recipe.sources if s not in dropped)
     needs_data = any(not s.startswith("synthetic") and s != "lce" for s, _ in sources)
     root = _data_root(data_root) if needs_data else data_root
-    cfg = with_overrides(recipe.train, steps=steps, batch_size=batch_size, lr=lr, loss=loss, seed=seed, time_budget_s=time_budget)
+    cfg = with_overrides(
+        recipe.train, steps=steps, batch_size=batch_size, lr=lr, loss=loss, seed=seed, time_budget_s=time_budget
+    )
     try:
         sampler, described = build_sampler(sources, root, cfg.frames, seed=cfg.seed)
     except ValueError as exc:
@@ -366,10 +403,17 @@ def train(
         cfg,
         model_cfg=recipe.model,
         init=start,
-        on_log=lambda e: typer.echo(f"step {int(e['step']):>6}  loss {e['loss']:.4f}  lr {e['lr']:.2e}  {e['seconds']:.0f} s"),
+        on_log=lambda e: typer.echo(
+            f"step {int(e['step']):>6}  loss {e['loss']:.4f}  lr {e['lr']:.2e}  {e['seconds']:.0f} s"
+        ),
     )
     rec = recipe_of(cfg, described, result)
-    rec.update(name=preset, command=" ".join(["moseg", *sys.argv[1:]]), init=str(init) if init else None, excluded=sorted(dropped))
+    rec.update(
+        name=preset,
+        command=" ".join(["moseg", *sys.argv[1:]]),
+        init=str(init) if init else None,
+        excluded=sorted(dropped),
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     result.model.save(out, recipe=rec)
     typer.echo(f"wrote {out} ({result.steps_done} steps, {result.seconds:.0f} s)")
@@ -378,19 +422,39 @@ def train(
 @app.command("eval")
 @_friendly
 def eval_(
-    protocol: Annotated[str, typer.Argument(help="kt3d-test, kt3d-loo, adelaide-test, adelaide-loo, hopkins-test, lce; end to end: kt3d-video, adelaide-pairs, rendered.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder (results.md/csv/json; per-fold files to resume).")],
+    protocol: Annotated[
+        str,
+        typer.Argument(
+            help="kt3d-test, kt3d-loo, adelaide-test, adelaide-loo, hopkins-test, lce; end to end: kt3d-video, adelaide-pairs, rendered."
+        ),
+    ],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Results folder (results.md/csv/json; per-fold files to resume).")
+    ],
     model: ModelOpt = None,
     variant: Annotated[str, typer.Option("--variant", help="kt3d-loo: 'vanilla' or 'augment'.")] = "vanilla",
-    frames: Annotated[Optional[int], typer.Option("--frames", "-f", help="Trajectory length (default: 5; 2 for adelaide; hopkins-test 0 = all frames, resampled to the model's).")] = None,
-    init: Annotated[Optional[Path], typer.Option("--init", help="LOO folds start from this checkpoint.")] = None,
-    steps: Annotated[Optional[int], typer.Option("--steps", min=1, help="Training steps per fold.")] = None,
-    batch_size: Annotated[Optional[int], typer.Option("--batch-size", min=1)] = None,
-    lr: Annotated[Optional[float], typer.Option("--lr")] = None,
-    loss: Annotated[Optional[str], typer.Option("--loss", help="Per-fold training loss: l2 (default), ce or mimi.")] = None,
-    synthetic_weight: Annotated[float, typer.Option("--synthetic-weight", help="LOO: weight of synthetic clips mixed into each fold.")] = 0.0,
-    baselines: Annotated[str, typer.Option("--baselines", help="Comma-separated baselines ('' for none).")] = "kmeans-raw,spectral-raw,ssc",
-    folds: Annotated[Optional[str], typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
+    frames: Annotated[
+        int | None,
+        typer.Option(
+            "--frames",
+            "-f",
+            help="Trajectory length (default: 5; 2 for adelaide; hopkins-test 0 = all frames, resampled to the model's).",
+        ),
+    ] = None,
+    init: Annotated[Path | None, typer.Option("--init", help="LOO folds start from this checkpoint.")] = None,
+    steps: Annotated[int | None, typer.Option("--steps", min=1, help="Training steps per fold.")] = None,
+    batch_size: Annotated[int | None, typer.Option("--batch-size", min=1)] = None,
+    lr: Annotated[float | None, typer.Option("--lr")] = None,
+    loss: Annotated[
+        str | None, typer.Option("--loss", help="Per-fold training loss: l2 (default), ce or mimi.")
+    ] = None,
+    synthetic_weight: Annotated[
+        float, typer.Option("--synthetic-weight", help="LOO: weight of synthetic clips mixed into each fold.")
+    ] = 0.0,
+    baselines: Annotated[
+        str, typer.Option("--baselines", help="Comma-separated baselines ('' for none).")
+    ] = "kmeans-raw,spectral-raw,ssc",
+    folds: Annotated[str | None, typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
     k_method: KMethod = "silhouette",
     k_max: KMax = 8,
     data_root: DataRoot = None,
@@ -401,10 +465,9 @@ def eval_(
     _setup(threads, verbose)
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import PROTOCOLS, EvalConfig, run_protocol
+    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS
     from mosegpipe.model import SubspaceNet
     from mosegpipe.training.loop import TrainConfig, with_overrides
-
-    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS
 
     if protocol in E2E_PROTOCOLS:
         _eval_e2e(protocol, out, model, frames, k_method, k_max, data_root)
@@ -444,11 +507,11 @@ def eval_(
 
 
 def _eval_e2e(
-    protocol: str, out: Path, model: Optional[Path], frames: Optional[int], k_method: str, k_max: int, data_root: Optional[Path]
+    protocol: str, out: Path, model: Path | None, frames: int | None, k_method: str, k_max: int, data_root: Path | None
 ) -> None:
     """The full video pipeline (KLT / SIFT, embedding, automatic K, masks) scored against ground truth."""
-    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS, format_rows, summarize_rows
     from mosegpipe.evaluation.benchmark import write_results
+    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS, format_rows, summarize_rows
     from mosegpipe.pipeline import load_model
 
     f = frames or (2 if protocol == "adelaide-pairs" else 5)
@@ -456,7 +519,13 @@ def _eval_e2e(
     root = None if protocol == "rendered" else _data_root(data_root)
     net = load_model(f, model)
     rows = E2E_PROTOCOLS[protocol](root, net, cfg)
-    config = {"protocol": protocol, "frames": f, "k_method": k_method, "k_max": k_max, "model": str(model or "shipped default")}
+    config = {
+        "protocol": protocol,
+        "frames": f,
+        "k_method": k_method,
+        "k_max": k_max,
+        "model": str(model or "shipped default"),
+    }
     table = format_rows(rows)
     write_results(out, rows, summarize_rows(rows), config, table)
     typer.echo(table)

@@ -22,7 +22,12 @@ from typing import Any
 _EXPORTS = {
     "mosegpipe.cluster": ("ClusterConfig", "cluster_auto_k", "kmeans"),
     "mosegpipe.errors": (
-        "CheckpointError", "DatasetError", "InputError", "MosegError", "OutputExistsError", "TooFewTracksError",
+        "CheckpointError",
+        "DatasetError",
+        "InputError",
+        "MosegError",
+        "OutputExistsError",
+        "TooFewTracksError",
     ),
     "mosegpipe.io": ("read_image", "read_video"),
     "mosegpipe.masks": ("MaskConfig", "labels_to_mask", "labels_to_masks"),
@@ -34,7 +39,13 @@ _EXPORTS = {
     "mosegpipe.track": ("KLTTracker", "TrackConfig", "track_klt"),
     "mosegpipe.trajectories": ("build_trajectories", "resample_frames", "trajectories_from_matches"),
     "mosegpipe.types": (
-        "Clustering", "Frames", "LabeledClip", "Matches", "Segmentation", "Tracks", "Trajectories",
+        "Clustering",
+        "Frames",
+        "LabeledClip",
+        "Matches",
+        "Segmentation",
+        "Tracks",
+        "Trajectories",
     ),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}

@@ -127,9 +127,7 @@ def relabel_by_size(labels: npt.ArrayLike) -> npt.NDArray[np.int64]:
         (N,) int64 ids; id 0 is the largest cluster.
     """
     labels = np.asarray(labels).ravel()
-    values, first, inverse, counts = np.unique(
-        labels, return_index=True, return_inverse=True, return_counts=True
-    )
+    values, first, inverse, counts = np.unique(labels, return_index=True, return_inverse=True, return_counts=True)
     # lexsort sorts by the last key first: size descending, then first appearance ascending.
     order = np.lexsort((first, -counts))
     new_id = np.empty(values.size, dtype=np.int64)
@@ -200,9 +198,10 @@ def kmeans(
     # Entering threadpool_limits costs ~4-12 ms (it scans the loaded libraries), more than a small
     # fit: skip it when the pools are already at the limit (set_threads, or cluster_auto_k's sweep).
     limit = _current_limit() != num_threads
-    with threadpool_limits(num_threads) if limit else contextlib.nullcontext(), warnings.catch_warnings(
-        record=True
-    ) as caught:
+    with (
+        threadpool_limits(num_threads) if limit else contextlib.nullcontext(),
+        warnings.catch_warnings(record=True) as caught,
+    ):
         warnings.simplefilter("always", ConvergenceWarning)
         model = KMeans(n_clusters=k, n_init=n_init, random_state=seed).fit(x)
     for warning in caught:

@@ -479,7 +479,7 @@ def write_npz(path: str | os.PathLike[str], **arrays: npt.ArrayLike) -> None:
     """
     with atomic_write(path) as tmp, open(tmp, "wb") as fh:
         # A file object, not a name: np.savez would append ".npz" to the temporary name.
-        np.savez_compressed(fh, **arrays)
+        np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
 
 
 def write_jpeg(path: str | os.PathLike[str], rgb: npt.NDArray[np.uint8], quality: int = 90) -> None:
@@ -536,13 +536,13 @@ def write_video(
                     raise InputError(f"{final}: frame {count} must be (H, W, 3) uint8, got {frame.dtype} {frame.shape}")
                 if writer is None:
                     size_wh = (frame.shape[1], frame.shape[0])
-                    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*fourcc), float(fps), size_wh)
+                    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*fourcc), float(fps), size_wh)  # type: ignore[attr-defined]
                     if not writer.isOpened():
                         raise OSError(f"{final}: OpenCV could not open a {fourcc} video writer")
                 elif (frame.shape[1], frame.shape[0]) != size_wh:
                     raise InputError(
                         f"{final}: frame {count} is {frame.shape[1]}x{frame.shape[0]}, "
-                        f"earlier frames are {size_wh[0]}x{size_wh[1]}"
+                        f"earlier frames are {size_wh[0]}x{size_wh[1]}"  # type: ignore[index]
                     )
                 writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
                 count += 1

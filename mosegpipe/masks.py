@@ -96,9 +96,7 @@ def _vote(
     small = votes[np.arange(len(grid)), agree.argmax(axis=1)]
     small[dist[:, 0] > cfg.max_distance_px] = 0
     small = small.reshape(gy.shape)
-    return np.ascontiguousarray(
-        np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:height, :width]
-    )
+    return np.ascontiguousarray(np.repeat(np.repeat(small, step, axis=0), step, axis=1)[:height, :width])
 
 
 def labels_to_mask(
@@ -124,26 +122,20 @@ def labels_to_mask(
         InputError: shapes disagree or a label is outside 0..254.
     """
     height, width = int(size_hw[0]), int(size_hw[1])
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)  # type: ignore[assignment]
     labels = np.asarray(labels).reshape(-1)
     if len(xy) != len(labels):
         raise InputError(f"{len(xy)} points but {len(labels)} labels")
     if len(labels) and (labels.min() < 0 or labels.max() > MAX_LABEL):
         raise InputError(f"labels must be in 0..{MAX_LABEL}, got {labels.min()}..{labels.max()}")
     finite = np.isfinite(xy).all(axis=1)
-    xy_int = np.round(np.where(finite[:, None], xy, -1.0)).astype(np.int64)
-    inside = (
-        finite
-        & (xy_int[:, 0] >= 0)
-        & (xy_int[:, 0] < width)
-        & (xy_int[:, 1] >= 0)
-        & (xy_int[:, 1] < height)
-    )
+    xy_int = np.round(np.where(finite[:, None], xy, -1.0)).astype(np.int64)  # type: ignore[index]
+    inside = finite & (xy_int[:, 0] >= 0) & (xy_int[:, 0] < width) & (xy_int[:, 1] >= 0) & (xy_int[:, 1] < height)
     if not inside.any():
         return np.zeros((height, width), dtype=np.uint8)
     values = (labels[inside] + 1).astype(np.uint8)
     if cfg.method == "vote":
-        mask = _vote(xy[inside], values, (height, width), cfg)
+        mask = _vote(xy[inside], values, (height, width), cfg)  # type: ignore[arg-type]
     else:
         mask = _nearest(xy_int[inside], values, (height, width), cfg.max_distance_px)
     if cfg.median_px > 1:

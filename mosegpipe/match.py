@@ -128,7 +128,7 @@ def match_sift(
     gray1, gray2 = _gray(img1, "img1"), _gray(img2, "img2")
     size1 = (int(gray1.shape[0]), int(gray1.shape[1]))
     size2 = (int(gray2.shape[0]), int(gray2.shape[1]))
-    sift = cv2.SIFT_create(
+    sift = cv2.SIFT_create(  # type: ignore[attr-defined]
         nfeatures=cfg.nfeatures,
         nOctaveLayers=cfg.n_octave_layers,
         contrastThreshold=cfg.contrast_threshold,

@@ -115,8 +115,9 @@ class ModelConfig:
         return cls(**data)
 
 
-def _point_weights(mask: Tensor | None, batch: int, num_points: int, device: torch.device,
-                   dtype: torch.dtype) -> Tensor:
+def _point_weights(
+    mask: Tensor | None, batch: int, num_points: int, device: torch.device, dtype: torch.dtype
+) -> Tensor:
     """(B, 1, N) weights mask/count, so that `w @ h` is the per-clip mean over real points."""
     if mask is None:
         return torch.full((batch, 1, num_points), 1.0 / max(num_points, 1), device=device, dtype=dtype)
@@ -244,8 +245,9 @@ class SubspaceNet(nn.Module):
         if x.ndim != 3 or x.shape[1] != self.cfg.in_dim:
             raise InputError(f"x shape {tuple(x.shape)}: expected (B, {self.cfg.in_dim}, N)")
         if mask is not None and (mask.shape != (x.shape[0], x.shape[2]) or mask.dtype != torch.bool):
-            raise InputError(f"mask shape {tuple(mask.shape)} dtype {mask.dtype}: expected bool "
-                             f"({x.shape[0]}, {x.shape[2]})")
+            raise InputError(
+                f"mask shape {tuple(mask.shape)} dtype {mask.dtype}: expected bool ({x.shape[0]}, {x.shape[2]})"
+            )
         return self._embed_points(x.transpose(1, 2).to(torch.float32), mask).transpose(1, 2)
 
     @property
@@ -271,8 +273,10 @@ class SubspaceNet(nn.Module):
             traj = resample_frames(traj, self.num_frames).data
         arr = np.asarray(traj)
         if arr.ndim != 2 or arr.shape[1] != self.cfg.in_dim:
-            raise InputError(f"trajectory matrix shape {arr.shape}: this model expects (N, {self.cfg.in_dim}) "
-                             f"({self.num_frames} frames)")
+            raise InputError(
+                f"trajectory matrix shape {arr.shape}: this model expects (N, {self.cfg.in_dim}) "
+                f"({self.num_frames} frames)"
+            )
         if not np.all(np.isfinite(arr)):
             raise InputError("trajectory matrix holds NaN or inf values")
         if arr.shape[0] == 0:
@@ -288,8 +292,7 @@ class SubspaceNet(nn.Module):
             self.train(was_training)
         return z.cpu().numpy().astype(np.float32, copy=False)
 
-    def checkpoint(self, recipe: dict[str, Any] | None = None,
-                   metrics: dict[str, Any] | None = None) -> dict[str, Any]:
+    def checkpoint(self, recipe: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None) -> dict[str, Any]:
         """A self-describing, `torch.load(weights_only=True)`-loadable checkpoint dict.
 
         Args:
@@ -314,8 +317,9 @@ class SubspaceNet(nn.Module):
             "version": __version__,
         }
 
-    def save(self, path: str | os.PathLike[str], recipe: dict[str, Any] | None = None,
-             metrics: dict[str, Any] | None = None) -> Path:
+    def save(
+        self, path: str | os.PathLike[str], recipe: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None
+    ) -> Path:
         """Write `checkpoint(recipe, metrics)` to `path` atomically (temp file + os.replace).
 
         Returns:
@@ -362,12 +366,15 @@ class SubspaceNet(nn.Module):
                 ckpt = torch.load(path, weights_only=True, map_location="cpu")
             except Exception as e:  # torch raises many types for corrupt or foreign files
                 logger.debug("torch.load(%s) failed: %s", path, e)
-                raise CheckpointError(f"{path}: cannot read checkpoint: corrupt, truncated, or holding objects "
-                                      f"other than plain data ({type(e).__name__})") from e
+                raise CheckpointError(
+                    f"{path}: cannot read checkpoint: corrupt, truncated, or holding objects "
+                    f"other than plain data ({type(e).__name__})"
+                ) from e
         if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
             found = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
-            raise CheckpointError(f"{src}: not a SubspaceNet checkpoint (format {found!r}, "
-                                  f"expected {CHECKPOINT_FORMAT!r})")
+            raise CheckpointError(
+                f"{src}: not a SubspaceNet checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})"
+            )
         for key in ("model_config", "state_dict"):
             if not isinstance(ckpt.get(key), dict):
                 raise CheckpointError(f"{src}: checkpoint lacks a {key!r} dict")
@@ -400,12 +407,12 @@ class SubspaceNet(nn.Module):
         if not path.is_file():
             available = available_default_frames()
             listed = ", ".join(str(f) for f in available) if available else "none"
-            raise CheckpointError(f"no shipped weights for {frames} frames; available: {listed} "
-                                  f"(looked for {path})")
+            raise CheckpointError(f"no shipped weights for {frames} frames; available: {listed} (looked for {path})")
         model = cls.from_checkpoint(path)
         if model.cfg.in_dim != 2 * frames:
-            raise CheckpointError(f"{path}: model expects in_dim={model.cfg.in_dim}, not {2 * frames} "
-                                  f"for {frames} frames")
+            raise CheckpointError(
+                f"{path}: model expects in_dim={model.cfg.in_dim}, not {2 * frames} for {frames} frames"
+            )
         return model
 
 
@@ -426,8 +433,10 @@ def available_default_frames() -> list[int]:
     return sorted(int(m.group(1)) for m in found if m)
 
 
-def pad_batch(trajs: list[npt.NDArray[np.floating]], labels: list[npt.NDArray[np.integer]] | None = None,
-              ) -> tuple[Tensor, Tensor | None, Tensor]:
+def pad_batch(
+    trajs: list[npt.NDArray[np.floating]],
+    labels: list[npt.NDArray[np.integer]] | None = None,
+) -> tuple[Tensor, Tensor | None, Tensor]:
     """Stack clips with different numbers of points into one padded batch.
 
     Args:
@@ -456,7 +465,7 @@ def pad_batch(trajs: list[npt.NDArray[np.floating]], labels: list[npt.NDArray[np
             if np.shape(lab) != (a.shape[0],):
                 raise InputError(f"pad_batch: clip {i} labels shape {np.shape(lab)}, expected ({a.shape[0]},)")
     num_max = max(a.shape[0] for a in arrays)
-    x = torch.zeros((len(arrays), dim, num_max), dtype=torch.float32)
+    x = torch.zeros((len(arrays), dim, num_max), dtype=torch.float32)  # type: ignore[arg-type]
     mask = torch.zeros((len(arrays), num_max), dtype=torch.bool)
     lab_t = None if labels is None else torch.full((len(arrays), num_max), -1, dtype=torch.int64)
     for i, a in enumerate(arrays):

@@ -373,7 +373,9 @@ def write_video_outputs(
                         keep = fr.labels >= 0
                         write_palette_png(tmp / "masks" / f"{fr.index:06d}.png", fr.mask, palette)
                         if recorder is not None:
-                            recorder.log_frame(fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], fr.mask)
+                            recorder.log_frame(
+                                fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], fr.mask
+                            )
                         yield overlay_image(fr.image, fr.mask, fr.xy[keep], fr.labels[keep])
                     del window, fr  # before the next window is read: hold one window's frames at most
 
@@ -383,7 +385,9 @@ def write_video_outputs(
             tmp / "labels.npz",
             track_ids=np.concatenate([w.track_ids for w in labelled]),
             labels=np.concatenate([w.labels for w in labelled]),
-            window=np.concatenate([np.full(w.track_ids.size, i, dtype=np.int64) for i, w in enumerate(windows) if w.is_labelled]),
+            window=np.concatenate(
+                [np.full(w.track_ids.size, i, dtype=np.int64) for i, w in enumerate(windows) if w.is_labelled]
+            ),
         )
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
         write_json(tmp / "summary.json", summary)

@@ -40,6 +40,7 @@ from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
 
 log = logging.getLogger(__name__)
 
+
 @dataclass(frozen=True)
 class PipelineConfig:
     """Settings of one segmentation run.
@@ -193,7 +194,9 @@ def decode_errors(source: str | Path) -> Iterator[None]:
         raise InputError(f"{source}: cannot read it ({detail})") from exc
 
 
-def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None) -> ClipResult:
+def segment_frames(
+    frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None
+) -> ClipResult:
     """Segments the motions in a short stack of frames.
 
     Args:
@@ -247,7 +250,9 @@ def _container_frames(path: str | Path) -> int | None:
     return info["num_frames"] if info["kind"] == "video" else None
 
 
-def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None) -> ClipResult:
+def segment_clip(
+    path: str | Path, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None
+) -> ClipResult:
     """Reads the first cfg.frames frames of a video file or frame folder and segments them.
 
     Args:
@@ -290,7 +295,7 @@ def _outlier_cluster(matches: Matches, labels: npt.NDArray[np.int64], k: int, mi
             matches.xy1[idx].astype(np.float64), matches.xy2[idx].astype(np.float64), cv2.FM_RANSAC, 2.0, 0.99
         )
         ratios[c] = 0.0 if inl is None else float(inl.mean())
-    worst = min(ratios, key=ratios.get)
+    worst = min(ratios, key=lambda c: ratios[c])
     return worst if ratios[worst] < min_ratio else None
 
 

@@ -45,9 +45,7 @@ def build_trajectories(tracks: Tracks, frames: int | None = None, start: int = 0
     return Trajectories(data=data, track_ids=ids)
 
 
-def iter_windows(
-    tracks: Tracks, frames: int, stride: int | None = None
-) -> Iterator[tuple[int, Trajectories]]:
+def iter_windows(tracks: Tracks, frames: int, stride: int | None = None) -> Iterator[tuple[int, Trajectories]]:
     """Slide a window of `frames` frames over the tracks and build each window's trajectories.
 
     Args:

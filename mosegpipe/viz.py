@@ -244,7 +244,9 @@ def _close(rec: rr.RecordingStream) -> None:
 
 
 def _log_written(final: Path, what: str, started: float) -> None:
-    logger.info("wrote %s (%s, %.1f kB) in %.2f s", final, what, final.stat().st_size / 1e3, time.perf_counter() - started)
+    logger.info(
+        "wrote %s (%s, %.1f kB) in %.2f s", final, what, final.stat().st_size / 1e3, time.perf_counter() - started
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -398,9 +400,13 @@ def write_pair_recording(
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     embeddings = np.asarray(embeddings)
     if len(images) != 2 or (masks is not None and len(masks) != 2):
-        raise InputError(f"a pair needs 2 images and 2 masks, got {len(images)} and {None if masks is None else len(masks)}")
+        raise InputError(
+            f"a pair needs 2 images and 2 masks, got {len(images)} and {None if masks is None else len(masks)}"
+        )
     if not matches.num_matches == len(labels) == len(embeddings):
-        raise InputError(f"{matches.num_matches} matches, {len(labels)} labels, {len(embeddings)} embeddings: must match")
+        raise InputError(
+            f"{matches.num_matches} matches, {len(labels)} labels, {len(embeddings)} embeddings: must match"
+        )
     sizes = (matches.size1_hw, matches.size2_hw)
     for i in range(2):
         if images[i].shape[:2] != sizes[i] or (masks is not None and masks[i].shape != sizes[i]):

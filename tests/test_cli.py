@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from test_pipeline import motion_checkpoint, read_rrd, render_scene, write_avi, write_frames
 from typer.testing import CliRunner
 
 from mosegpipe import __version__
@@ -20,7 +21,6 @@ from mosegpipe.cli.main import app
 from mosegpipe.io import read_palette_png
 from mosegpipe.model import available_default_frames
 from mosegpipe.synth.render import RenderedClip
-from test_pipeline import motion_checkpoint, read_rrd, render_scene, write_avi, write_frames
 
 runner = CliRunner(env={"COLUMNS": "200"})
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
@@ -135,7 +135,9 @@ def test_pair_of_images_of_different_sizes(tmp_path: Path, models: dict[int, Pat
 def test_shipped_default_weights(tmp_path: Path, scene: RenderedClip, clip_avi: Path) -> None:
     available = available_default_frames()
     if 5 not in available or 2 not in available:
-        pytest.skip(f"shipped weights subspacenet_f5.pt and subspacenet_f2.pt not in mosegpipe/weights yet (found F={available})")
+        pytest.skip(
+            f"shipped weights subspacenet_f5.pt and subspacenet_f2.pt not in mosegpipe/weights yet (found F={available})"
+        )
     code, _, stderr = moseg("run", clip_avi, "-o", tmp_path / "clip", "--no-rrd")  # no --model
     assert code == 0, stderr
     summary = json.loads((tmp_path / "clip" / "summary.json").read_text())
@@ -174,33 +176,62 @@ def _garbage(path: Path) -> Path:
 BadCase = Callable[[Path, dict[int, Path], Path], tuple[list[object], str]]
 
 BAD_INPUTS: dict[str, BadCase] = {
-    "missing file": lambda tmp, m, clip: (["run", tmp / "nope.mp4", "--model", m[5]], "nope.mp4: no such file or folder"),
+    "missing file": lambda tmp, m, clip: (
+        ["run", tmp / "nope.mp4", "--model", m[5]],
+        "nope.mp4: no such file or folder",
+    ),
     "folder without images": lambda tmp, m, clip: (
-        ["run", (tmp / "empty").mkdir() or tmp / "empty", "--model", m[5]], "empty: folder holds no images"),
+        ["run", (tmp / "empty").mkdir() or tmp / "empty", "--model", m[5]],
+        "empty: folder holds no images",
+    ),
     "corrupt video": lambda tmp, m, clip: (
-        ["run", _garbage(tmp / "x.mp4"), "--model", m[5]], "x.mp4: not a readable video"),
+        ["run", _garbage(tmp / "x.mp4"), "--model", m[5]],
+        "x.mp4: not a readable video",
+    ),
     "fewer frames than --frames": lambda tmp, m, clip: (
-        ["run", clip, "--frames", "7", "--model", m[5]], "scene.avi: only 6 frames could be read; --frames needs 7"),
+        ["run", clip, "--frames", "7", "--model", m[5]],
+        "scene.avi: only 6 frames could be read; --frames needs 7",
+    ),
     "blank frames": lambda tmp, m, clip: (
-        ["run", _grey_frames(tmp / "grey", 5), "--model", m[5]], "grey: only 0 tracks survived 5 frames"),
+        ["run", _grey_frames(tmp / "grey", 5), "--model", m[5]],
+        "grey: only 0 tracks survived 5 frames",
+    ),
     "blank image pair": lambda tmp, m, clip: (
-        ["pair", *_grey_pair(tmp), "--model", m[2]], "000001.png: only 0 SIFT matches; need at least 10"),
+        ["pair", *_grey_pair(tmp), "--model", m[2]],
+        "000001.png: only 0 SIFT matches; need at least 10",
+    ),
     "--k larger than the tracks": lambda tmp, m, clip: (
-        ["run", clip, "--k", "100000", "--model", m[5]], "--k 100000 is larger than the number of tracks"),
+        ["run", clip, "--k", "100000", "--model", m[5]],
+        "--k 100000 is larger than the number of tracks",
+    ),
     "unknown --k-method": lambda tmp, m, clip: (
-        ["run", clip, "--k-method", "elbow", "--model", m[5]], "--k-method 'elbow': choose 'residual' or 'silhouette'"),
+        ["run", clip, "--k-method", "elbow", "--model", m[5]],
+        "--k-method 'elbow': choose 'residual' or 'silhouette'",
+    ),
     "unknown eval protocol": lambda tmp, m, clip: (
-        ["eval", "kitti", "-o", tmp / "out"], "unknown protocol 'kitti'; choose from kt3d-test"),
+        ["eval", "kitti", "-o", tmp / "out"],
+        "unknown protocol 'kitti'; choose from kt3d-test",
+    ),
     "unknown train preset": lambda tmp, m, clip: (
-        ["train", "--preset", "huge", "-o", tmp / "out" / "m.pt"], "unknown recipe 'huge'"),
+        ["train", "--preset", "huge", "-o", tmp / "out" / "m.pt"],
+        "unknown recipe 'huge'",
+    ),
     "corrupt --model": lambda tmp, m, clip: (
-        ["run", clip, "--model", _garbage(tmp / "model.pt")], "model.pt: cannot read checkpoint"),
+        ["run", clip, "--model", _garbage(tmp / "model.pt")],
+        "model.pt: cannot read checkpoint",
+    ),
     "--model that is not there": lambda tmp, m, clip: (
-        ["run", clip, "--model", tmp / "gone.pt"], "gone.pt: checkpoint file not found"),
+        ["run", clip, "--model", tmp / "gone.pt"],
+        "gone.pt: checkpoint file not found",
+    ),
     "--out is a file": lambda tmp, m, clip: (
-        ["run", clip, "--model", m[5], "-o", _garbage(tmp / "out")], "out: exists and is not a folder"),
+        ["run", clip, "--model", m[5], "-o", _garbage(tmp / "out")],
+        "out: exists and is not a folder",
+    ),
     "--max-frames without --whole": lambda tmp, m, clip: (
-        ["run", clip, "--model", m[5], "--max-frames", "3"], "--max-frames only applies with --whole"),
+        ["run", clip, "--model", m[5], "--max-frames", "3"],
+        "--max-frames only applies with --whole",
+    ),
 }
 
 
@@ -224,11 +255,17 @@ def test_truncated_real_video(tmp_path: Path, data_root: Path, models: dict[int,
         cut.write_bytes(fh.read(source.stat().st_size // 20))  # the header and the first few frames
     code, _, stderr = moseg("run", cut, "--model", models[5], "-o", tmp_path / "out")
     assert code == 1 and stderr.count("\n") == 1
-    assert stderr.startswith("moseg: error: ") and "tree_cut.avi: only " in stderr and "truncated or corrupt video?" in stderr
+    assert (
+        stderr.startswith("moseg: error: ")
+        and "tree_cut.avi: only " in stderr
+        and "truncated or corrupt video?" in stderr
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tree_cut.avi"]
 
 
-def test_refusing_to_overwrite_a_folder_that_is_not_a_moseg_output(tmp_path: Path, clip_avi: Path, models: dict[int, Path]) -> None:
+def test_refusing_to_overwrite_a_folder_that_is_not_a_moseg_output(
+    tmp_path: Path, clip_avi: Path, models: dict[int, Path]
+) -> None:
     photos = write_frames(tmp_path / "photos", np.zeros((1, 8, 8, 3), np.uint8))
     code, _, stderr = moseg("run", clip_avi, "--model", models[5], "-o", photos, "--overwrite")
     assert code == 1 and "photos: holds files but no summary.json" in stderr
@@ -250,7 +287,12 @@ def test_decoder_noise_is_kept_off_stderr(tmp_path: Path) -> None:
         # cwd away from the checkout: `python -c` puts the working folder first on sys.path, where the
         # source tree's mosegpipe/ (without cli/, which is mapped in at install) would shadow the install.
         proc = subprocess.run(
-            [sys.executable, "-c", script, str(bad), mode], capture_output=True, text=True, env=env, timeout=60, cwd=tmp_path
+            [sys.executable, "-c", script, str(bad), mode],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=60,
+            cwd=tmp_path,
         )
         assert proc.returncode == 0, proc.stderr
         return proc.stderr

@@ -29,12 +29,12 @@ from mosegpipe.errors import DatasetError, InputError
 from mosegpipe.types import LabeledClip
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _kt3d_test_clips(root: Path) -> tuple[LabeledClip, ...]:
     return tuple(kt3d_test_clips(root))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _hopkins(root: Path) -> tuple[LabeledClip, ...]:
     return tuple(load_hopkins(root))
 
@@ -170,9 +170,12 @@ def test_hopkins_counts(data_root: Path) -> None:
     # The README's table: checkerboard 78 + 26, traffic 31 + 7, articulated 11 + 2.
     table = collections.Counter((c.meta["subset"], c.meta["num_motions"]) for c in clips)
     assert table == {
-        ("checkerboard", 2): 78, ("checkerboard", 3): 26,
-        ("traffic", 2): 31, ("traffic", 3): 7,
-        ("articulated", 2): 11, ("articulated", 3): 2,
+        ("checkerboard", 2): 78,
+        ("checkerboard", 3): 26,
+        ("traffic", 2): 31,
+        ("traffic", 3): 7,
+        ("articulated", 2): 11,
+        ("articulated", 3): 2,
     }
     mean_points = np.mean([c.num_points for c in clips if c.k == 2])
     assert round(mean_points) == 266
@@ -331,9 +334,7 @@ def test_fbms_groundtruth_errors(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="2 regions declared"):
         read_fbms_groundtruth(bad)
     lost = tmp_path / "lostDef.dat"
-    lost.write_text(
-        "Total number of regions:\n1\nScale of region 0:\n0\nFrame number:\n0\nFile name:\nx.pgm\n"
-    )
+    lost.write_text("Total number of regions:\n1\nScale of region 0:\n0\nFrame number:\n0\nFile name:\nx.pgm\n")
     with pytest.raises(DatasetError, match="x.pgm"):
         read_fbms_groundtruth(lost)
 

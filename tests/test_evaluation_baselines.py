@@ -6,6 +6,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from mosegpipe.errors import InputError
 from mosegpipe.evaluation.baselines import (
     BASELINES,
     Baseline,
@@ -17,7 +18,6 @@ from mosegpipe.evaluation.baselines import (
     ssc_coefficients,
     zscore_columns,
 )
-from mosegpipe.errors import InputError
 from mosegpipe.evaluation.metrics import misclassification_error
 
 Data = tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]
@@ -31,9 +31,7 @@ def _one_thread() -> Iterator[None]:
         yield
 
 
-def affine_motions(
-    n_per: tuple[int, ...] = (50, 50, 50), frames: int = 5, noise: float = 0.5, seed: int = 0
-) -> Data:
+def affine_motions(n_per: tuple[int, ...] = (50, 50, 50), frames: int = 5, noise: float = 0.5, seed: int = 0) -> Data:
     """Independent affine motions of 3-D point clouds that overlap in the image.
 
     All clouds fill the same 200 px box around (320, 320) in frame 1, so positions alone do not

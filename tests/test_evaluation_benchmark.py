@@ -16,7 +16,15 @@ from typer.testing import CliRunner
 import mosegpipe.evaluation.benchmark as ev
 from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.evaluation.benchmark import EvalConfig, embed_clip, evaluate_clips, format_table, run_protocol, summarize, write_results
+from mosegpipe.evaluation.benchmark import (
+    EvalConfig,
+    embed_clip,
+    evaluate_clips,
+    format_table,
+    run_protocol,
+    summarize,
+    write_results,
+)
 from mosegpipe.evaluation.metrics import misclassification_error
 from mosegpipe.model import ModelConfig, SubspaceNet
 from mosegpipe.training.loop import TrainConfig
@@ -36,7 +44,9 @@ def tiny_model(in_dim: int = 4, seed: int = 0) -> SubspaceNet:
     return SubspaceNet(replace(TINY, in_dim=in_dim)).eval()
 
 
-def separated_clip(rng: np.random.Generator, name: str, sizes: tuple[int, ...] = (15, 15), frames: int = 2) -> LabeledClip:
+def separated_clip(
+    rng: np.random.Generator, name: str, sizes: tuple[int, ...] = (15, 15), frames: int = 2
+) -> LabeledClip:
     """Groups 300 px apart, each translated by its own velocity: K-means on raw coordinates solves it."""
     trajs, labels = [], []
     for g, n in enumerate(sizes):
@@ -45,7 +55,9 @@ def separated_clip(rng: np.random.Generator, name: str, sizes: tuple[int, ...] =
         xy = start[:, None, :] + velocity * np.arange(frames)[None, :, None]
         trajs.append(xy.reshape(n, 2 * frames))
         labels.append(np.full(n, g, dtype=np.int64))
-    return LabeledClip(name, np.concatenate(trajs).astype(np.float32), np.concatenate(labels), "toy", {"sequence": name})
+    return LabeledClip(
+        name, np.concatenate(trajs).astype(np.float32), np.concatenate(labels), "toy", {"sequence": name}
+    )
 
 
 def toy_sampler(rng: np.random.Generator) -> LabeledClip:
@@ -59,7 +71,11 @@ def toy_sampler(rng: np.random.Generator) -> LabeledClip:
 
 def test_evaluate_clips_fills_every_column() -> None:
     rng = np.random.default_rng(0)
-    clips = [separated_clip(rng, "a"), separated_clip(rng, "b", sizes=(10, 12, 14)), separated_clip(rng, "c", sizes=(20,))]
+    clips = [
+        separated_clip(rng, "a"),
+        separated_clip(rng, "b", sizes=(10, 12, 14)),
+        separated_clip(rng, "c", sizes=(20,)),
+    ]
     model = tiny_model()
     cfg = ClusterConfig(k_max=5)
     rows = evaluate_clips(model, clips, cfg, baselines=("kmeans-raw",))
@@ -115,7 +131,18 @@ def test_embed_clip_resamples_to_model_frames() -> None:
 
 
 def hand_rows() -> list[dict[str, Any]]:
-    cols = ("name", "num_points", "k_true", "k_pred", "error", "error_true_k", "nmi", "seconds", "kmeans-raw@K", "kmeans-raw@auto")
+    cols = (
+        "name",
+        "num_points",
+        "k_true",
+        "k_pred",
+        "error",
+        "error_true_k",
+        "nmi",
+        "seconds",
+        "kmeans-raw@K",
+        "kmeans-raw@auto",
+    )
     values = [
         ("a", 10, 2, 2, 0.1, 0.0, 0.9, 0.5, 0.2, 0.3),
         ("b", 20, 3, 2, 0.4, 0.2, 0.5, 0.25, 0.0, 0.6),
@@ -127,7 +154,16 @@ def hand_rows() -> list[dict[str, Any]]:
 
 def test_summarize_hand_computed() -> None:
     s = summarize(hand_rows())
-    assert set(s) == {"num_clips", "error", "error_true_k", "kmeans-raw@K", "kmeans-raw@auto", "correct_k", "nmi", "seconds_total"}
+    assert set(s) == {
+        "num_clips",
+        "error",
+        "error_true_k",
+        "kmeans-raw@K",
+        "kmeans-raw@auto",
+        "correct_k",
+        "nmi",
+        "seconds_total",
+    }
     assert s["num_clips"] == 4
     # error: mean (.1 + .4 + 0 + .9) / 4 = .35, median of (0, .1, .4, .9) = .25.
     assert s["error"] == pytest.approx({"mean": 0.35, "median": 0.25})
@@ -146,7 +182,10 @@ def test_format_table_rows_percent_and_stats() -> None:
     rows = hand_rows()
     table = format_table(rows, summarize(rows))
     lines = table.splitlines()
-    assert lines[0] == "| name | num_points | k_true | k_pred | error | error_true_k | nmi | seconds | kmeans-raw@K | kmeans-raw@auto |"
+    assert (
+        lines[0]
+        == "| name | num_points | k_true | k_pred | error | error_true_k | nmi | seconds | kmeans-raw@K | kmeans-raw@auto |"
+    )
     assert lines[1] == "|" + "---|" * 10
     assert lines[2] == "| a | 10 | 2 | 2 | 10.00 | 0.00 | 0.900 | 500.0ms | 20.00 | 30.00 |"
     assert lines[5] == "| d | 40 | 2 | 3 | 90.00 | 10.00 | 0.600 | 1000.0ms | 50.00 | 10.00 |"
@@ -233,7 +272,9 @@ def test_run_protocol_loo_saves_folds_and_resumes(
     rows, summary, table = run_protocol(loo_config(), tmp_path, out, init=init, progress=said.append)
     assert [r["name"] for r in rows] == ["pairA", "pairB"]
     assert fake_data == [((("adelaide", 1.0),), ("pairA",)), ((("adelaide", 1.0),), ("pairB",))]
-    assert len(said) == 2 and said[0].startswith("pairA: trained 3 steps") and said[1].startswith("pairB: trained 3 steps")
+    assert (
+        len(said) == 2 and said[0].startswith("pairA: trained 3 steps") and said[1].startswith("pairB: trained 3 steps")
+    )
     for name in ("pairA", "pairB"):
         stored = json.loads((out / "folds" / f"{name}.json").read_text())
         assert set(stored) == {"config_hash", "recipe", "rows"}
@@ -254,7 +295,11 @@ def test_run_protocol_loo_saves_folds_and_resumes(
     # Other clustering settings and baselines do not invalidate the stored folds.
     said.clear()
     rows3, _, _ = run_protocol(
-        loo_config(cluster=ClusterConfig(k_max=3), baselines=("kmeans-raw",)), tmp_path, out, init=init, progress=said.append
+        loo_config(cluster=ClusterConfig(k_max=3), baselines=("kmeans-raw",)),
+        tmp_path,
+        out,
+        init=init,
+        progress=said.append,
     )
     assert all(m.endswith("re-scored") for m in said) and len(said) == 2
     assert all(r["k_pred"] <= 3 and "kmeans-raw@K" in r for r in rows3)

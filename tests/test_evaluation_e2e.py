@@ -199,7 +199,17 @@ def test_rendered_rows_tiny_run() -> None:
     assert len(rows) == 1
     row = rows[0]
     assert list(row) == [
-        "seed", "camera", "num_tracks", "k_true", "k_pred", "track_error", "J", "F", "J_oracle", "F_oracle", "seconds",
+        "seed",
+        "camera",
+        "num_tracks",
+        "k_true",
+        "k_pred",
+        "track_error",
+        "J",
+        "F",
+        "J_oracle",
+        "F_oracle",
+        "seconds",
     ]
     assert row["seed"] == 0 and row["camera"] == "static"
     assert row["num_tracks"] >= 50

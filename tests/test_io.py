@@ -242,8 +242,17 @@ def test_default_palette_is_the_voc_davis_palette() -> None:
     assert pal.shape == (256, 3) and pal.dtype == np.uint8
     np.testing.assert_array_equal(
         pal[:9],
-        [[0, 0, 0], [128, 0, 0], [0, 128, 0], [128, 128, 0], [0, 0, 128], [128, 0, 128], [0, 128, 128],
-         [128, 128, 128], [64, 0, 0]],
+        [
+            [0, 0, 0],
+            [128, 0, 0],
+            [0, 128, 0],
+            [128, 128, 0],
+            [0, 0, 128],
+            [128, 0, 128],
+            [0, 128, 128],
+            [128, 128, 128],
+            [64, 0, 0],
+        ],
     )
     assert len({tuple(c) for c in pal}) == 256
 

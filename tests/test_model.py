@@ -13,7 +13,6 @@ from sklearn.cluster import KMeans
 import mosegpipe
 import mosegpipe.model as model_mod
 from mosegpipe.errors import CheckpointError, InputError
-from mosegpipe.training.losses import mimi_loss
 from mosegpipe.model import (
     CHECKPOINT_FORMAT,
     ModelConfig,
@@ -24,6 +23,7 @@ from mosegpipe.model import (
     pad_batch,
 )
 from mosegpipe.runtime import limited_threads
+from mosegpipe.training.losses import mimi_loss
 
 SMALL = ModelConfig(in_dim=10, width=16, num_blocks=3, embed_dim=4)
 
@@ -143,8 +143,13 @@ def test_checkpoint_round_trip(tmp_path: Path) -> None:
     assert raw["model_config"] == SMALL.to_dict()
     loaded = SubspaceNet.from_checkpoint(path)
     assert not loaded.training and loaded.cfg == SMALL
-    assert loaded.recipe == {"loss": "mimi", "lr": pytest.approx(1e-3), "steps": 10, "sizes": [1, 2],
-                             "out": str(tmp_path)}
+    assert loaded.recipe == {
+        "loss": "mimi",
+        "lr": pytest.approx(1e-3),
+        "steps": 10,
+        "sizes": [1, 2],
+        "out": str(tmp_path),
+    }
     assert loaded.metrics == {"hopkins_err": 0.0123}
     traj = _traj(50, seed=7)
     assert np.array_equal(loaded.embed(traj), net.embed(traj))
@@ -261,10 +266,14 @@ def _misclassification(labels: npt.NDArray[np.int64], pred: npt.NDArray[np.int64
 
 def _mean_error(net: SubspaceNet, clips: list[Clip]) -> float:
     with limited_threads(1):
-        return float(np.mean([
-            _misclassification(lab, KMeans(2, n_init=5, random_state=0).fit_predict(net.embed(traj)), 2)
-            for traj, lab in clips
-        ]))
+        return float(
+            np.mean(
+                [
+                    _misclassification(lab, KMeans(2, n_init=5, random_state=0).fit_predict(net.embed(traj)), 2)
+                    for traj, lab in clips
+                ]
+            )
+        )
 
 
 def test_training_smoke_mimi_separates_affine_motions() -> None:

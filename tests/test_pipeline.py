@@ -27,8 +27,8 @@ from mosegpipe.masks import overlay_image, overlay_mask
 from mosegpipe.model import ModelConfig, SubspaceNet
 from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_pair_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_frames, segment_pair
-from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
 from mosegpipe.runtime import set_threads
+from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 
@@ -139,7 +139,9 @@ def scene() -> RenderedClip:
 
 
 @pytest.fixture(scope="module")
-def clip_result(scene: RenderedClip, tmp_path_factory: pytest.TempPathFactory, model5: SubspaceNet) -> pipeline.ClipResult:
+def clip_result(
+    scene: RenderedClip, tmp_path_factory: pytest.TempPathFactory, model5: SubspaceNet
+) -> pipeline.ClipResult:
     folder = write_frames(tmp_path_factory.mktemp("scene") / "frames", scene.frames)
     return segment_clip(folder, PipelineConfig(frames=5), model5)
 
@@ -186,7 +188,9 @@ def test_short_and_truncated_inputs(tmp_path: Path, scene: RenderedClip, model5:
         segment_clip(tmp_path / "x.mp4", PipelineConfig(), model5)
 
 
-def test_opencv_exceptions_become_input_errors(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, model5: SubspaceNet) -> None:
+def test_opencv_exceptions_become_input_errors(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, model5: SubspaceNet
+) -> None:
     def broken(*_args: object, **_kwargs: object) -> None:
         raise cv2.error("OpenCV(4.10) error: (-215:Assertion failed) !buf.empty() in function 'imdecode_'")
 
@@ -322,7 +326,9 @@ def test_check_output_dir_protects_other_folders(tmp_path: Path) -> None:
         check_output_dir(tmp_path / "photos", overwrite=True)
 
 
-def test_a_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, clip_result: pipeline.ClipResult) -> None:
+def test_a_failed_write_leaves_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, clip_result: pipeline.ClipResult
+) -> None:
     from mosegpipe import viz
 
     def broken(*_args: object, **_kwargs: object) -> None:
@@ -362,5 +368,8 @@ def test_samples_are_small_documented_and_reproducible() -> None:
     assert frames.images.shape == clip.frames.shape
     # JPEG quality 95 keeps the brightness the tracker sees within ~1 grey level on average (the
     # colours lose more: chroma is subsampled).
-    grey = [np.stack([cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in ims]).astype(np.int16) for ims in (frames.images, clip.frames)]
+    grey = [
+        np.stack([cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in ims]).astype(np.int16)
+        for ims in (frames.images, clip.frames)
+    ]
     assert np.abs(grey[0] - grey[1]).mean() < 2.0

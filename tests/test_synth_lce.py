@@ -3,8 +3,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosegpipe.synth.lce import CURVE_TYPES, LCEConfig, LCEDataset, lce_sample, lce_splits, make_lce
 from mosegpipe.errors import InputError
+from mosegpipe.synth.lce import CURVE_TYPES, LCEConfig, LCEDataset, lce_sample, lce_splits, make_lce
 from mosegpipe.types import LabeledClip
 
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.synth.render import ObjectSpec, RenderConfig, render_clip, write_clip
 from mosegpipe.runtime import set_threads
+from mosegpipe.synth.render import ObjectSpec, RenderConfig, render_clip, write_clip
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -17,8 +17,7 @@ def _one_thread() -> None:
 
 
 FRONT = ObjectSpec("plane", centre_m=(0.0, 0.0, 3.0), size_m=(1.0, 1.0, 0.0))
-BEHIND = ObjectSpec("box", centre_m=(0.3, 0.0, 5.0), size_m=(2.0, 2.0, 1.0),
-                    rotation=(0.0, 0.4, 0.0))
+BEHIND = ObjectSpec("box", centre_m=(0.3, 0.0, 5.0), size_m=(2.0, 2.0, 1.0), rotation=(0.0, 0.4, 0.0))
 OFF_SCREEN = ObjectSpec("plane", centre_m=(100.0, 0.0, 4.0))  # keeps BEHIND's id at 2
 
 
@@ -76,8 +75,7 @@ def test_klt_tracks_stay_on_their_surface() -> None:
     clip = render_clip(RenderConfig(seed=0, num_objects=2, camera_motion="static"))
     grey = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in (clip.frames[0], clip.frames[-1])]
     p0 = cv2.goodFeaturesToTrack(grey[0], maxCorners=500, qualityLevel=0.01, minDistance=5)
-    p1, status, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], p0, None, winSize=(15, 15),
-                                             maxLevel=3)
+    p1, status, _ = cv2.calcOpticalFlowPyrLK(grey[0], grey[1], p0, None, winSize=(15, 15), maxLevel=3)
     ok = status[:, 0] == 1
     p0, p1 = p0[ok, 0], p1[ok, 0]
     assert len(p0) >= 200
@@ -151,8 +149,13 @@ def test_noise_is_seeded_and_small() -> None:
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{"size_hw": (8, 8)}, {"camera_motion": "orbit"}, {"texture": "plain"}, {"frames": 0},
-     {"object_speed_px": (3.0, 1.0)}],
+    [
+        {"size_hw": (8, 8)},
+        {"camera_motion": "orbit"},
+        {"texture": "plain"},
+        {"frames": 0},
+        {"object_speed_px": (3.0, 1.0)},
+    ],
 )
 def test_bad_config_raises(kwargs: dict) -> None:
     with pytest.raises(InputError):

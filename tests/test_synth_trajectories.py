@@ -6,6 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
+from mosegpipe.errors import InputError
+from mosegpipe.runtime import set_threads
 from mosegpipe.synth.trajectories import (
     PAIR_CONFIG,
     SyntheticConfig,
@@ -13,8 +15,6 @@ from mosegpipe.synth.trajectories import (
     generate_clip,
     generate_pair,
 )
-from mosegpipe.errors import InputError
-from mosegpipe.runtime import set_threads
 
 NOISE_FREE = SyntheticConfig(noise_px=(0.0, 0.0), drift_px=(0.0, 0.0))
 
@@ -93,8 +93,7 @@ def test_points_inside_image_including_outliers() -> None:
 
 
 def test_static_camera_background_is_still_and_objects_move() -> None:
-    cfg = replace(NOISE_FREE, camera_motions=("static",), num_bodies=(2, 4),
-                  relative_motion_px=(3.0, 30.0))
+    cfg = replace(NOISE_FREE, camera_motions=("static",), num_bodies=(2, 4), relative_motion_px=(3.0, 30.0))
     rng = np.random.default_rng(2)
     for _ in range(5):
         clip = generate_clip(rng, cfg)
@@ -111,8 +110,7 @@ def test_static_camera_background_is_still_and_objects_move() -> None:
 
 
 def test_relative_motion_hits_the_requested_magnitude() -> None:
-    cfg = replace(NOISE_FREE, camera_motions=("static",), num_bodies=(2, 2),
-                  relative_motion_px=(5.0, 5.0))
+    cfg = replace(NOISE_FREE, camera_motions=("static",), num_bodies=(2, 2), relative_motion_px=(5.0, 5.0))
     rng = np.random.default_rng(3)
     measured = []
     for _ in range(10):
@@ -123,8 +121,7 @@ def test_relative_motion_hits_the_requested_magnitude() -> None:
 
 
 def test_gaussian_noise_has_the_sampled_spread() -> None:
-    cfg = SyntheticConfig(camera_motions=("static",), noise_px=(1.0, 1.0), drift_px=(0.0, 0.0),
-                          num_points=(1000, 1000))
+    cfg = SyntheticConfig(camera_motions=("static",), noise_px=(1.0, 1.0), drift_px=(0.0, 0.0), num_points=(1000, 1000))
     clip = generate_clip(np.random.default_rng(4), cfg)
     xy = _xy(clip.traj)[clip.labels == 0]
     diff = xy[:, -1] - xy[:, 0]  # two independent N(0, 1) draws per coordinate
@@ -144,8 +141,15 @@ def test_pan_background_follows_a_homography() -> None:
 
 
 def test_rigid_body_in_a_pair_satisfies_the_epipolar_constraint() -> None:
-    cfg = replace(PAIR_CONFIG, noise_px=(0.0, 0.0), outlier_ratio=(0.0, 0.0), num_bodies=(2, 2),
-                  background_prob=0.0, num_points=(400, 400), relative_motion_px=(20.0, 40.0))
+    cfg = replace(
+        PAIR_CONFIG,
+        noise_px=(0.0, 0.0),
+        outlier_ratio=(0.0, 0.0),
+        num_bodies=(2, 2),
+        background_prob=0.0,
+        num_points=(400, 400),
+        relative_motion_px=(20.0, 40.0),
+    )
     rng = np.random.default_rng(6)
     for _ in range(3):
         clip = generate_pair(rng, cfg)

@@ -162,7 +162,6 @@ def test_tracker_rejects_bad_frames_and_config() -> None:
         TrackConfig(fb_threshold_px=0.0)
 
 
-
 def test_real_kitti_clip(data_root) -> None:
     from mosegpipe.io import read_video
 

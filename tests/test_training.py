@@ -13,7 +13,6 @@ from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
 from mosegpipe.model import ModelConfig, SubspaceNet
-from mosegpipe.training.recipes import RECIPES, build_sampler, get_recipe
 from mosegpipe.training.loop import (
     TrainConfig,
     augment,
@@ -23,6 +22,7 @@ from mosegpipe.training.loop import (
     train_model,
     with_overrides,
 )
+from mosegpipe.training.recipes import RECIPES, build_sampler, get_recipe
 from mosegpipe.types import LabeledClip
 
 TINY = ModelConfig(in_dim=4, width=16, num_blocks=2, embed_dim=5)
@@ -357,7 +357,20 @@ runner = CliRunner(env={"COLUMNS": "200"})
 def test_cli_train_synthetic_f2(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
     result = runner.invoke(
-        app, ["train", "--preset", "synthetic-f2", "--steps", "2", "--batch-size", "2", "--threads", "1", "--out", "tmp/x.pt"]
+        app,
+        [
+            "train",
+            "--preset",
+            "synthetic-f2",
+            "--steps",
+            "2",
+            "--batch-size",
+            "2",
+            "--threads",
+            "1",
+            "--out",
+            "tmp/x.pt",
+        ],
     )
     assert result.exit_code == 0, result.output
     model = SubspaceNet.from_checkpoint(tmp_path / "tmp" / "x.pt")

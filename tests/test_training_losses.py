@@ -154,8 +154,9 @@ def test_minimising_mimi_separates_two_clusters() -> None:
     def stats(z: torch.Tensor) -> tuple[float, float]:
         m0, m1 = z[0, :, :10].mean(1), z[0, :, 10:].mean(1)
         inter = float(((m0 - m1) ** 2).sum())
-        spread = float(max(((z[0, :, :10] - m0[:, None]) ** 2).sum(0).max(),
-                           ((z[0, :, 10:] - m1[:, None]) ** 2).sum(0).max()))
+        spread = float(
+            max(((z[0, :, :10] - m0[:, None]) ** 2).sum(0).max(), ((z[0, :, 10:] - m1[:, None]) ** 2).sum(0).max())
+        )
         return inter, spread
 
     inter0, spread0 = stats(F.normalize(raw.detach(), dim=1))

@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from test_pipeline import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 from typer.testing import CliRunner
 
 from mosegpipe import pipeline as pipeline_module
@@ -17,11 +18,9 @@ from mosegpipe.cli.main import app
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.io import iter_video, read_palette_png
 from mosegpipe.model import SubspaceNet
-from mosegpipe.pipeline import PipelineConfig
-from mosegpipe.synth.render import RenderedClip
 from mosegpipe.outputs import write_video_outputs
-from mosegpipe.pipeline import LabelBook, match_labels
-from test_pipeline import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
+from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
+from mosegpipe.synth.render import RenderedClip
 
 runner = CliRunner(env={"COLUMNS": "200"})
 T = 15  # windows of 5 share their boundary frame: 0-4, 4-8, 8-12, 12-14 (a short last window)
@@ -85,7 +84,13 @@ def test_whole_video_keeps_each_object_on_one_label(
 ) -> None:
     out = tmp_path / "out"
     summary = write_video_outputs(frames_dir, out, PipelineConfig(frames=5), SubspaceNet.from_checkpoint(model_path))
-    assert sorted(p.name for p in out.iterdir()) == ["labels.npz", "masks", "overlay.avi", "recording.rrd", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "labels.npz",
+        "masks",
+        "overlay.avi",
+        "recording.rrd",
+        "summary.json",
+    ]
     assert summary == json.loads((out / "summary.json").read_text())
     assert summary["kind"] == "video" and summary["frames"] == T and summary["size_hw"] == [240, 320]
     assert [(w["start"], w["frames"]) for w in summary["windows"]] == [(0, 5), (4, 5), (8, 5), (12, 3)]

@@ -152,7 +152,9 @@ def test_pair_recording(tmp_path: Path) -> None:
     matches = Matches(xy1=xy1, xy2=xy1 + 1, score=np.zeros(6, np.float32), size1_hw=(20, 30), size2_hw=(24, 28))
     labels = np.array([0, 0, 1, 1, -1, 2])
     masks = [np.zeros((20, 30), np.uint8), np.ones((24, 28), np.uint8)]
-    path = write_pair_recording(tmp_path / "pair.rrd", (img1, img2), matches, labels, rng.normal(size=(6, 2)), masks, {2: 0.1, 3: 0.2}, 3)
+    path = write_pair_recording(
+        tmp_path / "pair.rrd", (img1, img2), matches, labels, rng.normal(size=(6, 2)), masks, {2: 0.1, 3: 0.2}, 3
+    )
 
     got = _read(path)
     for entity in ("/image1/frame", "/image1/mask", "/image1/points", "/image2/frame", "/image2/points", "/embedding"):

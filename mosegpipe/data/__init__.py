@@ -18,8 +18,21 @@ from mosegpipe.data.kt3dmoseg import (
 )
 
 __all__ = [
-    "AdelaidePair", "KT3DSequence", "fbms_track_labels", "fbms_windows",
-    "kt3d_frame_paths", "kt3d_test_clips", "kt3d_windows", "list_adelaide", "list_hopkins_sequences",
-    "list_kt3d_sequences", "load_adelaide", "load_hopkins", "read_adelaide_pair", "read_fbms_groundtruth",
-    "read_fbms_tracks", "read_hopkins", "read_kt3d_sequence",
+    "AdelaidePair",
+    "KT3DSequence",
+    "fbms_track_labels",
+    "fbms_windows",
+    "kt3d_frame_paths",
+    "kt3d_test_clips",
+    "kt3d_windows",
+    "list_adelaide",
+    "list_hopkins_sequences",
+    "list_kt3d_sequences",
+    "load_adelaide",
+    "load_hopkins",
+    "read_adelaide_pair",
+    "read_fbms_groundtruth",
+    "read_fbms_tracks",
+    "read_hopkins",
+    "read_kt3d_sequence",
 ]

@@ -104,9 +104,7 @@ def read_fbms_tracks(
         pos += 3 * length
         frame = points[:, 2].astype(np.int64)
         if frame.size and (frame.min() < 0 or frame.max() >= num_frames):
-            raise DatasetError(
-                f"{path}: track {i} has frame {int(frame.max())} outside 0..{num_frames - 1}"
-            )
+            raise DatasetError(f"{path}: track {i} has frame {int(frame.max())} outside 0..{num_frames - 1}")
         xy[i, frame] = points[:, :2]
         visible[i, frame] = True
     if pos != values.size:
@@ -168,9 +166,7 @@ def _parse_definition(path: Path) -> tuple[list[int], list[tuple[int, str]]]:
     if num_regions is None:
         raise DatasetError(f"{path}: 'Total number of regions:' missing")
     if sorted(colours) != list(range(num_regions)):
-        raise DatasetError(
-            f"{path}: {num_regions} regions declared, colours given for {sorted(colours)}"
-        )
+        raise DatasetError(f"{path}: {num_regions} regions declared, colours given for {sorted(colours)}")
     return [colours[r] for r in range(num_regions)], frames
 
 
@@ -281,7 +277,7 @@ def fbms_windows(
     clips = []
     for start in window_starts(visible.shape[1], frames, mode, stride):
         rows = complete_in_window(visible, start, frames)
-        rows = drop_small_groups(labels, rows[labelled[rows]], min_group)
+        rows = drop_small_groups(labels, rows[labelled[rows]], min_group)  # type: ignore[arg-type]
         if rows.size < max(min_points, 1):
             continue
         new_labels, original = remap_labels(labels[rows])

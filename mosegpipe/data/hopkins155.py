@@ -22,29 +22,85 @@ DATASET = "hopkins155"
 # The release's README groups sequences into checkerboard (names starting with a digit, and
 # three-cars), traffic and articulated; these two sets spell out the non-checkerboard names.
 _TRAFFIC = frozenset(
-    {"cars1", "cars2", "cars2B", "cars2_06", "cars2_07", "cars3", "cars4", "cars5", "cars6",
-     "cars7", "cars8", "cars9", "cars10", "kanatani1", "kanatani2", "truck1", "truck2"}
+    {
+        "cars1",
+        "cars2",
+        "cars2B",
+        "cars2_06",
+        "cars2_07",
+        "cars3",
+        "cars4",
+        "cars5",
+        "cars6",
+        "cars7",
+        "cars8",
+        "cars9",
+        "cars10",
+        "kanatani1",
+        "kanatani2",
+        "truck1",
+        "truck2",
+    }
 )
-_ARTICULATED = frozenset(
-    {"arm", "articulated", "head", "kanatani3", "people1", "people2", "two_cranes"}
-)
+_ARTICULATED = frozenset({"arm", "articulated", "head", "kanatani3", "people1", "people2", "two_cranes"})
 
 _THREE_MOTION = (
-    "1R2RC", "1R2RCR", "1R2RCT_A", "1R2RCT_B", "1R2TCR", "1R2TCRT", "1RT2RCR", "1RT2RCRT",
-    "1RT2RTCRT_A", "1RT2RTCRT_B", "1RT2TC", "1RT2TCRT_A", "1RT2TCRT_B", "2R3RTC", "2R3RTCRT",
-    "2RT3RC", "2RT3RCR", "2RT3RCT_A", "2RT3RCT_B", "2RT3RTCRT", "2T3RCR", "2T3RCRT", "2T3RCRTP",
-    "2T3RCTP", "2T3RTCR", "articulated", "cars10", "cars2B", "cars2_06", "cars2_07", "cars3",
-    "cars5", "cars9", "three-cars", "two_cranes",
+    "1R2RC",
+    "1R2RCR",
+    "1R2RCT_A",
+    "1R2RCT_B",
+    "1R2TCR",
+    "1R2TCRT",
+    "1RT2RCR",
+    "1RT2RCRT",
+    "1RT2RTCRT_A",
+    "1RT2RTCRT_B",
+    "1RT2TC",
+    "1RT2TCRT_A",
+    "1RT2TCRT_B",
+    "2R3RTC",
+    "2R3RTCRT",
+    "2RT3RC",
+    "2RT3RCR",
+    "2RT3RCT_A",
+    "2RT3RCT_B",
+    "2RT3RTCRT",
+    "2T3RCR",
+    "2T3RCRT",
+    "2T3RCRTP",
+    "2T3RCTP",
+    "2T3RTCR",
+    "articulated",
+    "cars10",
+    "cars2B",
+    "cars2_06",
+    "cars2_07",
+    "cars3",
+    "cars5",
+    "cars9",
+    "three-cars",
+    "two_cranes",
 )
 _TWO_MOTION = (
-    "arm", "cars1", "cars2", "cars4", "cars6", "cars7", "cars8", "head", "kanatani1", "kanatani2",
-    "kanatani3", "people1", "people2", "truck1", "truck2",
+    "arm",
+    "cars1",
+    "cars2",
+    "cars4",
+    "cars6",
+    "cars7",
+    "cars8",
+    "head",
+    "kanatani1",
+    "kanatani2",
+    "kanatani3",
+    "people1",
+    "people2",
+    "truck1",
+    "truck2",
 )
 _SUBSET_SUFFIXES = ("_g12", "_g13", "_g23")
 OFFICIAL_SEQUENCES: frozenset[str] = frozenset(
-    list(_THREE_MOTION)
-    + list(_TWO_MOTION)
-    + [base + suffix for base in _THREE_MOTION for suffix in _SUBSET_SUFFIXES]
+    list(_THREE_MOTION) + list(_TWO_MOTION) + [base + suffix for base in _THREE_MOTION for suffix in _SUBSET_SUFFIXES]
 )
 
 
@@ -95,9 +151,7 @@ def list_hopkins_sequences(root: str | Path, include_extra: bool = False) -> lis
     present = {d.name for d in folder.iterdir() if (d / f"{d.name}_truth.mat").is_file()}
     missing = sorted(OFFICIAL_SEQUENCES - present)
     if missing:
-        raise DatasetError(
-            f"{folder}: {len(missing)} official sequences missing, e.g. {folder / missing[0]}"
-        )
+        raise DatasetError(f"{folder}: {len(missing)} official sequences missing, e.g. {folder / missing[0]}")
     names = present if include_extra else present & OFFICIAL_SEQUENCES
     return sorted(names)
 
@@ -166,9 +220,7 @@ def read_hopkins(root: str | Path, name: str, frames: int | None = None) -> Labe
     )
 
 
-def load_hopkins(
-    root: str | Path, frames: int | None = None, include_extra: bool = False
-) -> list[LabeledClip]:
+def load_hopkins(root: str | Path, frames: int | None = None, include_extra: bool = False) -> list[LabeledClip]:
     """Read every Hopkins155 sequence, in sorted name order.
 
     Args:
@@ -181,6 +233,5 @@ def load_hopkins(
         155 clips (120 with two motions, 35 with three) unless include_extra.
     """
     return [
-        read_hopkins(root, name, frames=frames)
-        for name in list_hopkins_sequences(root, include_extra=include_extra)
+        read_hopkins(root, name, frames=frames) for name in list_hopkins_sequences(root, include_extra=include_extra)
     ]

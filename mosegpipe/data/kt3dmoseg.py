@@ -113,9 +113,7 @@ def _resolve(root: str | Path, name: str) -> tuple[str, Path]:
     by_lower = {k.lower(): k for k in files}
     key = by_lower.get(name.lower())
     if key is None:
-        raise DatasetError(
-            f"{_dataset_dir(root) / 'tracks' / (name + _TRACKS_SUFFIX)}: no such KT3DMoSeg sequence"
-        )
+        raise DatasetError(f"{_dataset_dir(root) / 'tracks' / (name + _TRACKS_SUFFIX)}: no such KT3DMoSeg sequence")
     return key, files[key]
 
 
@@ -188,9 +186,7 @@ def read_kt3d_sequence(root: str | Path, name: str) -> KT3DSequence:
         y_sparse = y_sparse.reshape(3, gt.size, -1)
     visible = visible.reshape(gt.size, -1)
     if y_sparse.shape[0] != 3 or y_sparse.shape[1:] != visible.shape:
-        raise DatasetError(
-            f"{path}: ySparse {y_sparse.shape} does not match visibleSparse {visible.shape}"
-        )
+        raise DatasetError(f"{path}: ySparse {y_sparse.shape} does not match visibleSparse {visible.shape}")
     # Row 2 is the homogeneous 1 where visible and 0 elsewhere; visibility comes from visibleSparse
     # because a few visible points have x <= 0 (tracks leaving the image border).
     xy = np.transpose(y_sparse[:2], (1, 2, 0)).astype(np.float32)
@@ -200,9 +196,7 @@ def read_kt3d_sequence(root: str | Path, name: str) -> KT3DSequence:
     frames_dir = _frames_dir(root, canonical)
     frame_paths = kt3d_frame_paths(root, canonical)
     if len(frame_paths) < visible.shape[1]:
-        logger.warning(
-            "%s: %d frames on disk, tracks span %d", frames_dir, len(frame_paths), visible.shape[1]
-        )
+        logger.warning("%s: %d frames on disk, tracks span %d", frames_dir, len(frame_paths), visible.shape[1])
     return KT3DSequence(
         name=canonical,
         xy=xy,

@@ -69,9 +69,7 @@ def window_starts(num_frames: int, frames: int, mode: str = "first", stride: int
     return list(range(0, num_frames - frames + 1, stride))
 
 
-def complete_in_window(
-    visible: npt.NDArray[np.bool_], start: int, frames: int
-) -> npt.NDArray[np.int64]:
+def complete_in_window(visible: npt.NDArray[np.bool_], start: int, frames: int) -> npt.NDArray[np.int64]:
     """Rows of the tracks visible in every frame of the window [start, start + frames).
 
     Args:
@@ -84,9 +82,7 @@ def complete_in_window(
     """
     vis = np.asarray(visible, dtype=bool)
     if start < 0 or start + frames > vis.shape[1]:
-        raise InputError(
-            f"window [{start}, {start + frames}) does not fit in {vis.shape[1]} frames"
-        )
+        raise InputError(f"window [{start}, {start + frames}) does not fit in {vis.shape[1]} frames")
     return np.flatnonzero(vis[:, start : start + frames].all(axis=1)).astype(np.int64)
 
 

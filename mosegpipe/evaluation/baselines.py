@@ -33,13 +33,10 @@ from mosegpipe.errors import InputError
 logger = logging.getLogger(__name__)
 
 
-
 class Baseline(Protocol):
     """A baseline segmenter: trajectories (N, D) and K (or None) to labels (N,) int64."""
 
-    def __call__(
-        self, traj: npt.ArrayLike, k: int | None, seed: int = 0
-    ) -> npt.NDArray[np.int64]: ...
+    def __call__(self, traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray[np.int64]: ...
 
 
 # Largest K that the automatic choices consider; the benchmarks have at most 5 motions.
@@ -80,9 +77,7 @@ def _check_k(k: int | None, n: int) -> None:
         raise InputError(f"--k {k} must lie between 1 and the number of tracks ({n})")
 
 
-def spectral_labels(
-    affinity: npt.NDArray[np.float64], k: int | None, seed: int = 0
-) -> npt.NDArray[np.int64]:
+def spectral_labels(affinity: npt.NDArray[np.float64], k: int | None, seed: int = 0) -> npt.NDArray[np.int64]:
     """Normalised spectral clustering (Ng, Jordan & Weiss 2001) of a symmetric affinity.
 
     K, when not given, is chosen by the eigengap: with 0 = l_1 <= l_2 <= ... the eigenvalues of
@@ -124,9 +119,7 @@ def spectral_labels(
     return kmeans(embedding, k, seed=seed)[0]
 
 
-def kmeans_raw(
-    traj: npt.ArrayLike, k: int | None, seed: int = 0
-) -> npt.NDArray[np.int64]:
+def kmeans_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray[np.int64]:
     """K-means on the column-z-scored trajectory matrix.
 
     Args:
@@ -172,9 +165,7 @@ def self_tuning_affinity(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return affinity
 
 
-def spectral_raw(
-    traj: npt.ArrayLike, k: int | None, seed: int = 0
-) -> npt.NDArray[np.int64]:
+def spectral_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray[np.int64]:
     """Spectral clustering of the column-z-scored trajectory matrix.
 
     Args:

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.io import atomic_write
 from mosegpipe.evaluation.metrics import correct_k_rate, misclassification_error, nmi
+from mosegpipe.io import atomic_write
 from mosegpipe.model import SubspaceNet
-from mosegpipe.training.recipes import build_sampler, source_clips
 from mosegpipe.training.loop import TrainConfig, recipe_of, train_model
+from mosegpipe.training.recipes import build_sampler
 from mosegpipe.types import LabeledClip
 
 log = logging.getLogger(__name__)
@@ -271,8 +271,8 @@ def run_protocol(
     if cfg.protocol == "lce":
         folds = [("all", clips, ("lce", 1.0))]
     elif cfg.protocol == "kt3d-loo":
-        source = "kt3d" if cfg.variant == "augment" else "kt3d-first"
-        folds = [(_sequence_of(c), [c], (source, 1.0)) for c in clips]
+        kt3d_source = "kt3d" if cfg.variant == "augment" else "kt3d-first"
+        folds = [(_sequence_of(c), [c], (kt3d_source, 1.0)) for c in clips]
     else:
         folds = [(c.name, [c], ("adelaide", 1.0)) for c in clips]
     for held_out, test, source in folds:
@@ -302,7 +302,9 @@ def run_protocol(
         with atomic_write(path) as tmp:
             Path(tmp).write_text(json.dumps({"config_hash": chash, "recipe": recipe, "rows": fold_rows}))
         rows.extend(fold_rows)
-        errs = ", ".join(f"{r['name']}: {100 * r['error']:.2f} % (K {r['k_pred']}/{r['k_true']})" for r in fold_rows[:3])
+        errs = ", ".join(
+            f"{r['name']}: {100 * r['error']:.2f} % (K {r['k_pred']}/{r['k_true']})" for r in fold_rows[:3]
+        )
         say(f"{held_out}: trained {result.steps_done} steps in {result.seconds:.0f} s; {errs}")
     summary = summarize(rows)
     return rows, summary, write_results(out_dir, rows, summary, config)

@@ -45,8 +45,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from mosegpipe.errors import MosegError
-from mosegpipe.masks import labels_to_masks
 from mosegpipe.evaluation.metrics import misclassification_error
+from mosegpipe.masks import labels_to_masks
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair
 from mosegpipe.types import Frames
@@ -76,9 +76,7 @@ def _as_points(name: str, xy: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return arr
 
 
-def nearest_within(
-    our_xy: npt.ArrayLike, gt_xy: npt.ArrayLike, max_dist_px: float
-) -> npt.NDArray[np.int64]:
+def nearest_within(our_xy: npt.ArrayLike, gt_xy: npt.ArrayLike, max_dist_px: float) -> npt.NDArray[np.int64]:
     """Index of the nearest ground-truth point within a radius, for each of our points.
 
     Args:
@@ -257,9 +255,7 @@ class MaskScores:
     assignment: dict[int, int | None]
 
 
-def match_masks(
-    pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, unknown: int | None = 0
-) -> dict[int, int | None]:
+def match_masks(pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, unknown: int | None = 0) -> dict[int, int | None]:
     """One-to-one map of ground-truth groups to predicted labels maximising the overlap.
 
     Overlaps are pixel counts summed over all frames (one assignment per clip, as labels are
@@ -296,9 +292,9 @@ def match_masks(
     pi = np.searchsorted(pred_ids, p)
     valid = (pi < pred_ids.size) & (pred_ids[np.minimum(pi, pred_ids.size - 1)] == p)
     gi = np.searchsorted(gt_ids, g)
-    table = np.bincount(
-        pi[valid] * gt_ids.size + gi[valid], minlength=pred_ids.size * gt_ids.size
-    ).reshape(pred_ids.size, gt_ids.size)
+    table = np.bincount(pi[valid] * gt_ids.size + gi[valid], minlength=pred_ids.size * gt_ids.size).reshape(
+        pred_ids.size, gt_ids.size
+    )
     rows, cols = linear_sum_assignment(table, maximize=True)
     for r, c in zip(rows, cols):
         if table[r, c] > 0:
@@ -606,8 +602,12 @@ def rendered_rows(
         k_true, track_error = _score(result.clustering.labels, gt_tracks)
         scores = mask_scores(result.masks, clip.masks, background=0, unknown=0, tolerance=tolerance)
         row.update(
-            num_tracks=int(ids.size), k_true=k_true, k_pred=result.clustering.k, track_error=track_error,
-            J=scores.j, F=scores.f,
+            num_tracks=int(ids.size),
+            k_true=k_true,
+            k_pred=result.clustering.k,
+            track_error=track_error,
+            J=scores.j,
+            F=scores.f,
         )
         if oracle:
             # The ground-truth track labels through the same densification: the best J / F that
@@ -714,7 +714,9 @@ def format_rows(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n\n" + " · ".join(notes) + "\n"
 
 
-def _rendered_protocol(data_root: str | Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
+def _rendered_protocol(
+    data_root: str | Path | None, model: SubspaceNet | None, cfg: PipelineConfig
+) -> list[dict[str, Any]]:
     """`rendered_rows` with its defaults; data_root is not used (the clips are rendered)."""
     return rendered_rows(model, cfg, frames=cfg.frames)
 

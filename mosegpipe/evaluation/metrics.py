@@ -24,9 +24,7 @@ def _as_labels(name: str, labels: npt.ArrayLike) -> npt.NDArray[np.int64]:
     return arr.astype(np.int64)
 
 
-def _check_pair(
-    pred: npt.ArrayLike, gt: npt.ArrayLike
-) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+def _check_pair(pred: npt.ArrayLike, gt: npt.ArrayLike) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     p = _as_labels("pred", pred)
     g = _as_labels("gt", gt)
     if p.shape != g.shape:

@@ -24,8 +24,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.synth.seeded import SeededClips
 from mosegpipe.errors import InputError
+from mosegpipe.synth.seeded import SeededClips
 from mosegpipe.types import LabeledClip
 
 DATASET = "lce"
@@ -97,9 +97,7 @@ def _curve_points(
     return points, {"type": kind, **params}
 
 
-def lce_sample(
-    rng: np.random.Generator, cfg: LCEConfig = LCEConfig(), name: str = "lce"
-) -> LabeledClip:
+def lce_sample(rng: np.random.Generator, cfg: LCEConfig = LCEConfig(), name: str = "lce") -> LabeledClip:
     """Draw one LCE sample.
 
     Args:
@@ -144,9 +142,7 @@ class LCEDataset(SeededClips):
         cfg: generator parameters.
     """
 
-    def __init__(
-        self, num_samples: int, seed: int = 0, split: str = "", cfg: LCEConfig = LCEConfig()
-    ) -> None:
+    def __init__(self, num_samples: int, seed: int = 0, split: str = "", cfg: LCEConfig = LCEConfig()) -> None:
         if num_samples < 0:
             raise InputError(f"num_samples={num_samples} must be >= 0")
         self.num_samples = int(num_samples)
@@ -186,7 +182,7 @@ def make_lce(
         cfg: generator parameters.
     """
     if points_per_curve is not None:
-        cfg = replace(cfg, points_per_curve=tuple(points_per_curve))
+        cfg = replace(cfg, points_per_curve=tuple(points_per_curve))  # type: ignore[arg-type]
     return list(LCEDataset(num_samples, seed=seed, cfg=cfg))
 
 
@@ -200,7 +196,4 @@ def lce_splits(seed: int = 0, cfg: LCEConfig = LCEConfig()) -> dict[str, LCEData
     Returns:
         {"train": ..., "val": ..., "test": ...}, each a Sequence[LabeledClip].
     """
-    return {
-        split: LCEDataset(size, seed=seed, split=split, cfg=cfg)
-        for split, size in SPLIT_SIZES.items()
-    }
+    return {split: LCEDataset(size, seed=seed, split=split, cfg=cfg) for split, size in SPLIT_SIZES.items()}

@@ -128,18 +128,14 @@ class RenderConfig:
         if self.objects is not None and len(self.objects) > 254:
             raise InputError(f"RenderConfig.objects: {len(self.objects)} objects, at most 254")
         if self.camera_motion not in CAMERA_MOTIONS:
-            raise InputError(
-                f"RenderConfig.camera_motion={self.camera_motion!r}: choose from {CAMERA_MOTIONS}"
-            )
+            raise InputError(f"RenderConfig.camera_motion={self.camera_motion!r}: choose from {CAMERA_MOTIONS}")
         if self.texture not in TEXTURES:
             raise InputError(f"RenderConfig.texture={self.texture!r}: choose from {TEXTURES}")
         if not self.shapes or set(self.shapes) - set(SHAPES):
             raise InputError(f"RenderConfig.shapes={self.shapes}: choose from {SHAPES}")
         lo, hi = self.object_speed_px
         if not 0 <= lo <= hi:
-            raise InputError(
-                f"RenderConfig.object_speed_px={self.object_speed_px}: need 0 <= low <= high"
-            )
+            raise InputError(f"RenderConfig.object_speed_px={self.object_speed_px}: need 0 <= low <= high")
         if not 10.0 <= self.fov_deg <= 120.0:
             raise InputError(f"RenderConfig.fov_deg={self.fov_deg}: need 10..120")
         if self.noise_std < 0:
@@ -205,9 +201,7 @@ def _rotation(rotvec: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return r
 
 
-def _texture(
-    rng: np.random.Generator, kind: str, size_wh: tuple[int, int]
-) -> npt.NDArray[np.uint8]:
+def _texture(rng: np.random.Generator, kind: str, size_wh: tuple[int, int]) -> npt.NDArray[np.uint8]:
     """A random RGB texture (h, w, 3) uint8 with many corners, cells of 6-20 texels."""
     w, h = size_wh
     if kind == "mixed":
@@ -307,9 +301,7 @@ def _camera_poses(
     return rot, centre
 
 
-def _sample_objects(
-    rng: np.random.Generator, cfg: RenderConfig, f: float, cx: float, cy: float
-) -> list[ObjectSpec]:
+def _sample_objects(rng: np.random.Generator, cfg: RenderConfig, f: float, cx: float, cy: float) -> list[ObjectSpec]:
     """Random objects at distinct depths (3-7 m), in view at frame 0, moving object_speed_px."""
     n = cfg.num_objects
     h, w = cfg.size_hw
@@ -340,8 +332,7 @@ def _sample_objects(
         velocity = direction * speed_px * z / f
         velocity[2] = rng.normal(0, 0.01)
         spin = rng.normal(0, 0.01, 3)
-        specs.append(ObjectSpec(shape, tuple(centre), size, tuple(rotation), tuple(velocity),
-                                tuple(spin)))
+        specs.append(ObjectSpec(shape, tuple(centre), size, tuple(rotation), tuple(velocity), tuple(spin)))
     return specs
 
 
@@ -362,8 +353,9 @@ def _warp_quad(
     src = np.array([[0, 0], [tw, 0], [tw, th], [0, th]], dtype=np.float32)
     hom = cv2.getPerspectiveTransform(src, corners_px.astype(np.float32))
     if full:
-        image[:] = cv2.warpPerspective(quad.texture, hom, (w, h), flags=cv2.INTER_LINEAR,
-                                       borderMode=cv2.BORDER_REFLECT_101)
+        image[:] = cv2.warpPerspective(
+            quad.texture, hom, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101
+        )
         mask[:] = label
         return
     x0 = max(int(math.floor(corners_px[:, 0].min())), 0)
@@ -373,8 +365,9 @@ def _warp_quad(
     if x1 <= x0 or y1 <= y0:
         return
     shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
-    patch = cv2.warpPerspective(quad.texture, shift @ hom, (x1 - x0, y1 - y0),
-                                flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+    patch = cv2.warpPerspective(
+        quad.texture, shift @ hom, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101
+    )
     inside = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
     # 4 fractional bits: the polygon follows the sub-pixel corners.
     poly = np.round((corners_px - [x0, y0]) * 16).astype(np.int32)
@@ -409,17 +402,25 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
     wall_w = 1.5 * 2 * _WALL_DEPTH_M * math.tan(0.5 * math.radians(cfg.fov_deg))
     wall_h = wall_w * h / w
     wall_texels = int(np.clip(1.5 * w, 64, 2048))
-    wall = _Quad(_rect(wall_w, wall_h) + [0, 0, _WALL_DEPTH_M], np.array([0.0, 0.0, -1.0]),
-                 _texture(rng, cfg.texture, (wall_texels, round(wall_texels * h / w))))
+    wall = _Quad(
+        _rect(wall_w, wall_h) + [0, 0, _WALL_DEPTH_M],
+        np.array([0.0, 0.0, -1.0]),
+        _texture(rng, cfg.texture, (wall_texels, round(wall_texels * h / w))),
+    )
     background = [_Body(0, [wall], still_rot, still_pos, cull=False)]
     if cfg.ground:
         near, far = 2.0, _WALL_DEPTH_M
         half = 0.5 * wall_w
-        corners = np.array([[-half, _CAMERA_HEIGHT_M, far], [half, _CAMERA_HEIGHT_M, far],
-                            [half, _CAMERA_HEIGHT_M, near], [-half, _CAMERA_HEIGHT_M, near]])
+        corners = np.array(
+            [
+                [-half, _CAMERA_HEIGHT_M, far],
+                [half, _CAMERA_HEIGHT_M, far],
+                [half, _CAMERA_HEIGHT_M, near],
+                [-half, _CAMERA_HEIGHT_M, near],
+            ]
+        )
         tex = _texture(rng, cfg.texture, (wall_texels, wall_texels // 2))
-        background.append(_Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)],
-                                still_rot, still_pos, cull=False))
+        background.append(_Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)], still_rot, still_pos, cull=False))
 
     bodies: list[_Body] = []
     t = np.arange(frames, dtype=np.float64)[:, None]
@@ -430,8 +431,7 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
         if spec.shape == "plane":
             tw = int(np.clip(size[0] * texels_per_m, 16, 1024))
             th = int(np.clip(size[1] * texels_per_m, 16, 1024))
-            quads = [_Quad(_rect(size[0], size[1]), np.array([0.0, 0.0, -1.0]),
-                           _texture(rng, cfg.texture, (tw, th)))]
+            quads = [_Quad(_rect(size[0], size[1]), np.array([0.0, 0.0, -1.0]), _texture(rng, cfg.texture, (tw, th)))]
         else:
             quads = _box_quads(rng, size, cfg.texture, texels_per_m)
         orient = _rotation(spec.rotation)
@@ -470,9 +470,7 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
     )
 
 
-def write_clip(
-    clip: RenderedClip, folder: str | Path, video: bool = False, fps: float = 10.0
-) -> Path:
+def write_clip(clip: RenderedClip, folder: str | Path, video: bool = False, fps: float = 10.0) -> Path:
     """Write a rendered clip to a folder (created if needed; files there are overwritten).
 
     Writes frames as 000000.png, 000001.png, ... (RGB PNG), masks as gt_000000.png, ... (8-bit
@@ -494,8 +492,10 @@ def write_clip(
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     for k, (frame, mask) in enumerate(zip(clip.frames, clip.masks)):
-        for path, image in ((out / f"{k:06d}.png", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR)),
-                            (out / f"gt_{k:06d}.png", mask)):
+        for path, image in (
+            (out / f"{k:06d}.png", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR)),
+            (out / f"gt_{k:06d}.png", mask),
+        ):
             if not cv2.imwrite(str(path), image):
                 raise InputError(f"{path}: could not write the image")
     ids = np.asarray(clip.object_ids, dtype=np.int64)
@@ -503,7 +503,7 @@ def write_clip(
     if video:
         h, w = clip.size_hw
         path = out / "clip.avi"
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))  # type: ignore[attr-defined]
         if not writer.isOpened():
             raise InputError(f"{path}: could not open an MJPG video writer")
         try:

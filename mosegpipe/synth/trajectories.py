@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.synth.seeded import SeededClips
 from mosegpipe.errors import InputError
+from mosegpipe.synth.seeded import SeededClips
 from mosegpipe.types import LabeledClip
 
 __all__ = [
@@ -117,8 +117,15 @@ class SyntheticConfig:
     def __post_init__(self) -> None:
         if self.frames < 2:
             raise InputError(f"SyntheticConfig.frames={self.frames}: need at least 2")
-        for name in ("num_bodies", "num_points", "noise_px", "drift_px", "outlier_ratio",
-                     "relative_motion_px", "object_weight"):
+        for name in (
+            "num_bodies",
+            "num_points",
+            "noise_px",
+            "drift_px",
+            "outlier_ratio",
+            "relative_motion_px",
+            "object_weight",
+        ):
             lo, hi = getattr(self, name)
             if not 0 <= lo <= hi:
                 raise InputError(f"SyntheticConfig.{name}=({lo}, {hi}): need 0 <= low <= high")
@@ -131,20 +138,13 @@ class SyntheticConfig:
         if self.relative_motion_px[0] <= 0 or self.object_weight[0] <= 0:
             raise InputError("SyntheticConfig.relative_motion_px and object_weight need low > 0")
         if not self.camera_motions or set(self.camera_motions) - set(CAMERA_MOTIONS):
-            raise InputError(
-                f"SyntheticConfig.camera_motions={self.camera_motions}: "
-                f"choose from {CAMERA_MOTIONS}"
-            )
+            raise InputError(f"SyntheticConfig.camera_motions={self.camera_motions}: choose from {CAMERA_MOTIONS}")
         if not self.object_kinds or set(self.object_kinds) - set(OBJECT_KINDS):
-            raise InputError(
-                f"SyntheticConfig.object_kinds={self.object_kinds}: choose from {OBJECT_KINDS}"
-            )
+            raise InputError(f"SyntheticConfig.object_kinds={self.object_kinds}: choose from {OBJECT_KINDS}")
         if not self.image_sizes or any(h < 16 or w < 16 for h, w in self.image_sizes):
             raise InputError(f"SyntheticConfig.image_sizes={self.image_sizes}: need (H, W) >= 16")
         if self.min_points_per_group < 1:
-            raise InputError(
-                f"SyntheticConfig.min_points_per_group={self.min_points_per_group}: need >= 1"
-            )
+            raise InputError(f"SyntheticConfig.min_points_per_group={self.min_points_per_group}: need >= 1")
         if self.num_bodies[0] * self.min_points_per_group > self.num_points[1]:
             raise InputError(
                 f"SyntheticConfig: num_bodies={self.num_bodies} bodies of min_points_per_group="
@@ -197,11 +197,13 @@ def _rotation(axis: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.flo
     x, y, z = (float(v) for v in axis)
     c, s = math.cos(angle), math.sin(angle)
     d = 1.0 - c
-    return np.array([
-        [c + x * x * d, x * y * d - z * s, x * z * d + y * s],
-        [y * x * d + z * s, c + y * y * d, y * z * d - x * s],
-        [z * x * d - y * s, z * y * d + x * s, c + z * z * d],
-    ])
+    return np.array(
+        [
+            [c + x * x * d, x * y * d - z * s, x * z * d + y * s],
+            [y * x * d + z * s, c + y * y * d, y * z * d - x * s],
+            [z * x * d - y * s, z * y * d + x * s, c + z * z * d],
+        ]
+    )
 
 
 def _unit(rng: np.random.Generator, n: int | None = None) -> npt.NDArray[np.float64]:
@@ -225,7 +227,7 @@ def _sample_image_size(rng: np.random.Generator, cfg: SyntheticConfig) -> tuple[
         return int(h), int(w)
     widths = [w for _, w in cfg.image_sizes]
     aspects = [w / h for h, w in cfg.image_sizes]
-    w = rng.uniform(min(widths), max(widths))
+    w = rng.uniform(min(widths), max(widths))  # type: ignore[assignment]
     aspect = rng.uniform(min(aspects), max(aspects))
     return max(16, round(w / aspect)), max(16, round(w))
 
@@ -245,9 +247,7 @@ class _Camera:
     rot: npt.NDArray[np.float64]  # (F, 3, 3) world -> camera
     centre: npt.NDArray[np.float64]  # (F, 3) camera centre in the world, metres
 
-    def project(
-        self, xyz: npt.NDArray[np.float64]
-    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    def project(self, xyz: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """World points (F, N, 3) -> pixels (F, N, 2) and depth (F, N)."""
         cam = (xyz - self.centre[:, None, :]) @ np.transpose(self.rot, (0, 2, 1))
         z = cam[..., 2]
@@ -438,8 +438,21 @@ def _object_body(
         axis = np.zeros(3)
         axis[(split + rng.integers(1, 3)) % 3] = 1.0
         hinge_rotvec = axis * rng.uniform(0.3, 1.0) * _sign(rng)
-    return _Body(kind, local, centre, orient, vel, acc, spin, spin_acc, deform, hinge_part,
-                 hinge_point, hinge_rotvec, _log_uniform(rng, *motion_range))
+    return _Body(
+        kind,
+        local,
+        centre,
+        orient,
+        vel,
+        acc,
+        spin,
+        spin_acc,
+        deform,
+        hinge_part,
+        hinge_point,
+        hinge_rotvec,
+        _log_uniform(rng, *motion_range),
+    )
 
 
 class _World:
@@ -494,8 +507,11 @@ class _World:
 
 
 def _occluded(
-    uv: npt.NDArray[np.float64], z: npt.NDArray[np.float64], body: npt.NDArray[np.int64],
-    objects: Sequence[int], ok: npt.NDArray[np.bool_]
+    uv: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64],
+    body: npt.NDArray[np.int64],
+    objects: Sequence[int],
+    ok: npt.NDArray[np.bool_],
 ) -> npt.NDArray[np.bool_]:
     """(N,) True for points hidden behind an object in some frame.
 
@@ -517,7 +533,7 @@ def _occluded(
     ex = uv[:, None, :, 0] - mean[..., 0, None]  # (F, O, N)
     ey = uv[:, None, :, 1] - mean[..., 1, None]
     # Squared Mahalanobis distance with the closed-form 2x2 inverse.
-    m2 = (var_y[..., None] * ex**2 - 2 * cov_xy[..., None] * ex * ey + var_x[..., None] * ey**2)
+    m2 = var_y[..., None] * ex**2 - 2 * cov_xy[..., None] * ex * ey + var_x[..., None] * ey**2
     inside = m2 < 3.0 * det[..., None]
     behind = z[:, None, :] > depth[..., None]
     hidden = inside & behind & (body[None, None, :] != obj[None, :, None])
@@ -526,8 +542,13 @@ def _occluded(
 
 
 def _outlier_tracks(
-    rng: np.random.Generator, n: int, frames: int, w: int, h: int,
-    start: npt.NDArray[np.float64] | None, pair: bool,
+    rng: np.random.Generator,
+    n: int,
+    frames: int,
+    w: int,
+    h: int,
+    start: npt.NDArray[np.float64] | None,
+    pair: bool,
 ) -> npt.NDArray[np.float64]:
     """Gross-outlier tracks (F, n, 2) inside the image.
 
@@ -541,17 +562,13 @@ def _outlier_tracks(
     if start is not None:
         uv[0] = start
     step = np.exp(rng.uniform(math.log(2.0), math.log(0.05 * w), n))[None, :, None]
-    walk = uv[0] + np.concatenate(
-        [np.zeros((1, n, 2)), (rng.normal(size=(frames - 1, n, 2)) * step).cumsum(axis=0)]
-    )
+    walk = uv[0] + np.concatenate([np.zeros((1, n, 2)), (rng.normal(size=(frames - 1, n, 2)) * step).cumsum(axis=0)])
     jumpy = rng.random(n) < 0.3
     uv[:, ~jumpy] = walk[:, ~jumpy]
     return np.clip(uv, 0.0, hi)
 
 
-def _take(
-    rng: np.random.Generator, body: npt.NDArray[np.int64], cap: npt.NDArray[np.int64]
-) -> npt.NDArray[np.int64]:
+def _take(rng: np.random.Generator, body: npt.NDArray[np.int64], cap: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     """Indices of at most cap[b] random members of each group b of body (N,)."""
     order = np.lexsort((rng.random(len(body)), body))
     sorted_body = body[order]
@@ -560,9 +577,7 @@ def _take(
     return np.sort(order[rank < cap[sorted_body]])
 
 
-def _draw(
-    rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str
-) -> LabeledClip | None:
+def _draw(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str) -> LabeledClip | None:
     """One attempt; None when too few bodies survived culling."""
     frames = cfg.frames
     h, w = _sample_image_size(rng, cfg)
@@ -585,9 +600,7 @@ def _draw(
     num_bodies = max(need, min(num_bodies, inliers // min_pts))
     has_bg = rng.random() < cfg.background_prob
     num_objects = num_bodies - int(has_bg)
-    weights = np.array(
-        [1.0] * int(has_bg) + [_log_uniform(rng, *cfg.object_weight) for _ in range(num_objects)]
-    )
+    weights = np.array([1.0] * int(has_bg) + [_log_uniform(rng, *cfg.object_weight) for _ in range(num_objects)])
     target = np.maximum(min_pts, np.round(inliers * weights / weights.sum())).astype(np.int64)
     # Raising small bodies to the minimum is paid for by the largest ones.
     excess = int(target.sum()) - inliers
@@ -602,12 +615,30 @@ def _draw(
     if has_bg:
         xyz, bg_kind = _background_points(rng, cam, int(drawn[0]), driving, depth_m, ground_m)
         zero = np.zeros(3)
-        bodies.append(_Body("background", xyz, zero, np.eye(3), zero, zero, zero, zero,
-                            np.zeros_like(xyz), np.zeros(len(xyz), bool), zero, zero, 0.0))
+        bodies.append(
+            _Body(
+                "background",
+                xyz,
+                zero,
+                np.eye(3),
+                zero,
+                zero,
+                zero,
+                zero,
+                np.zeros_like(xyz),
+                np.zeros(len(xyz), bool),
+                zero,
+                zero,
+                0.0,
+            )
+        )
     for i in range(num_objects):
         kind = str(cfg.object_kinds[rng.integers(len(cfg.object_kinds))])
-        bodies.append(_object_body(rng, cam, int(drawn[i + int(has_bg)]), kind, driving, depth_m,
-                                   ground_m, cfg.relative_motion_px))
+        bodies.append(
+            _object_body(
+                rng, cam, int(drawn[i + int(has_bg)]), kind, driving, depth_m, ground_m, cfg.relative_motion_px
+            )
+        )
     world = _World(bodies, frames)
     kinds = [b.kind for b in bodies]
     objects = [i for i, b in enumerate(bodies) if b.kind != "background"]
@@ -641,7 +672,7 @@ def _draw(
     ok = (z > _NEAR_M).all(axis=0)
     ok &= ((obs >= 0) & (obs <= np.array([w - 1.0, h - 1.0]))).all(axis=(0, 2))
     if objects:
-        ok &= ~_occluded(uv, z, world.body, objects, ok)
+        ok &= ~_occluded(uv, z, world.body, objects, ok)  # type: ignore[arg-type]
     keep = np.flatnonzero(ok)
     keep = keep[_take(rng, world.body[keep], target)]
     body = world.body[keep]
@@ -753,8 +784,7 @@ def _generate(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: 
             return clip
         logger.debug("synthetic draw %d left too few bodies; drawing again", attempt)
     raise InputError(
-        f"{cfg}: no draw in {_MAX_TRIES} left enough bodies with "
-        f"{cfg.min_points_per_group} visible points"
+        f"{cfg}: no draw in {_MAX_TRIES} left enough bodies with {cfg.min_points_per_group} visible points"
     )
 
 

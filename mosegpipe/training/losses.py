@@ -33,8 +33,10 @@ def _valid_points(z: Tensor, labels: Tensor, mask: Tensor) -> Tensor:
         raise InputError(f"embeddings shape {tuple(z.shape)}: expected (B, E, N)")
     expected = (z.shape[0], z.shape[2])
     if labels.shape != expected or mask.shape != expected:
-        raise InputError(f"labels shape {tuple(labels.shape)} / mask shape {tuple(mask.shape)}: "
-                         f"expected {expected} for embeddings {tuple(z.shape)}")
+        raise InputError(
+            f"labels shape {tuple(labels.shape)} / mask shape {tuple(mask.shape)}: "
+            f"expected {expected} for embeddings {tuple(z.shape)}"
+        )
     if mask.dtype != torch.bool:
         raise InputError(f"mask dtype {mask.dtype}: expected torch.bool")
     return mask & (labels >= 0)

@@ -111,9 +111,7 @@ def get_recipe(name: str) -> Recipe:
     return RECIPES[name]
 
 
-def source_clips(
-    source: str, data_root: Path | None, frames: int, exclude: Collection[str] = ()
-) -> list[LabeledClip]:
+def source_clips(source: str, data_root: Path | None, frames: int, exclude: Collection[str] = ()) -> list[LabeledClip]:
     """The labelled clips of a real-data source, without the sequences named in `exclude`.
 
     Args:
@@ -165,7 +163,9 @@ def _windows(clip: LabeledClip, frames: int, stride: int) -> list[LabeledClip]:
     for start in range(0, total - frames + 1, stride):
         traj = clip.traj[:, 2 * start : 2 * (start + frames)]
         out.append(
-            replace(clip, name=f"{clip.name}/f{start + 1}-{start + frames}", traj=traj, meta={**clip.meta, "start": start})
+            replace(
+                clip, name=f"{clip.name}/f{start + 1}-{start + frames}", traj=traj, meta={**clip.meta, "start": start}
+            )
         )
     return out
 
