@@ -10,8 +10,6 @@ import contextlib
 import json
 import os
 import secrets
-import struct
-import zlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -309,16 +307,12 @@ def default_palette() -> npt.NDArray[np.uint8]:
     return palette.astype(np.uint8)
 
 
-def _png_chunk(tag: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
-
-
 def write_palette_png(
     path: str | os.PathLike[str],
     mask: npt.NDArray[np.uint8],
     palette: npt.NDArray[np.uint8] | None = None,
 ) -> None:
-    """Write an indexed-colour (palette) PNG, the DAVIS convention for label masks.
+    """Write an indexed-colour (palette) PNG, the DAVIS convention for label masks (Pillow's encoder).
 
     The pixel values are stored as palette indices (PNG colour type 3, 8 bits), so reading the
     file back gives the labels exactly while image viewers show colours.
@@ -331,68 +325,26 @@ def write_palette_png(
     Raises:
         ValueError: mask is not 2-D uint8 or palette is not (P <= 256, 3) uint8.
     """
+    from PIL import Image
+
     mask = np.asarray(mask)
     if mask.ndim != 2 or mask.dtype != np.uint8 or mask.size == 0:
         raise ValueError(f"mask must be a non-empty (H, W) uint8 array, got {mask.dtype} {mask.shape}")
     palette = default_palette() if palette is None else np.asarray(palette)
     if palette.ndim != 2 or palette.shape[1] != 3 or not 1 <= palette.shape[0] <= 256 or palette.dtype != np.uint8:
         raise ValueError(f"palette must be (P <= 256, 3) uint8, got {palette.dtype} {palette.shape}")
-    height, width = mask.shape
-    # Each scanline starts with filter type 0 (none); masks are long runs, which zlib compresses well.
-    raw = np.zeros((height, width + 1), dtype=np.uint8)
-    raw[:, 1:] = mask
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 3, 0, 0, 0)
-    data = (
-        _PNG_SIGNATURE
-        + _png_chunk(b"IHDR", ihdr)
-        + _png_chunk(b"PLTE", np.ascontiguousarray(palette).tobytes())
-        + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), 6))
-        + _png_chunk(b"IEND", b"")
-    )
+    image = Image.fromarray(np.ascontiguousarray(mask))
+    image.putpalette(np.ascontiguousarray(palette).tobytes())
     with atomic_write(path) as tmp:
-        tmp.write_bytes(data)
-
-
-def _unfilter_scanlines(raw: npt.NDArray[np.uint8], height: int, width: int) -> npt.NDArray[np.uint8]:
-    """Undo PNG scanline filters for 1 byte per pixel (8-bit palette or gray)."""
-    rows = raw.reshape(height, width + 1)
-    out = np.zeros((height, width), dtype=np.uint8)
-    prior = np.zeros(width, dtype=np.uint8)
-    for y in range(height):
-        ftype, line = int(rows[y, 0]), rows[y, 1:]
-        if ftype == 0:
-            cur = line
-        elif ftype == 1:  # Sub: running sum modulo 256 along the row
-            cur = (np.cumsum(line, dtype=np.uint64) & 0xFF).astype(np.uint8)
-        elif ftype == 2:  # Up
-            cur = line + prior
-        elif ftype in (3, 4):  # Average / Paeth depend on the reconstructed left pixel: sequential
-            cur = np.zeros(width, dtype=np.uint8)
-            left = 0
-            up_left = 0
-            for x in range(width):
-                up = int(prior[x])
-                if ftype == 3:
-                    pred = (left + up) >> 1
-                else:
-                    p = left + up - up_left
-                    pa, pb, pc = abs(p - left), abs(p - up), abs(p - up_left)
-                    pred = left if pa <= pb and pa <= pc else (up if pb <= pc else up_left)
-                left = (int(line[x]) + pred) & 0xFF
-                cur[x] = left
-                up_left = up
-        else:
-            raise ValueError(f"unknown PNG filter type {ftype} in row {y}")
-        out[y] = cur
-        prior = out[y]
-    return out
+        # zlib level 6: masks are long runs; the files are byte-identical to those of earlier versions.
+        image.save(tmp, format="PNG", compress_level=6)
 
 
 def read_palette_png(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
     """Read the palette indices of an indexed-colour PNG (the inverse of :func:`write_palette_png`).
 
-    Decodes 8-bit, non-interlaced PNGs of colour type 3 (palette) or 0 (grayscale, whose values
-    are returned as they are). OpenCV expands palettes to colours, so it cannot be used for this.
+    Decodes 8-bit PNGs of colour type 3 (palette) or 0 (grayscale, whose values are returned as
+    they are). OpenCV expands palettes to colours, so it cannot be used for this.
 
     Args:
         path: a .png file.
@@ -403,49 +355,24 @@ def read_palette_png(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
     Raises:
         InputError: missing file, not a PNG, corrupt data (CRC/zlib) or an unsupported variant.
     """
+    from PIL import Image, UnidentifiedImageError
+
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{p}: no such file")
-    data = p.read_bytes()
-    if not data.startswith(_PNG_SIGNATURE):
-        raise InputError(f"{p}: not a PNG file")
-    pos = len(_PNG_SIGNATURE)
-    header: tuple[int, ...] | None = None
-    idat = bytearray()
-    while pos + 8 <= len(data):
-        (length,) = struct.unpack(">I", data[pos : pos + 4])
-        tag = data[pos + 4 : pos + 8]
-        body = data[pos + 8 : pos + 8 + length]
-        crc_bytes = data[pos + 8 + length : pos + 12 + length]
-        if len(body) != length or len(crc_bytes) != 4:
-            raise InputError(f"{p}: truncated PNG chunk {tag!r}")
-        if struct.unpack(">I", crc_bytes)[0] != zlib.crc32(tag + body) & 0xFFFFFFFF:
-            raise InputError(f"{p}: CRC mismatch in PNG chunk {tag!r} (corrupt file)")
-        if tag == b"IHDR":
-            header = struct.unpack(">IIBBBBB", body)
-        elif tag == b"IDAT":
-            idat += body
-        elif tag == b"IEND":
-            break
-        pos += 12 + length
-    if header is None:
-        raise InputError(f"{p}: PNG without IHDR chunk")
-    width, height, depth, color_type, _, _, interlace = header
-    if depth != 8 or color_type not in (0, 3) or interlace != 0:
-        raise InputError(
-            f"{p}: unsupported PNG variant (bit depth {depth}, colour type {color_type}, "
-            f"interlace {interlace}); expected an 8-bit non-interlaced palette PNG"
-        )
+    with p.open("rb") as fh:
+        if fh.read(len(_PNG_SIGNATURE)) != _PNG_SIGNATURE:
+            raise InputError(f"{p}: not a PNG file")
     try:
-        raw = np.frombuffer(zlib.decompress(bytes(idat)), dtype=np.uint8)
-    except zlib.error as exc:
-        raise InputError(f"{p}: corrupt PNG image data ({exc})") from exc
-    if raw.size != height * (width + 1):
-        raise InputError(f"{p}: PNG image data has {raw.size} bytes, expected {height * (width + 1)}")
-    try:
-        return _unfilter_scanlines(raw, height, width)
-    except ValueError as exc:
-        raise InputError(f"{p}: {exc}") from exc
+        with Image.open(p, formats=["PNG"]) as image:
+            if image.mode not in ("P", "L"):
+                raise InputError(
+                    f"{p}: unsupported PNG variant (mode {image.mode}); expected an 8-bit palette or grayscale PNG"
+                )
+            image.load()
+            return np.array(image, dtype=np.uint8)
+    except (UnidentifiedImageError, SyntaxError, OSError, ValueError) as exc:
+        raise InputError(f"{p}: corrupt PNG (CRC mismatch or bad image data: {exc})") from exc
 
 
 def _json_default(obj: Any) -> Any:

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_pipeline import motion_checkpoint, render_scene, write_avi, write_frames
 from typer.testing import CliRunner
 
 from mosegpipe import batch as batch_module
@@ -17,6 +16,8 @@ from mosegpipe.cli.main import app
 from mosegpipe.errors import InputError
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig
+
+from helpers import motion_checkpoint, render_scene, write_avi, write_frames
 
 runner = CliRunner(env={"COLUMNS": "200"})
 

@@ -12,7 +12,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from test_pipeline import motion_checkpoint, read_rrd, render_scene, write_avi, write_frames
 from typer.testing import CliRunner
 
 from mosegpipe import __version__
@@ -21,6 +20,8 @@ from mosegpipe.cli.main import app
 from mosegpipe.io import read_palette_png
 from mosegpipe.model import available_default_frames
 from mosegpipe.synth.render import RenderedClip
+
+from helpers import motion_checkpoint, read_rrd, render_scene, write_avi, write_frames
 
 runner = CliRunner(env={"COLUMNS": "200"})
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"

@@ -1,7 +1,5 @@
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -9,15 +7,6 @@ import pytest
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, relabel_by_size
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.metrics import misclassification_error
-
-
-@pytest.fixture(autouse=True)
-def _one_thread() -> Iterator[None]:
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(1):
-        yield
-
 
 RESIDUAL = ClusterConfig(method="residual")
 

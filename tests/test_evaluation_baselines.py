@@ -1,7 +1,5 @@
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -21,14 +19,6 @@ from mosegpipe.evaluation.baselines import (
 from mosegpipe.evaluation.metrics import misclassification_error
 
 Data = tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]
-
-
-@pytest.fixture(autouse=True)
-def _one_thread() -> Iterator[None]:
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(1):
-        yield
 
 
 def affine_motions(n_per: tuple[int, ...] = (50, 50, 50), frames: int = 5, noise: float = 0.5, seed: int = 0) -> Data:

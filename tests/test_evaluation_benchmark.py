@@ -10,7 +10,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import torch
 from typer.testing import CliRunner
 
 import mosegpipe.evaluation.benchmark as ev
@@ -26,22 +25,14 @@ from mosegpipe.evaluation.benchmark import (
     write_results,
 )
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.model import ModelConfig, SubspaceNet
+from mosegpipe.model import SubspaceNet
 from mosegpipe.training.loop import TrainConfig
 from mosegpipe.types import LabeledClip
 
-TINY = ModelConfig(in_dim=4, width=16, num_blocks=2, embed_dim=5)
+from helpers import tiny_config, tiny_model
+
+TINY = tiny_config(2)
 MODEL_COLUMNS = {"k_pred", "error", "error_true_k", "nmi", "seconds"}
-
-
-@pytest.fixture(autouse=True)
-def _one_thread() -> None:
-    torch.set_num_threads(1)
-
-
-def tiny_model(in_dim: int = 4, seed: int = 0) -> SubspaceNet:
-    torch.manual_seed(seed)
-    return SubspaceNet(replace(TINY, in_dim=in_dim)).eval()
 
 
 def separated_clip(
@@ -112,7 +103,7 @@ def test_embed_clip_resamples_to_model_frames() -> None:
     v = rng.normal(0.0, 3.0, (n, 1, 2))
     ten = (x0 + v * np.arange(10)[None, :, None]).reshape(n, 20).astype(np.float32)
     clip = LabeledClip("ten", ten, np.zeros(n, dtype=np.int64), "toy")
-    model = tiny_model(in_dim=10)
+    model = tiny_model(5)
     emb = embed_clip(model, clip)
     assert emb.shape == (n, 5) and emb.dtype == np.float32
     # 5 frames spanning frames 1..10 sit at source times 0, 2.25, 4.5, 6.75, 9: linear motion is exact there.
@@ -263,6 +254,7 @@ def _errors(rows: list[dict[str, Any]]) -> list[tuple[Any, ...]]:
     return [(r["name"], r["k_pred"], r["error"], r["error_true_k"], r["nmi"], r["train_seconds"]) for r in rows]
 
 
+@pytest.mark.slow
 def test_run_protocol_loo_saves_folds_and_resumes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fake_data: list[Any]
 ) -> None:

@@ -16,21 +16,9 @@ from mosegpipe.evaluation.e2e import (
     nearest_within,
     transfer_labels,
 )
-from mosegpipe.model import ModelConfig, SubspaceNet
 from mosegpipe.pipeline import PipelineConfig
-from mosegpipe.runtime import set_threads
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread() -> None:
-    set_threads(1)
-
-
-def _small_model(frames: int) -> SubspaceNet:
-    import torch
-
-    torch.manual_seed(0)
-    return SubspaceNet(ModelConfig(in_dim=2 * frames, width=16, num_blocks=2)).eval()
+from helpers import tiny_model
 
 
 def _square(size_hw: tuple[int, int], x0: int, y0: int, side: int) -> np.ndarray:
@@ -195,7 +183,7 @@ def test_protocol_registry() -> None:
 
 
 def test_rendered_rows_tiny_run() -> None:
-    rows = e2e.rendered_rows(_small_model(5), PipelineConfig(), seeds=[0], size_hw=(240, 320), warmup=False)
+    rows = e2e.rendered_rows(tiny_model(5), PipelineConfig(), seeds=[0], size_hw=(240, 320), warmup=False)
     assert len(rows) == 1
     row = rows[0]
     assert list(row) == [
@@ -227,18 +215,18 @@ def test_rendered_rows_tiny_run() -> None:
 
 
 def test_kt3d_video_one_sequence(data_root: Path) -> None:
-    rows = e2e.kt3d_video_rows(data_root, _small_model(5), PipelineConfig(), names=["Seq009_Clip01"], warmup=False)
+    rows = e2e.kt3d_video_rows(data_root, tiny_model(5), PipelineConfig(), names=["Seq009_Clip01"], warmup=False)
     (row,) = rows
     assert row["name"] == "Seq009_Clip01"
     assert 0 < row["num_scored"] < row["num_tracks"]
     assert 1 <= row["k_true"] <= 5 and 0.0 <= row["error"] <= 1.0
     # The ground truth lies on integer pixels and our corners are sub-pixel: nothing within 0 px.
-    (none,) = e2e.kt3d_video_rows(data_root, _small_model(5), names=["Seq009_Clip01"], max_dist_px=0.0, warmup=False)
+    (none,) = e2e.kt3d_video_rows(data_root, tiny_model(5), names=["Seq009_Clip01"], max_dist_px=0.0, warmup=False)
     assert none["num_scored"] == 0 and math.isnan(none["error"])
 
 
 def test_adelaide_one_pair(data_root: Path) -> None:
-    (row,) = e2e.adelaide_pair_rows(data_root, _small_model(2), names=["breadcube"], warmup=False)
+    (row,) = e2e.adelaide_pair_rows(data_root, tiny_model(2), names=["breadcube"], warmup=False)
     assert row["name"] == "breadcube"
     assert 0 < row["num_scored"] < row["num_matches"]
     assert row["k_true"] >= 1 and 0.0 <= row["error"] <= 1.0

@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 INFERENCE_MODULES = [
     "mosegpipe.pipeline",
     "mosegpipe.batch",
@@ -20,6 +22,7 @@ INFERENCE_MODULES = [
 FORBIDDEN = ("mosegpipe.training", "mosegpipe.evaluation", "mosegpipe.synth")
 
 
+@pytest.mark.slow
 def test_inference_loads_no_training_evaluation_or_synth() -> None:
     # One fresh interpreter for all of them: the check is about the union of what they import.
     code = (

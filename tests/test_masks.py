@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
@@ -8,11 +7,6 @@ from mosegpipe.errors import InputError
 from mosegpipe.io import default_palette
 from mosegpipe.masks import MaskConfig, labels_to_mask, labels_to_masks, overlay_mask
 from mosegpipe.types import Tracks
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread() -> None:
-    cv2.setNumThreads(1)
 
 
 def test_two_points_split_the_image_at_the_bisector() -> None:

@@ -8,11 +8,6 @@ from mosegpipe.errors import InputError
 from mosegpipe.match import MatchConfig, match_sift
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread() -> None:
-    cv2.setNumThreads(1)
-
-
 def _scene(h: int = 240, w: int = 320) -> np.ndarray:
     """Blob texture plus a few rectangles: plenty of SIFT keypoints at several scales."""
     rng = np.random.default_rng(0)

@@ -28,11 +28,6 @@ from mosegpipe.training.losses import mimi_loss
 SMALL = ModelConfig(in_dim=10, width=16, num_blocks=3, embed_dim=4)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread() -> None:
-    torch.set_num_threads(1)
-
-
 def _net(cfg: ModelConfig = SMALL, seed: int = 0) -> SubspaceNet:
     torch.manual_seed(seed)
     return SubspaceNet(cfg)
@@ -276,6 +271,7 @@ def _mean_error(net: SubspaceNet, clips: list[Clip]) -> float:
         )
 
 
+@pytest.mark.slow
 def test_training_smoke_mimi_separates_affine_motions() -> None:
     net = _net(ModelConfig(in_dim=4, width=32, num_blocks=4))
     test_clips = [_toy_clip(np.random.default_rng(1000 + i)) for i in range(10)]

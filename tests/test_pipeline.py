@@ -3,124 +3,34 @@
 The shipped weights are not needed: the tests build their own checkpoints. `motion_checkpoint`
 writes a SubspaceNet whose weights are set by hand so that it embeds a track by its displacement
 between the first and the last frame (a perfect "motion model" for a static camera), which makes
-segmentation results predictable; `tiny_checkpoint` writes a randomly initialised one for tests
-that only need the plumbing. test_cli, test_batch and test_video import these helpers.
+segmentation results predictable (it lives in tests/helpers.py with the other shared helpers).
 """
 
 from __future__ import annotations
 
 import json
-from collections import Counter
 from pathlib import Path
 
 import cv2
 import numpy as np
-import numpy.typing as npt
 import pytest
-import torch
-from scipy.optimize import linear_sum_assignment
 
 from mosegpipe import pipeline
 from mosegpipe.errors import InputError, OutputExistsError, TooFewTracksError
-from mosegpipe.io import read_palette_png, read_video, write_video
+from mosegpipe.io import read_palette_png, read_video
 from mosegpipe.masks import overlay_image, overlay_mask
-from mosegpipe.model import ModelConfig, SubspaceNet
+from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_pair_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_frames, segment_pair
-from mosegpipe.runtime import set_threads
-from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
+from mosegpipe.synth.render import RenderedClip, render_clip
+
+from helpers import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
-
-# Two planes in front of a static wall, moving right and up at about 3 and 2.4 px per frame.
-OBJECTS = (
-    ObjectSpec(shape="plane", centre_m=(-0.9, -0.1, 4.0), size_m=(1.1, 1.0, 1.0), velocity_m=(0.045, 0.0, 0.0)),
-    ObjectSpec(shape="plane", centre_m=(1.0, 0.15, 4.0), size_m=(1.0, 0.9, 1.0), velocity_m=(0.0, -0.035, 0.0)),
-)
-
-
-# ---------------------------------------------------------------------------------------------
-# Helpers shared with test_cli, test_batch and test_video
-# ---------------------------------------------------------------------------------------------
-
-
-def motion_checkpoint(path: Path, frames: int) -> Path:
-    """Saves a SubspaceNet (in_dim = 2 * frames, width 16, 2 blocks, E = 5) that embeds displacement.
-
-    Input layer: channels 0/1 = +(x_F - x_1), +(y_F - y_1), channels 2/3 the negatives (so that the
-    ReLU keeps both signs); the residual blocks add zero; the head copies channels 0..3 and adds a
-    constant fifth coordinate. After context normalisation, tracks with equal displacement get
-    equal unit embeddings and different motions point in different directions.
-    """
-    net = SubspaceNet(ModelConfig(in_dim=2 * frames, width=16, num_blocks=2, embed_dim=5))
-    with torch.no_grad():
-        for p in net.parameters():
-            p.zero_()
-        w = net.input.weight  # (16, 2F)
-        last = 2 * (frames - 1)
-        # 100x: the input is normalised by the clip's spread (~100 px), displacements are a few px.
-        w[0, last], w[0, 0] = 100.0, -100.0
-        w[1, last + 1], w[1, 1] = 100.0, -100.0
-        w[2], w[3] = -w[0], -w[1]
-        for i in range(4):
-            net.head.weight[i, i] = 1.0
-        net.head.bias[4] = 1.0
-    return net.save(path, recipe={"name": f"test-displacement-f{frames}"})
-
-
-def tiny_checkpoint(path: Path, frames: int) -> Path:
-    """Saves a randomly initialised tiny SubspaceNet (fixed seed)."""
-    torch.manual_seed(0)
-    return SubspaceNet(ModelConfig(in_dim=2 * frames, width=16, num_blocks=2, embed_dim=5)).save(path)
-
-
-def render_scene(frames: int, seed: int = 0) -> RenderedClip:
-    """240x320 frames, static camera, the two OBJECTS (ground truth: 0 wall, 1 and 2 the planes)."""
-    return render_clip(RenderConfig(size_hw=(240, 320), frames=frames, seed=seed, objects=OBJECTS))
-
-
-def write_frames(folder: Path, images: npt.NDArray[np.uint8]) -> Path:
-    """Writes (T, H, W, 3) RGB frames as 000000.png, ... (lossless) into `folder`."""
-    folder.mkdir(parents=True, exist_ok=True)
-    for t, image in enumerate(images):
-        assert cv2.imwrite(str(folder / f"{t:06d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
-    return folder
-
-
-def write_avi(path: Path, images: npt.NDArray[np.uint8]) -> Path:
-    """Writes (T, H, W, 3) RGB frames as an MJPG .avi."""
-    write_video(path, iter(images), 10.0)
-    return path
-
-
-def best_permutation_accuracy(pred: npt.NDArray[np.int64], gt: npt.NDArray[np.int64]) -> float:
-    """Share of entries that agree after the best one-to-one relabelling of `pred` (Hungarian)."""
-    table = np.zeros((int(pred.max()) + 1, int(gt.max()) + 1), dtype=np.int64)
-    np.add.at(table, (pred, gt), 1)
-    rows, cols = linear_sum_assignment(-table)
-    return float(table[rows, cols].sum() / pred.size)
-
-
-def read_rrd(path: Path) -> Counter[str]:
-    """Rows per entity path of a recording; RrdReader.store() fails on a file that was not closed."""
-    from rerun.chunk import RrdReader
-
-    reader = RrdReader(path)
-    reader.store()
-    rows: Counter[str] = Counter()
-    for chunk in reader.stream().to_chunks():
-        rows[chunk.entity_path] += chunk.num_rows
-    return rows
-
 
 # ---------------------------------------------------------------------------------------------
 # Fixtures
 # ---------------------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread() -> None:
-    set_threads(1)
 
 
 @pytest.fixture(scope="module")

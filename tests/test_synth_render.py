@@ -7,14 +7,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.runtime import set_threads
 from mosegpipe.synth.render import ObjectSpec, RenderConfig, render_clip, write_clip
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread() -> None:
-    set_threads(1)
-
 
 FRONT = ObjectSpec("plane", centre_m=(0.0, 0.0, 3.0), size_m=(1.0, 1.0, 0.0))
 BEHIND = ObjectSpec("box", centre_m=(0.3, 0.0, 5.0), size_m=(2.0, 2.0, 1.0), rotation=(0.0, 0.4, 0.0))

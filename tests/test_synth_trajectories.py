@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.runtime import set_threads
 from mosegpipe.synth.trajectories import (
     PAIR_CONFIG,
     SyntheticConfig,
@@ -17,11 +16,6 @@ from mosegpipe.synth.trajectories import (
 )
 
 NOISE_FREE = SyntheticConfig(noise_px=(0.0, 0.0), drift_px=(0.0, 0.0))
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread() -> None:
-    set_threads(1)
 
 
 def _xy(traj: np.ndarray) -> np.ndarray:

@@ -12,12 +12,6 @@ H, W = 160, 240
 PAD = 48
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread() -> None:
-    # OpenCV is the only compute here; one thread is faster on small images on 2 cores.
-    cv2.setNumThreads(1)
-
-
 def _texture(seed: int, h: int = H + 2 * PAD, w: int = W + 2 * PAD) -> np.ndarray:
     noise = np.random.default_rng(seed).random((h, w)).astype(np.float32)
     smooth = cv2.GaussianBlur(noise, (0, 0), 2.0)

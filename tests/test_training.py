@@ -25,12 +25,9 @@ from mosegpipe.training.loop import (
 from mosegpipe.training.recipes import RECIPES, build_sampler, get_recipe
 from mosegpipe.types import LabeledClip
 
-TINY = ModelConfig(in_dim=4, width=16, num_blocks=2, embed_dim=5)
+from helpers import tiny_config
 
-
-@pytest.fixture(autouse=True)
-def _one_thread() -> None:
-    torch.set_num_threads(1)
+TINY = tiny_config(2)
 
 
 def affine_clip(

@@ -10,11 +10,6 @@ from mosegpipe.errors import InputError
 from mosegpipe.training.losses import LOSSES, MIMI_EPS, ce_affinity_loss, l2_affinity_loss, mimi_loss
 
 
-@pytest.fixture(autouse=True)
-def _one_thread() -> None:
-    torch.set_num_threads(1)
-
-
 def _batch(points: list[list[float]], labels: list[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One clip: (N, E) points -> z (1, E, N), labels (1, N), mask (1, N)."""
     z = torch.tensor(points, dtype=torch.float64).T.unsqueeze(0)

@@ -10,7 +10,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from test_pipeline import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 from typer.testing import CliRunner
 
 from mosegpipe import pipeline as pipeline_module
@@ -21,6 +20,8 @@ from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
 from mosegpipe.synth.render import RenderedClip
+
+from helpers import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 
 runner = CliRunner(env={"COLUMNS": "200"})
 T = 15  # windows of 5 share their boundary frame: 0-4, 4-8, 8-12, 12-14 (a short last window)

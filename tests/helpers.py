@@ -1,0 +1,101 @@
+"""Helpers shared by the test modules: scenes, clip folders, models with known behaviour, recordings."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+import torch
+from scipy.optimize import linear_sum_assignment
+
+from mosegpipe.io import write_video
+from mosegpipe.model import ModelConfig, SubspaceNet
+from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
+
+# Two planes in front of a static wall, moving right and up at about 3 and 2.4 px per frame.
+OBJECTS = (
+    ObjectSpec(shape="plane", centre_m=(-0.9, -0.1, 4.0), size_m=(1.1, 1.0, 1.0), velocity_m=(0.045, 0.0, 0.0)),
+    ObjectSpec(shape="plane", centre_m=(1.0, 0.15, 4.0), size_m=(1.0, 0.9, 1.0), velocity_m=(0.0, -0.035, 0.0)),
+)
+
+
+def motion_checkpoint(path: Path, frames: int) -> Path:
+    """Saves a SubspaceNet (in_dim = 2 * frames, width 16, 2 blocks, E = 5) that embeds displacement.
+
+    Input layer: channels 0/1 = +(x_F - x_1), +(y_F - y_1), channels 2/3 the negatives (so that the
+    ReLU keeps both signs); the residual blocks add zero; the head copies channels 0..3 and adds a
+    constant fifth coordinate. After context normalisation, tracks with equal displacement get
+    equal unit embeddings and different motions point in different directions.
+    """
+    net = SubspaceNet(tiny_config(frames))
+    with torch.no_grad():
+        for p in net.parameters():
+            p.zero_()
+        w = net.input.weight  # (16, 2F)
+        last = 2 * (frames - 1)
+        # 100x: the input is normalised by the clip's spread (~100 px), displacements are a few px.
+        w[0, last], w[0, 0] = 100.0, -100.0
+        w[1, last + 1], w[1, 1] = 100.0, -100.0
+        w[2], w[3] = -w[0], -w[1]
+        for i in range(4):
+            net.head.weight[i, i] = 1.0
+        net.head.bias[4] = 1.0
+    return net.save(path, recipe={"name": f"test-displacement-f{frames}"})
+
+
+def tiny_config(frames: int) -> ModelConfig:
+    """The tiny architecture of the tests: in_dim = 2 * frames, width 16, 2 blocks, E = 5."""
+    return ModelConfig(in_dim=2 * frames, width=16, num_blocks=2, embed_dim=5)
+
+
+def tiny_model(frames: int = 2, seed: int = 0) -> SubspaceNet:
+    """A randomly initialised tiny SubspaceNet (torch seeded with `seed`), in eval mode."""
+    torch.manual_seed(seed)
+    return SubspaceNet(tiny_config(frames)).eval()
+
+
+def tiny_checkpoint(path: Path, frames: int) -> Path:
+    """Saves tiny_model(frames) and returns its path."""
+    return tiny_model(frames).save(path)
+
+
+def render_scene(frames: int, seed: int = 0) -> RenderedClip:
+    """240x320 frames, static camera, the two OBJECTS (ground truth: 0 wall, 1 and 2 the planes)."""
+    return render_clip(RenderConfig(size_hw=(240, 320), frames=frames, seed=seed, objects=OBJECTS))
+
+
+def write_frames(folder: Path, images: npt.NDArray[np.uint8]) -> Path:
+    """Writes (T, H, W, 3) RGB frames as 000000.png, ... (lossless) into `folder`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for t, image in enumerate(images):
+        assert cv2.imwrite(str(folder / f"{t:06d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    return folder
+
+
+def write_avi(path: Path, images: npt.NDArray[np.uint8]) -> Path:
+    """Writes (T, H, W, 3) RGB frames as an MJPG .avi."""
+    write_video(path, iter(images), 10.0)
+    return path
+
+
+def best_permutation_accuracy(pred: npt.NDArray[np.int64], gt: npt.NDArray[np.int64]) -> float:
+    """Share of entries that agree after the best one-to-one relabelling of `pred` (Hungarian)."""
+    table = np.zeros((int(pred.max()) + 1, int(gt.max()) + 1), dtype=np.int64)
+    np.add.at(table, (pred, gt), 1)
+    rows, cols = linear_sum_assignment(-table)
+    return float(table[rows, cols].sum() / pred.size)
+
+
+def read_rrd(path: Path) -> Counter[str]:
+    """Rows per entity path of a recording; RrdReader.store() fails on a file that was not closed."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    reader.store()
+    rows: Counter[str] = Counter()
+    for chunk in reader.stream().to_chunks():
+        rows[chunk.entity_path] += chunk.num_rows
+    return rows
