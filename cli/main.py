@@ -12,12 +12,13 @@ import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, TypeVar, cast, get_args
 
 import typer
 
 from mosegpipe import __version__
-from mosegpipe.errors import InputError, MosegError
+from mosegpipe.errors import InputError, MosegError, check_choice
+from mosegpipe.types import KMethodName
 
 app = typer.Typer(
     name="moseg",
@@ -110,13 +111,21 @@ Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results al
 NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
 
 
+def _protocol_help() -> str:
+    """The protocol names from the registry: benchmark ones, then end-to-end ones."""
+    from mosegpipe.evaluation.protocols import PROTOCOLS
+
+    bench = [p.name for p in PROTOCOLS.values() if p.kind == "benchmark"]
+    e2e = [p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"]
+    return f"{', '.join(bench)}; end to end: {', '.join(e2e)}."
+
+
 def _pipeline_cfg(frames: int, k: int | None, k_method: str, k_max: int) -> Any:
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.pipeline import PipelineConfig
 
-    if k_method not in ("residual", "silhouette"):
-        raise InputError(f"--k-method {k_method!r}: choose 'residual' or 'silhouette'")
-    return PipelineConfig(frames=frames, k=k, cluster=replace(ClusterConfig(), method=k_method, k_max=k_max))
+    method = cast(KMethodName, check_choice("--k-method", k_method, get_args(KMethodName)))
+    return PipelineConfig(frames=frames, k=k, cluster=replace(ClusterConfig(), method=method, k_max=k_max))
 
 
 def _plural(n: int, word: str, plural: str = "") -> str:
@@ -381,10 +390,7 @@ def train(
     from mosegpipe.training.loop import recipe_of, train_model, with_overrides
     from mosegpipe.training.recipes import build_sampler, get_recipe
 
-    try:
-        recipe = get_recipe(preset)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    recipe = get_recipe(preset)
     dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
     sources = tuple((s, w) for s, w in recipe.sources if s not in dropped)
     needs_data = any(not s.startswith("synthetic") and s != "lce" for s, _ in sources)
@@ -392,10 +398,7 @@ def train(
     cfg = with_overrides(
         recipe.train, steps=steps, batch_size=batch_size, lr=lr, loss=loss, seed=seed, time_budget_s=time_budget
     )
-    try:
-        sampler, described = build_sampler(sources, root, cfg.frames, seed=cfg.seed)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    sampler, described = build_sampler(sources, root, cfg.frames, seed=cfg.seed)
     start = SubspaceNet.from_checkpoint(init) if init else None
     typer.echo(f"training {preset}: {cfg.steps} steps × {cfg.batch_size} clips, sources {described}")
     result = train_model(
@@ -425,7 +428,7 @@ def eval_(
     protocol: Annotated[
         str,
         typer.Argument(
-            help="kt3d-test, kt3d-loo, adelaide-test, adelaide-loo, hopkins-test, lce; end to end: kt3d-video, adelaide-pairs, rendered."
+            help=_protocol_help(),
         ),
     ],
     out: Annotated[
@@ -463,72 +466,30 @@ def eval_(
 ) -> None:
     """Run a benchmark protocol: per-clip table, mean/median error, NMI, correct K, time, baselines."""
     _setup(threads, verbose)
-    from mosegpipe.cluster import ClusterConfig
-    from mosegpipe.evaluation.benchmark import PROTOCOLS, EvalConfig, run_protocol
-    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS
-    from mosegpipe.model import SubspaceNet
-    from mosegpipe.training.loop import TrainConfig, with_overrides
+    from mosegpipe.evaluation.protocols import EvalRequest, get_protocol
 
-    if protocol in E2E_PROTOCOLS:
-        _eval_e2e(protocol, out, model, frames, k_method, k_max, data_root)
-        return
-    if protocol not in PROTOCOLS:
-        names = [*PROTOCOLS, *E2E_PROTOCOLS]
-        raise InputError(f"unknown protocol {protocol!r}; choose from {', '.join(names)}")
-    if variant not in ("vanilla", "augment"):
-        raise InputError(f"--variant {variant!r}: choose 'vanilla' or 'augment'")
-    f = frames if frames is not None else (2 if protocol.startswith("adelaide") else 1 if protocol == "lce" else 5)
-    train_cfg = with_overrides(TrainConfig(frames=f, steps=500), steps=steps, batch_size=batch_size, lr=lr, loss=loss)
-    cfg = EvalConfig(
-        protocol=protocol,
+    proto = get_protocol(protocol)
+    check_choice("--k-method", k_method, get_args(KMethodName))
+    request = EvalRequest(
+        out_dir=out,
+        data_root=_data_root(data_root) if proto.data else data_root,
+        model=model,
+        init=init,
+        frames=frames,
         variant=variant,
-        frames=f,
-        baselines=tuple(b for b in baselines.split(",") if b),
-        cluster=replace(ClusterConfig(), method=k_method, k_max=k_max),
-        train=train_cfg,
+        steps=steps,
+        batch_size=batch_size,
+        lr=lr,
+        loss=loss,
         synthetic_weight=synthetic_weight,
+        baselines=tuple(b for b in baselines.split(",") if b),
         folds=tuple(folds.split(",")) if folds else None,
+        k_method=k_method,
+        k_max=k_max,
+        progress=typer.echo,
     )
-    net = None
-    if protocol.endswith("-test"):
-        from mosegpipe.pipeline import load_model
-
-        net = load_model(f, model)
-    elif protocol == "lce" and model is not None:
-        net = SubspaceNet.from_checkpoint(model)
-    start = SubspaceNet.from_checkpoint(init) if init else None
-    try:
-        root = data_root or Path(".") if protocol == "lce" else _data_root(data_root)  # lce is generated
-        _, _, table = run_protocol(cfg, root, out, model=net, init=start, progress=typer.echo)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
-    typer.echo(table)
-    typer.echo(f"wrote {out}/results.md, results.csv, results.json")
-
-
-def _eval_e2e(
-    protocol: str, out: Path, model: Path | None, frames: int | None, k_method: str, k_max: int, data_root: Path | None
-) -> None:
-    """The full video pipeline (KLT / SIFT, embedding, automatic K, masks) scored against ground truth."""
-    from mosegpipe.evaluation.benchmark import write_results
-    from mosegpipe.evaluation.e2e import E2E_PROTOCOLS, format_rows, summarize_rows
-    from mosegpipe.pipeline import load_model
-
-    f = frames or (2 if protocol == "adelaide-pairs" else 5)
-    cfg = _pipeline_cfg(f, None, k_method, k_max)
-    root = None if protocol == "rendered" else _data_root(data_root)
-    net = load_model(f, model)
-    rows = E2E_PROTOCOLS[protocol](root, net, cfg)
-    config = {
-        "protocol": protocol,
-        "frames": f,
-        "k_method": k_method,
-        "k_max": k_max,
-        "model": str(model or "shipped default"),
-    }
-    table = format_rows(rows)
-    write_results(out, rows, summarize_rows(rows), config, table)
-    typer.echo(table)
+    result = proto.run(proto, request)
+    typer.echo(result.table)
     typer.echo(f"wrote {out}/results.md, results.csv, results.json")
 
 

@@ -23,6 +23,7 @@ _EXPORTS = {
     "mosegpipe.cluster": ("ClusterConfig", "cluster_auto_k", "kmeans"),
     "mosegpipe.errors": (
         "CheckpointError",
+        "ConfigError",
         "DatasetError",
         "InputError",
         "MosegError",

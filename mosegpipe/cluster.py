@@ -18,6 +18,7 @@ import logging
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import get_args
 
 import numpy as np
 import numpy.typing as npt
@@ -28,12 +29,12 @@ from sklearn.cluster import KMeans
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.metrics import pairwise_distances, silhouette_score
 
-from mosegpipe.errors import InputError
-from mosegpipe.types import Clustering
+from mosegpipe.errors import ConfigError, InputError
+from mosegpipe.types import Clustering, KMethodName
 
 logger = logging.getLogger(__name__)
 
-_METHODS = ("residual", "silhouette")
+_METHODS = get_args(KMethodName)
 
 # A residual at or below this fraction of r(1) counts as "nothing left to explain": float noise,
 # not structure, so the relative drop after it is defined as 0 instead of 0/0.
@@ -62,7 +63,7 @@ class ClusterConfig:
 
     # Silhouette chose K better on KT3DMoSeg leave-one-out (correct K 64 % vs 45-59 %, docs/RESULTS.md);
     # "residual" is about twice as fast (no O(N^2) distances).
-    method: str = "silhouette"
+    method: KMethodName = "silhouette"
     k_min: int = 1  # single-motion clips exist (static scene, camera motion only)
     k_max: int = 8  # benchmarks have at most 5 motions; 8 leaves headroom for real videos
     n_init: int = 3  # 10 restarts cost 3x the time; see docs/RESULTS.md for the accuracy check
@@ -85,7 +86,7 @@ class ClusterConfig:
 
     def __post_init__(self) -> None:
         if self.method not in _METHODS:
-            raise InputError(f"cluster method {self.method!r} is not one of {', '.join(_METHODS)}")
+            raise ConfigError(f"cluster method {self.method!r} is not one of {', '.join(_METHODS)}")
         if self.k_min < 1:
             raise InputError(f"k_min={self.k_min} must be at least 1")
         if self.k_max < self.k_min:

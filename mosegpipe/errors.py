@@ -1,6 +1,13 @@
-"""The exceptions mosegpipe raises. The CLI turns any MosegError into one line and exit code 1."""
+"""The exceptions mosegpipe raises on purpose, and the one rule for using them.
+
+A `MosegError` means something the user supplied is wrong (a file, a folder, an argument, a setting);
+the CLI turns it into one line on stderr and exit code 1. A bug in our code raises ValueError,
+TypeError, ... and keeps its traceback: it must never be dressed up as a user error.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Iterable
 
 
 class MosegError(Exception):
@@ -25,3 +32,27 @@ class CheckpointError(MosegError):
 
 class DatasetError(MosegError):
     """A benchmark dataset folder is missing or malformed."""
+
+
+class ConfigError(InputError, ValueError):
+    """A setting names something that does not exist (a protocol, recipe, source, loss, method) or
+    combines settings that cannot go together: an invalid argument (InputError) and an invalid value
+    (ValueError)."""
+
+
+def check_choice(what: str, value: str, choices: Iterable[str]) -> str:
+    """Returns `value` if it is one of `choices`.
+
+    Args:
+        what: how the setting is named in the message (e.g. "--k-method").
+        value: the value given.
+        choices: the allowed values, in the order the message lists them.
+
+    Raises:
+        ConfigError: `value` is not among `choices`; the message names both.
+    """
+    allowed = list(choices)
+    if value not in allowed:
+        listed = " or ".join(f"'{c}'" for c in allowed) if len(allowed) <= 3 else ", ".join(allowed)
+        raise ConfigError(f"{what} {value!r}: choose {listed}")
+    return value

@@ -7,10 +7,12 @@ file under the final name (a later run that skips finished outputs can trust wha
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import os
 import secrets
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from io import StringIO as _StringIO
 from pathlib import Path
 from typing import Any
 
@@ -395,6 +397,32 @@ def write_json(path: str | os.PathLike[str], obj: Any) -> None:
     text = json.dumps(obj, indent=2, default=_json_default, ensure_ascii=False)
     with atomic_write(path) as tmp:
         tmp.write_text(text + "\n", encoding="utf-8")
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write UTF-8 text as it is (no newline added), atomically.
+
+    Args:
+        path: output file.
+        text: the whole content.
+    """
+    with atomic_write(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_csv(path: str | os.PathLike[str], rows: Sequence[Mapping[str, Any]]) -> None:
+    """Write rows as CSV with a header, atomically; the columns are every key in order of first appearance.
+
+    Args:
+        path: output file.
+        rows: one mapping per row; a missing key leaves its cell empty. No rows: a header "name" only.
+    """
+    buf = _StringIO()
+    fields = list(dict.fromkeys(k for r in rows for k in r)) or ["name"]
+    writer = csv.DictWriter(buf, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text(path, buf.getvalue())
 
 
 def write_npz(path: str | os.PathLike[str], **arrays: npt.ArrayLike) -> None:

@@ -7,10 +7,13 @@ E embedding dimension, K clusters.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+
+KMethodName = Literal["residual", "silhouette"]
+"""Automatic-K rules of cluster.cluster_auto_k: the elbow of the K-means residual, or the silhouette."""
 
 
 @dataclass(frozen=True)

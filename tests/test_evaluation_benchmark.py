@@ -15,16 +15,10 @@ from typer.testing import CliRunner
 import mosegpipe.evaluation.benchmark as ev
 from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.evaluation.benchmark import (
-    EvalConfig,
-    embed_clip,
-    evaluate_clips,
-    format_table,
-    run_protocol,
-    summarize,
-    write_results,
-)
+from mosegpipe.evaluation.benchmark import EvalConfig, embed_clip, evaluate_clips, run_protocol
 from mosegpipe.evaluation.metrics import misclassification_error
+from mosegpipe.evaluation.protocols import PROTOCOLS
+from mosegpipe.evaluation.report import format_table, summarize, write_results
 from mosegpipe.model import SubspaceNet
 from mosegpipe.training.loop import TrainConfig
 from mosegpipe.types import LabeledClip
@@ -227,7 +221,8 @@ def fake_data(monkeypatch: pytest.MonkeyPatch) -> list[tuple[tuple[Any, ...], tu
     """
     rng = np.random.default_rng(5)
     clips = [separated_clip(rng, "pairA"), separated_clip(rng, "pairB", sizes=(10, 10, 10))]
-    monkeypatch.setattr(ev, "_test_clips", lambda cfg, root: clips)
+    for name in ("adelaide-loo", "adelaide-test"):
+        monkeypatch.setitem(PROTOCOLS, name, replace(PROTOCOLS[name], load_clips=lambda root, frames: clips))
     calls: list[tuple[tuple[Any, ...], tuple[str, ...]]] = []
 
     def build_sampler(sources: Any, data_root: Any, frames: int, exclude: Any = (), seed: int = 0) -> Any:

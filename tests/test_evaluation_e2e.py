@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mosegpipe.evaluation import e2e
+from mosegpipe.errors import ConfigError
+from mosegpipe.evaluation import e2e, report
 from mosegpipe.evaluation.e2e import (
     boundary_f,
     boundary_map,
@@ -16,6 +17,7 @@ from mosegpipe.evaluation.e2e import (
     nearest_within,
     transfer_labels,
 )
+from mosegpipe.evaluation.protocols import PROTOCOLS, get_protocol
 from mosegpipe.pipeline import PipelineConfig
 
 from helpers import tiny_model
@@ -164,22 +166,32 @@ def test_summary_and_table_leave_unscored_rows_out() -> None:
         {"name": "b", "num_scored": 20, "k_true": 3, "k_pred": 2, "error": 0.3, "seconds": 0.25},
         {"name": "c", "num_scored": 0, "k_true": 0, "k_pred": 0, "error": float("nan"), "seconds": 0.0},
     ]
-    s = e2e.summarize_rows(rows)
+    s = report.summarize_rows(rows)
     assert s["num_rows"] == 3 and s["num_unscored"] == 1
     assert s["error"] == {"mean": pytest.approx(0.2), "median": pytest.approx(0.2)}
     assert s["correct_k"] == 0.5
     assert s["seconds_total"] == 0.75
-    table = e2e.format_rows(rows)
+    table = report.format_rows(rows)
     assert "| a | 10 | 2 | 2 | 10.00 | 500 |" in table
     assert "| c | 0 | 0 | 0 | – | 0 |" in table
     assert "| **mean** | 15.0 | 2.5 | 2.0 | 20.00 | 375 |" in table
     assert "1 not scored" in table
-    assert e2e.format_rows([]) == "(no rows)\n"
+    assert report.format_rows([]) == "(no rows)\n"
 
 
 def test_protocol_registry() -> None:
-    assert set(e2e.E2E_PROTOCOLS) == {"kt3d-video", "adelaide-pairs", "rendered"}
-    assert all(callable(fn) for fn in e2e.E2E_PROTOCOLS.values())
+    assert list(PROTOCOLS) == [
+        "kt3d-test", "kt3d-loo", "adelaide-test", "adelaide-loo", "hopkins-test", "lce",
+        "kt3d-video", "adelaide-pairs", "rendered",
+    ]  # fmt: skip
+    e2e_names = {p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"}
+    assert e2e_names == {"kt3d-video", "adelaide-pairs", "rendered"}
+    for p in PROTOCOLS.values():
+        assert callable(p.run) and p.description and p.default_frames >= 1
+        assert (p.end_to_end is not None) == (p.kind == "end-to-end") != (p.load_clips is not None)
+    assert [p.name for p in PROTOCOLS.values() if not p.is_test_only] == ["kt3d-loo", "adelaide-loo", "lce"]
+    with pytest.raises(ConfigError, match="unknown protocol 'kitti'; choose from kt3d-test, kt3d-loo"):
+        get_protocol("kitti")
 
 
 def test_rendered_rows_tiny_run() -> None:

@@ -1,5 +1,7 @@
 """Benchmark protocols: SubspaceNet and the classical baselines side by side on identical inputs.
 
+Which clips a protocol reads and how it splits them into folds is its record in `protocols.PROTOCOLS`.
+
 Each protocol yields one row per test clip (error with automatic K and with the true K, NMI, chosen K,
 time) and a summary; leave-one-out protocols train one model per fold and store each fold's rows as
 soon as it finishes, so an interrupted run resumes where it stopped.
@@ -7,9 +9,7 @@ soon as it finishes, so an interrupted run resumes where it stopped.
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io as _io
 import json
 import logging
 import time
@@ -21,7 +21,10 @@ from typing import Any
 import numpy as np
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.evaluation.metrics import correct_k_rate, misclassification_error, nmi
+from mosegpipe.errors import ConfigError
+from mosegpipe.evaluation.metrics import misclassification_error, nmi
+from mosegpipe.evaluation.protocols import Variant, get_protocol, sequence_of
+from mosegpipe.evaluation.report import summarize, write_results
 from mosegpipe.io import atomic_write
 from mosegpipe.model import SubspaceNet
 from mosegpipe.training.loop import TrainConfig, recipe_of, train_model
@@ -30,22 +33,13 @@ from mosegpipe.types import LabeledClip
 
 log = logging.getLogger(__name__)
 
-PROTOCOLS = {
-    "kt3d-test": "a given model on the 22 KT3DMoSeg test clips (frames 1-5), no training",
-    "kt3d-loo": "KT3DMoSeg leave-one-sequence-out: train on 21 sequences, test on the held-out one's frames 1-5",
-    "adelaide-test": "a given two-view model on the 19 AdelaideRMF pairs, no training",
-    "adelaide-loo": "AdelaideRMF leave-one-pair-out: train on 18 pairs, test on the held-out one",
-    "hopkins-test": "a given model on the 155 Hopkins155 sequences (first F frames), no training",
-    "lce": "synthetic lines/circles/ellipses: train on the 8000-sample split (unless a model is given), test on 200",
-}
-
 
 @dataclass(frozen=True)
 class EvalConfig:
     """What one `moseg eval` run does.
 
     Attributes:
-        protocol: a key of PROTOCOLS.
+        protocol: the name of a benchmark protocol in protocols.PROTOCOLS.
         variant: kt3d-loo only: "vanilla" (one frames-1..5 clip per training sequence) or "augment"
             (every 5-frame window of the training sequences).
         frames: trajectory length F.
@@ -58,7 +52,7 @@ class EvalConfig:
     """
 
     protocol: str = "kt3d-test"
-    variant: str = "vanilla"
+    variant: Variant = "vanilla"
     frames: int = 5
     baselines: tuple[str, ...] = ("kmeans-raw", "spectral-raw", "ssc")
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
@@ -96,7 +90,7 @@ def evaluate_clips(
 
     unknown = [b for b in baselines if b not in BASELINES]
     if unknown:
-        raise ValueError(f"unknown baseline(s) {unknown}; choose from {sorted(BASELINES)}")
+        raise ConfigError(f"unknown baseline(s) {unknown}; choose from {sorted(BASELINES)}")
     if model is not None and clips:
         # The first call pays one-off costs (allocator, sklearn import paths); keep them out of the timings.
         cluster_auto_k(embed_clip(model, clips[0]), cluster_cfg)
@@ -123,102 +117,8 @@ def evaluate_clips(
     return rows
 
 
-def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Mean / median of every error column, correct-K rate and total time over the rows."""
-    if not rows:
-        return {}
-    out: dict[str, Any] = {"num_clips": len(rows)}
-    error_cols = [c for c in rows[0] if c.startswith("error") or "@" in c]
-    for col in error_cols:
-        vals = np.array([r[col] for r in rows if col in r], dtype=np.float64)
-        out[col] = {"mean": float(vals.mean()), "median": float(np.median(vals))}
-    if "k_pred" in rows[0]:
-        out["correct_k"] = correct_k_rate([r["k_pred"] for r in rows], [r["k_true"] for r in rows])
-        out["nmi"] = float(np.mean([r["nmi"] for r in rows]))
-        out["seconds_total"] = float(sum(r["seconds"] for r in rows))
-    return out
-
-
-def format_table(rows: Sequence[dict[str, Any]], summary: dict[str, Any]) -> str:
-    """A Markdown table: one row per clip (errors in %), then mean and median rows."""
-    if not rows:
-        return "(no rows)\n"
-    cols = list(rows[0].keys())
-    pct = {c for c in cols if c.startswith("error") or "@" in c}
-
-    def fmt(col: str, val: Any) -> str:
-        if col in pct:
-            return f"{100 * val:.2f}"
-        if col == "seconds":
-            return f"{1000 * val:.1f}ms"
-        if isinstance(val, float):
-            return f"{val:.3f}"
-        return str(val)
-
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for r in rows:
-        lines.append("| " + " | ".join(fmt(c, r.get(c, "")) for c in cols) + " |")
-    for stat in ("mean", "median"):
-        cells = [f"**{stat}**"]
-        for c in cols[1:]:
-            cells.append(f"{100 * summary[c][stat]:.2f}" if c in pct else "")
-        lines.append("| " + " | ".join(cells) + " |")
-    extra = []
-    if "correct_k" in summary:
-        extra.append(
-            f"correct K: {100 * summary['correct_k']:.2f} % · mean NMI {summary['nmi']:.3f} · "
-            f"embedding + automatic K for all {summary['num_clips']} clips: {summary['seconds_total']:.3f} s"
-        )
-    return "\n".join(lines) + "\n\n" + "\n".join(extra) + "\n"
-
-
-def write_results(
-    out_dir: Path, rows: list[dict[str, Any]], summary: dict[str, Any], config: dict[str, Any], table: str | None = None
-) -> str:
-    """Writes results.json (config, summary, rows), results.csv (rows) and results.md (config + table)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    table = table if table is not None else format_table(rows, summary)
-    with atomic_write(out_dir / "results.json") as tmp:
-        Path(tmp).write_text(json.dumps({"config": config, "summary": summary, "rows": rows}, indent=2, default=float))
-    buf = _io.StringIO()
-    fields = list(dict.fromkeys(k for r in rows for k in r)) or ["name"]
-    writer = csv.DictWriter(buf, fieldnames=fields)
-    writer.writeheader()
-    writer.writerows(rows)
-    with atomic_write(out_dir / "results.csv") as tmp:
-        Path(tmp).write_text(buf.getvalue())
-    md = f"# {config.get('protocol')}\n\n```json\n{json.dumps(config, indent=2)}\n```\n\n{table}"
-    with atomic_write(out_dir / "results.md") as tmp:
-        Path(tmp).write_text(md)
-    return table
-
-
 def _config_hash(config: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def _test_clips(cfg: EvalConfig, data_root: Path) -> list[LabeledClip]:
-    if cfg.protocol in ("kt3d-test", "kt3d-loo"):
-        from mosegpipe.data.kt3dmoseg import kt3d_test_clips
-
-        return kt3d_test_clips(data_root, frames=cfg.frames)
-    if cfg.protocol in ("adelaide-test", "adelaide-loo"):
-        from mosegpipe.data.adelaidermf import load_adelaide
-
-        return load_adelaide(data_root)
-    if cfg.protocol == "hopkins-test":
-        from mosegpipe.data.hopkins155 import load_hopkins
-
-        return load_hopkins(data_root, frames=cfg.frames or None)  # 0: all frames
-    if cfg.protocol == "lce":
-        from mosegpipe.synth.lce import lce_splits
-
-        return list(lce_splits()["test"])
-    raise ValueError(f"unknown protocol {cfg.protocol!r}; choose from {', '.join(PROTOCOLS)}")
-
-
-def _sequence_of(clip: LabeledClip) -> str:
-    return str(clip.meta.get("sequence", clip.name.split("/")[0]))
 
 
 def run_protocol(
@@ -243,21 +143,23 @@ def run_protocol(
         (rows, summary, markdown table).
     """
     say = progress or (lambda _msg: None)
-    if cfg.protocol not in PROTOCOLS:
-        raise ValueError(f"unknown protocol {cfg.protocol!r}; choose from {', '.join(PROTOCOLS)}")
+    protocol = get_protocol(cfg.protocol)
+    if protocol.load_clips is None:
+        raise ConfigError(f"{cfg.protocol} is an end-to-end protocol; run it with protocols.get_protocol(name).run")
     config = cfg.to_dict()
     config["init"] = None if init is None else getattr(init, "recipe", {}).get("name", "checkpoint")
     config["model"] = None if model is None else getattr(model, "recipe", {}).get("name", "checkpoint")
-    clips = _test_clips(cfg, data_root)
+    clips = protocol.load_clips(data_root, cfg.frames)
     if cfg.folds is not None:
         wanted = set(cfg.folds)
-        clips = [c for c in clips if _sequence_of(c) in wanted or c.name in wanted]
+        clips = [c for c in clips if sequence_of(c) in wanted or c.name in wanted]
         if not clips:
-            raise ValueError(f"no test clip matches --folds {sorted(wanted)}")
-    loo = cfg.protocol.endswith("-loo") or (cfg.protocol == "lce" and model is None)
-    if not loo:
+            raise ConfigError(f"no test clip matches --folds {sorted(wanted)}")
+    # Leave-one-out protocols always train; a one-fold protocol (lce) trains only without a given model.
+    trains = protocol.train_source is not None and (protocol.fold_key is not None or model is None)
+    if not trains:
         if model is None:
-            raise ValueError(f"protocol {cfg.protocol} needs a model (--model or the shipped default)")
+            raise ConfigError(f"protocol {cfg.protocol} needs a model (--model or the shipped default)")
         rows = evaluate_clips(model, clips, cfg.cluster, cfg.baselines)
         summary = summarize(rows)
         return rows, summary, write_results(out_dir, rows, summary, config)
@@ -268,14 +170,14 @@ def run_protocol(
     # baselines re-scores the stored fold models instead of training again.
     chash = _config_hash({k: v for k, v in config.items() if k not in ("cluster", "baselines", "folds")})
     rows = []
-    if cfg.protocol == "lce":
-        folds = [("all", clips, ("lce", 1.0))]
-    elif cfg.protocol == "kt3d-loo":
-        kt3d_source = "kt3d" if cfg.variant == "augment" else "kt3d-first"
-        folds = [(_sequence_of(c), [c], (kt3d_source, 1.0)) for c in clips]
+    assert protocol.train_source is not None
+    source = (protocol.train_source(cfg.variant), 1.0)
+    if protocol.fold_key is None:
+        folds = [("all", clips)]
     else:
-        folds = [(c.name, [c], ("adelaide", 1.0)) for c in clips]
-    for held_out, test, source in folds:
+        # One clip per fold (each test clip is its own sequence or pair in these benchmarks).
+        folds = [(protocol.fold_key(c), [c]) for c in clips]
+    for held_out, test in folds:
         path = fold_dir / f"{held_out.replace('/', '_')}.json"
         model_path = path.with_suffix(".pt")
         if path.exists() and model_path.exists():
@@ -290,7 +192,7 @@ def run_protocol(
         sources: list[tuple[str, float]] = [source]
         if cfg.synthetic_weight > 0:
             sources.append(("synthetic-pair" if cfg.frames == 2 else "synthetic", cfg.synthetic_weight))
-        exclude = () if cfg.protocol == "lce" else (held_out,)
+        exclude = () if protocol.fold_key is None else (held_out,)
         sampler, described = build_sampler(sources, data_root, cfg.frames, exclude=exclude, seed=cfg.train.seed)
         train_cfg = replace(cfg.train, frames=cfg.frames)
         result = train_model(sampler, train_cfg, init=init)

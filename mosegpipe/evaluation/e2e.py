@@ -1,6 +1,6 @@
 """End-to-end scores: the whole pipeline (tracking or matching included) against benchmark ground truth.
 
-The benchmark protocols in evaluate.py feed SubspaceNet the datasets' own trajectories. Here the
+The benchmark protocols in benchmark.py feed SubspaceNet the datasets' own trajectories. Here the
 pipeline finds its own points (KLT tracks, SIFT matches) as it would on a user's video, and the
 ground truth is carried over to them:
 
@@ -23,8 +23,8 @@ ground truth is carried over to them:
   scored with the DAVIS region similarity J and boundary F-measure (see `mask_scores`), and the
   tracks with the misclassification error against the mask value under each track in frame 1.
 
-Every protocol returns one row (dict) per clip; `summarize_rows` and `format_rows` turn rows into a
-summary and a Markdown table. A clip that the pipeline cannot segment (too few tracks) gives a row
+Every protocol returns one row (dict) per clip; `report.summarize_rows` and `report.format_rows` turn
+rows into a summary and a Markdown table; the records are in `protocols.PROTOCOLS`. A clip that the pipeline cannot segment (too few tracks) gives a row
 with error NaN and is counted in the summary's "num_unscored".
 """
 
@@ -33,7 +33,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -617,113 +617,3 @@ def rendered_rows(
             row.update(J_oracle=best_scores.j, F_oracle=best_scores.f)
         rows.append({**row, "seconds": seconds})
     return rows
-
-
-# ---------------------------------------------------------------------------------------------
-# Summaries
-
-
-_TEXT_COLUMNS = ("name", "seed", "camera")
-
-
-def _numeric_columns(rows: Sequence[dict[str, Any]]) -> list[str]:
-    cols = []
-    for c in rows[0]:
-        if c in _TEXT_COLUMNS:
-            continue
-        if all(isinstance(r.get(c), (int, float, np.integer, np.floating)) for r in rows):
-            cols.append(c)
-    return cols
-
-
-def summarize_rows(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Mean and median of every numeric column over the scored rows, correct-K rate, total time.
-
-    Args:
-        rows: rows from one of the protocols.
-
-    Returns:
-        {"num_rows", "num_unscored" (rows whose error / track_error is NaN), "<column>": {"mean",
-        "median"} for each numeric column over the scored rows (NaN when none is), "correct_k"
-        (fraction of scored rows with k_pred == k_true), "seconds_total" (all rows)}; {} for no rows.
-    """
-    if not rows:
-        return {}
-    err_col = "error" if "error" in rows[0] else "track_error" if "track_error" in rows[0] else None
-    scored = [r for r in rows if err_col is None or np.isfinite(r[err_col])]
-    out: dict[str, Any] = {"num_rows": len(rows), "num_unscored": len(rows) - len(scored)}
-    for c in _numeric_columns(rows):
-        vals = np.array([r[c] for r in scored], dtype=np.float64)
-        vals = vals[np.isfinite(vals)]
-        out[c] = {
-            "mean": float(vals.mean()) if vals.size else float("nan"),
-            "median": float(np.median(vals)) if vals.size else float("nan"),
-        }
-    if scored and "k_true" in rows[0] and "k_pred" in rows[0]:
-        out["correct_k"] = float(np.mean([r["k_pred"] == r["k_true"] for r in scored]))
-    if "seconds" in rows[0]:
-        out["seconds_total"] = float(sum(r["seconds"] for r in rows))
-    return out
-
-
-def _fmt(col: str, val: Any, digits: int = 1) -> str:
-    if isinstance(val, (float, np.floating)) and not np.isfinite(val):
-        return "–"
-    if "error" in col:
-        return f"{100 * val:.2f}"
-    if col == "seconds":
-        return f"{1000 * val:.0f}"
-    if col.startswith(("J", "F")):
-        return f"{val:.3f}"
-    if isinstance(val, (float, np.floating)):
-        return f"{val:.{digits}f}"
-    return str(val)
-
-
-def format_rows(rows: Sequence[dict[str, Any]]) -> str:
-    """A Markdown table of protocol rows with mean and median rows underneath.
-
-    Errors are shown in percent, J and F as fractions, seconds in milliseconds; NaN as "–".
-
-    Args:
-        rows: rows from one of the protocols.
-
-    Returns:
-        The table and a line with the correct-K rate and total time, newline-terminated.
-    """
-    if not rows:
-        return "(no rows)\n"
-    summary = summarize_rows(rows)
-    cols = list(rows[0])
-    heads = [f"{c} (%)" if "error" in c else "ms" if c == "seconds" else c for c in cols]
-    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(cols)]
-    for r in rows:
-        lines.append("| " + " | ".join(_fmt(c, r.get(c, "")) for c in cols) + " |")
-    for stat in ("mean", "median"):
-        cells = [f"**{stat}**"] + [
-            _fmt(c, summary[c][stat]) if c in summary and isinstance(summary[c], dict) else "" for c in cols[1:]
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    notes = [f"{summary['num_rows']} clips"]
-    if summary["num_unscored"]:
-        notes.append(f"{summary['num_unscored']} not scored (too few tracks or matches)")
-    if "correct_k" in summary:
-        notes.append(f"correct K {100 * summary['correct_k']:.1f} %")
-    if "seconds_total" in summary:
-        notes.append(f"total {summary['seconds_total']:.2f} s")
-    return "\n".join(lines) + "\n\n" + " · ".join(notes) + "\n"
-
-
-def _rendered_protocol(
-    data_root: str | Path | None, model: SubspaceNet | None, cfg: PipelineConfig
-) -> list[dict[str, Any]]:
-    """`rendered_rows` with its defaults; data_root is not used (the clips are rendered)."""
-    return rendered_rows(model, cfg, frames=cfg.frames)
-
-
-E2E_PROTOCOLS: dict[str, Callable[[Any, SubspaceNet | None, PipelineConfig], list[dict[str, Any]]]] = {
-    "kt3d-video": kt3d_video_rows,
-    "adelaide-pairs": adelaide_pair_rows,
-    "rendered": _rendered_protocol,
-}
-"""End-to-end protocols as callables (data_root, model, cfg) -> rows (one dict per clip)."""

@@ -672,7 +672,7 @@ def _draw(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str)
     ok = (z > _NEAR_M).all(axis=0)
     ok &= ((obs >= 0) & (obs <= np.array([w - 1.0, h - 1.0]))).all(axis=(0, 2))
     if objects:
-        ok &= ~_occluded(uv, z, world.body, objects, ok)  # type: ignore[arg-type]
+        ok &= ~_occluded(uv, z, world.body, objects, ok)  # type: ignore[arg-type,operator]
     keep = np.flatnonzero(ok)
     keep = keep[_take(rng, world.body[keep], target)]
     body = world.body[keep]

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from mosegpipe.errors import ConfigError
 from mosegpipe.model import ModelConfig, SubspaceNet, pad_batch
 from mosegpipe.training.losses import LOSSES
 from mosegpipe.types import LabeledClip
@@ -160,7 +161,7 @@ def train_model(
         TrainResult with the model in eval mode.
     """
     if cfg.loss not in LOSSES:
-        raise ValueError(f"unknown loss {cfg.loss!r}; choose from {sorted(LOSSES)}")
+        raise ConfigError(f"unknown loss {cfg.loss!r}; choose from {sorted(LOSSES)}")
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     if init is not None:
@@ -169,7 +170,7 @@ def train_model(
     else:
         model = SubspaceNet(model_cfg or ModelConfig(in_dim=2 * cfg.frames))
     if model.cfg.in_dim != 2 * cfg.frames:
-        raise ValueError(f"model input dimension {model.cfg.in_dim} does not fit {cfg.frames} frames")
+        raise ConfigError(f"model input dimension {model.cfg.in_dim} does not fit {cfg.frames} frames")
     loss_fn = LOSSES[cfg.loss]
     kwargs: dict[str, Any] = {"alpha": cfg.alpha} if cfg.loss == "mimi" else {}
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)

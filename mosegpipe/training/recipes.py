@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from mosegpipe.errors import ConfigError
 from mosegpipe.model import ModelConfig
 from mosegpipe.training.loop import Sampler, TrainConfig, clip_sampler, mixture_sampler
 from mosegpipe.types import LabeledClip
@@ -107,7 +108,7 @@ RECIPES: dict[str, Recipe] = {
 def get_recipe(name: str) -> Recipe:
     """The recipe called `name`; ValueError listing the known names otherwise."""
     if name not in RECIPES:
-        raise ValueError(f"unknown recipe {name!r}; choose from {', '.join(sorted(RECIPES))}")
+        raise ConfigError(f"unknown recipe {name!r}; choose from {', '.join(sorted(RECIPES))}")
     return RECIPES[name]
 
 
@@ -121,13 +122,13 @@ def source_clips(source: str, data_root: Path | None, frames: int, exclude: Coll
         exclude: sequence / pair names to leave out (held-out folds).
     """
     if source not in SOURCES or source.startswith("synthetic"):
-        raise ValueError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
+        raise ConfigError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
     if source == "lce":
         from mosegpipe.synth.lce import lce_splits
 
         return list(lce_splits()["train"])
     if data_root is None:
-        raise ValueError(f"source {source!r} needs a data root")
+        raise ConfigError(f"source {source!r} needs a data root")
     if source in ("kt3d", "kt3d-first"):
         from mosegpipe.data.kt3dmoseg import kt3d_windows, list_kt3d_sequences, read_kt3d_sequence
 
@@ -151,9 +152,9 @@ def source_clips(source: str, data_root: Path | None, frames: int, exclude: Coll
         from mosegpipe.data.adelaidermf import load_adelaide
 
         if frames != 2:
-            raise ValueError("the adelaide source is two-view: it needs frames = 2")
+            raise ConfigError("the adelaide source is two-view: it needs frames = 2")
         return [c for c in load_adelaide(data_root) if c.name not in exclude]
-    raise ValueError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
+    raise ConfigError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
 
 
 def _windows(clip: LabeledClip, frames: int, stride: int) -> list[LabeledClip]:
@@ -205,9 +206,9 @@ def build_sampler(
         else:
             clips = source_clips(name, data_root, frames, exclude)
             if not clips:
-                raise ValueError(f"source {name!r} gave no clips (frames={frames}, excluded {sorted(exclude)})")
+                raise ConfigError(f"source {name!r} gave no clips (frames={frames}, excluded {sorted(exclude)})")
             parts.append((weight, clip_sampler(clips)))
             described[name] = {"weight": weight, "num_clips": len(clips), "excluded": sorted(exclude)}
     if not parts:
-        raise ValueError("no training source with a positive weight")
+        raise ConfigError("no training source with a positive weight")
     return mixture_sampler(parts), described

@@ -1,0 +1,351 @@
+"""The protocol registry: every `moseg eval NAME`, benchmark and end-to-end, is one `Protocol` record.
+
+A benchmark protocol feeds SubspaceNet a dataset's own labelled trajectories (`benchmark.run_protocol`:
+SubspaceNet and the baselines side by side; leave-one-out folds train a model each). An end-to-end
+protocol runs the whole pipeline on the dataset's frames or images and carries the ground truth over to
+our own tracks (`e2e`). Adding a protocol is adding one record to `PROTOCOLS`:
+
+    Protocol("kt3d-test", "...", default_frames=5, data="kt3dmoseg", run=run_benchmark,
+             load_clips=_kt3d_clips)
+
+This module imports nothing heavy: the record's functions import what they need when they run, so that
+`moseg --help` and `moseg eval --help` stay fast.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, cast, get_args
+
+from mosegpipe.errors import ConfigError, check_choice
+from mosegpipe.types import KMethodName
+
+if TYPE_CHECKING:
+    from mosegpipe.model import SubspaceNet
+    from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.types import LabeledClip
+
+log = logging.getLogger(__name__)
+
+Variant = Literal["vanilla", "augment"]
+"""kt3d-loo: "vanilla" (one frames-1..5 clip per training sequence) or "augment" (every 5-frame window)."""
+
+
+@dataclass(frozen=True)
+class EvalRequest:
+    """What one `moseg eval` run asks of a protocol (each protocol uses the settings that apply to it).
+
+    Attributes:
+        out_dir: results folder (results.md/csv/json; per-fold files to resume).
+        data_root: the benchmark folder (None for protocols that generate their data).
+        model: a checkpoint file instead of the shipped weights.
+        init: leave-one-out folds start from this checkpoint (None = from scratch).
+        frames: trajectory length F (None = the protocol's default_frames).
+        variant: kt3d-loo training variant.
+        steps, batch_size, lr, loss: per-fold training overrides (None = the defaults).
+        synthetic_weight: LOO: weight of synthetic clips mixed into each fold.
+        baselines: baseline names run beside SubspaceNet (benchmark protocols).
+        folds: only these held-out names (None = all).
+        k_method: automatic-K rule ("silhouette" or "residual").
+        k_max: largest K considered by automatic K.
+        progress: called with one line per fold / stage.
+    """
+
+    out_dir: Path
+    data_root: Path | None = None
+    model: Path | None = None
+    init: Path | None = None
+    frames: int | None = None
+    variant: str = "vanilla"
+    steps: int | None = None
+    batch_size: int | None = None
+    lr: float | None = None
+    loss: str | None = None
+    synthetic_weight: float = 0.0
+    baselines: tuple[str, ...] = ("kmeans-raw", "spectral-raw", "ssc")
+    folds: tuple[str, ...] | None = None
+    k_method: str = "silhouette"
+    k_max: int = 8
+    progress: Callable[[str], None] | None = field(default=None, compare=False)
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """What a protocol run produced (also written to out_dir).
+
+    Attributes:
+        rows: one dict per test clip.
+        summary: means / medians and rates over the rows.
+        table: the Markdown table that was printed and written to results.md.
+    """
+
+    rows: list[dict[str, Any]]
+    summary: dict[str, Any]
+    table: str
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """One evaluation protocol.
+
+    Attributes:
+        name: what `moseg eval NAME` is called with.
+        description: one line for --help and the README.
+        default_frames: F when --frames is not given.
+        data: the folder under the data root it reads (None: its clips are generated).
+        run: (protocol, request) -> EvalResult; writes the results files.
+        kind: "benchmark" (the dataset's own trajectories) or "end-to-end" (our own tracks or matches).
+        load_clips: benchmark protocols: (data_root, frames) -> the labelled test clips.
+        train_source: benchmark protocols that train: variant -> the training source of each fold
+            (a name in training.recipes.SOURCES); None = never trains.
+        fold_key: how test clips group into leave-one-out folds (None = one fold, trained only when
+            no model is given).
+        end_to_end: end-to-end protocols: (data_root, model, cfg) -> rows.
+    """
+
+    name: str
+    description: str
+    default_frames: int
+    data: str | None
+    run: Callable[[Protocol, EvalRequest], EvalResult]
+    kind: Literal["benchmark", "end-to-end"] = "benchmark"
+    load_clips: Callable[[Path, int], list[LabeledClip]] | None = None
+    train_source: Callable[[str], str] | None = None
+    fold_key: Callable[[LabeledClip], str] | None = None
+    end_to_end: Callable[[Path | None, SubspaceNet | None, PipelineConfig], list[dict[str, Any]]] | None = None
+
+    @property
+    def is_test_only(self) -> bool:
+        """Whether it scores a given model and never trains."""
+        return self.kind == "end-to-end" or self.train_source is None
+
+
+# ---------------------------------------------------------------------------------------------
+# Runners: one for every benchmark protocol, one for every end-to-end protocol
+
+
+def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
+    """Runs a benchmark protocol (see benchmark.run_protocol) with the request's settings."""
+    from dataclasses import replace
+
+    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.evaluation.benchmark import EvalConfig, run_protocol
+    from mosegpipe.model import SubspaceNet
+    from mosegpipe.pipeline import load_model
+    from mosegpipe.training.loop import TrainConfig, with_overrides
+
+    variant = cast(Variant, check_choice("--variant", req.variant, get_args(Variant)))
+    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
+    f = req.frames if req.frames is not None else protocol.default_frames
+    train_cfg = with_overrides(
+        TrainConfig(frames=f, steps=500), steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss
+    )
+    cfg = EvalConfig(
+        protocol=protocol.name,
+        variant=variant,
+        frames=f,
+        baselines=req.baselines,
+        cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max),
+        train=train_cfg,
+        synthetic_weight=req.synthetic_weight,
+        folds=req.folds,
+    )
+    net = None
+    if protocol.is_test_only:
+        net = load_model(f, req.model)
+    elif protocol.fold_key is None and req.model is not None:  # one fold: a given model is scored, not trained
+        net = SubspaceNet.from_checkpoint(req.model)
+    start = SubspaceNet.from_checkpoint(req.init) if req.init else None
+    root = req.data_root if req.data_root is not None else Path(".")
+    rows, summary, table = run_protocol(cfg, root, req.out_dir, model=net, init=start, progress=req.progress)
+    return EvalResult(rows, summary, table)
+
+
+def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
+    """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
+    from dataclasses import replace
+
+    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
+    from mosegpipe.pipeline import PipelineConfig, load_model
+
+    assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
+    f = req.frames or protocol.default_frames
+    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
+    cfg = PipelineConfig(frames=f, cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max))
+    net = load_model(f, req.model)
+    rows = protocol.end_to_end(req.data_root, net, cfg)
+    config = {
+        "protocol": protocol.name,
+        "frames": f,
+        "k_method": req.k_method,
+        "k_max": req.k_max,
+        "model": str(req.model or "shipped default"),
+    }
+    table = format_rows(rows)
+    summary = summarize_rows(rows)
+    write_results(req.out_dir, rows, summary, config, table)
+    return EvalResult(rows, summary, table)
+
+
+# ---------------------------------------------------------------------------------------------
+# What each protocol reads
+
+
+def _kt3d_clips(data_root: Path, frames: int) -> list[LabeledClip]:
+    from mosegpipe.data.kt3dmoseg import kt3d_test_clips
+
+    return kt3d_test_clips(data_root, frames=frames)
+
+
+def _adelaide_clips(data_root: Path, frames: int) -> list[LabeledClip]:
+    from mosegpipe.data.adelaidermf import load_adelaide
+
+    return load_adelaide(data_root)
+
+
+def _hopkins_clips(data_root: Path, frames: int) -> list[LabeledClip]:
+    from mosegpipe.data.hopkins155 import load_hopkins
+
+    return load_hopkins(data_root, frames=frames or None)  # 0: all frames
+
+
+def _lce_clips(data_root: Path, frames: int) -> list[LabeledClip]:
+    from mosegpipe.synth.lce import lce_splits
+
+    return list(lce_splits()["test"])
+
+
+def sequence_of(clip: LabeledClip) -> str:
+    """The sequence a clip was cut from (KT3DMoSeg folds hold out a whole sequence)."""
+    return str(clip.meta.get("sequence", clip.name.split("/")[0]))
+
+
+def _clip_name(clip: LabeledClip) -> str:
+    return clip.name
+
+
+def _kt3d_video(data_root: Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
+    from mosegpipe.evaluation.e2e import kt3d_video_rows
+
+    assert data_root is not None
+    return kt3d_video_rows(data_root, model, cfg)
+
+
+def _adelaide_pairs(data_root: Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
+    from mosegpipe.evaluation.e2e import adelaide_pair_rows
+
+    assert data_root is not None
+    return adelaide_pair_rows(data_root, model, cfg)
+
+
+def _rendered(data_root: Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
+    """`rendered_rows` with its defaults; data_root is not used (the clips are rendered)."""
+    from mosegpipe.evaluation.e2e import rendered_rows
+
+    return rendered_rows(model, cfg, frames=cfg.frames)
+
+
+def _kt3d_source(variant: str) -> str:
+    return "kt3d" if variant == "augment" else "kt3d-first"
+
+
+_PROTOCOLS: Sequence[Protocol] = (
+    Protocol(
+        "kt3d-test",
+        "a given model on the 22 KT3DMoSeg test clips (frames 1-5), no training",
+        default_frames=5,
+        data="kt3dmoseg",
+        run=run_benchmark,
+        load_clips=_kt3d_clips,
+    ),
+    Protocol(
+        "kt3d-loo",
+        "KT3DMoSeg leave-one-sequence-out: train on 21 sequences, test on the held-out one's frames 1-5",
+        default_frames=5,
+        data="kt3dmoseg",
+        run=run_benchmark,
+        load_clips=_kt3d_clips,
+        train_source=_kt3d_source,
+        fold_key=sequence_of,
+    ),
+    Protocol(
+        "adelaide-test",
+        "a given two-view model on the 19 AdelaideRMF pairs, no training",
+        default_frames=2,
+        data="adelaidermf",
+        run=run_benchmark,
+        load_clips=_adelaide_clips,
+    ),
+    Protocol(
+        "adelaide-loo",
+        "AdelaideRMF leave-one-pair-out: train on 18 pairs, test on the held-out one",
+        default_frames=2,
+        data="adelaidermf",
+        run=run_benchmark,
+        load_clips=_adelaide_clips,
+        train_source=lambda _variant: "adelaide",
+        fold_key=_clip_name,
+    ),
+    Protocol(
+        "hopkins-test",
+        "a given model on the 155 Hopkins155 sequences (first F frames), no training",
+        default_frames=5,
+        data="hopkins155",
+        run=run_benchmark,
+        load_clips=_hopkins_clips,
+    ),
+    Protocol(
+        "lce",
+        "synthetic lines/circles/ellipses: train on the 8000-sample split (unless a model is given), test on 200",
+        default_frames=1,
+        data=None,
+        run=run_benchmark,
+        load_clips=_lce_clips,
+        train_source=lambda _variant: "lce",
+    ),
+    Protocol(
+        "kt3d-video",
+        "end to end: KLT tracks on the KT3DMoSeg frames, labels transferred from the ground truth",
+        default_frames=5,
+        data="kt3dmoseg",
+        run=run_end_to_end,
+        kind="end-to-end",
+        end_to_end=_kt3d_video,
+    ),
+    Protocol(
+        "adelaide-pairs",
+        "end to end: SIFT matches on the AdelaideRMF images, labels transferred from the ground truth",
+        default_frames=2,
+        data="adelaidermf",
+        run=run_end_to_end,
+        kind="end-to-end",
+        end_to_end=_adelaide_pairs,
+    ),
+    Protocol(
+        "rendered",
+        "end to end: rendered clips, mask J and boundary F against exact masks",
+        default_frames=5,
+        data=None,
+        run=run_end_to_end,
+        kind="end-to-end",
+        end_to_end=_rendered,
+    ),
+)
+
+PROTOCOLS: dict[str, Protocol] = {p.name: p for p in _PROTOCOLS}
+"""Every protocol by name, benchmark protocols first (the order of --help and of error messages)."""
+
+
+def get_protocol(name: str) -> Protocol:
+    """The protocol called `name`.
+
+    Raises:
+        ConfigError: no protocol has that name; the message lists them.
+    """
+    if name not in PROTOCOLS:
+        raise ConfigError(f"unknown protocol {name!r}; choose from {', '.join(PROTOCOLS)}")
+    return PROTOCOLS[name]
