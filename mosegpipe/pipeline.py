@@ -34,7 +34,7 @@ from mosegpipe.io import iter_video, read_image, read_video, video_info
 from mosegpipe.masks import MAX_LABEL, MaskConfig, labels_to_mask, labels_to_masks
 from mosegpipe.match import MatchConfig, match_sift
 from mosegpipe.model import SubspaceNet, available_default_frames
-from mosegpipe.track import KLTTracker, TrackConfig, track_klt
+from mosegpipe.track import KLTTracker, TrackConfig, track_klt, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories, trajectories_from_matches
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
 
@@ -553,15 +553,14 @@ def segment_video(
     def label_window(window: list[_Frame], new: list[_Frame]) -> WindowResult:
         """Clusters the tracks live through the whole window and labels the frames in `new`."""
         nonlocal prev, num_windows, num_labelled
-        common = window[0][2]
-        for _, _, ids, _ in window[1:]:
-            common = np.intersect1d(common, ids)
+        tracks, row_ids = tracks_from_steps([(ids, xy) for _, _, ids, xy in window], window[0][1].shape[:2])
+        traj = build_trajectories(tracks)
+        common = row_ids[traj.track_ids]  # tracker ids of the tracks live through the whole window
         k = 0
         labels_by_id: dict[int, int] = {}
         glob = np.zeros(0, dtype=np.int64)
         if common.size >= max(cfg.min_tracks, 2):
-            data = np.concatenate([xy[np.searchsorted(ids, common)] for _, _, ids, xy in window], axis=1)
-            emb = embed_at_model_frames(model, Trajectories(data=data.astype(np.float32), track_ids=common))
+            emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
             forced = None if cfg.k is None else min(cfg.k, common.size)
             clustering = cluster_auto_k(emb, cfg.cluster, k=forced)
             k = clustering.k

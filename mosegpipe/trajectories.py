@@ -2,7 +2,8 @@
 
 SubspaceNet takes complete trajectories: a point enters the (N, 2F) matrix only if it is visible
 in every one of the F frames (the paper's KT3DMoSeg protocol keeps the points visible in all
-frames of a 5-frame window).
+frames of a 5-frame window). The window cutter here (`window_starts`, `complete_in_window`,
+`xy_to_traj`) serves the pipeline, whole videos, the benchmark readers and the training sources.
 """
 
 from __future__ import annotations
@@ -37,11 +38,8 @@ def build_trajectories(tracks: Tracks, frames: int | None = None, start: int = 0
         frames = num_frames - start
     if start < 0 or frames < 1 or start + frames > num_frames:
         raise InputError(f"window start={start}, frames={frames} does not fit in {num_frames} tracked frames")
-    window = slice(start, start + frames)
-    xy = tracks.xy[:, window]
-    keep = tracks.visible[:, window].all(axis=1) & np.isfinite(xy).all(axis=(1, 2))
-    ids = np.flatnonzero(keep).astype(np.int64)
-    data = np.ascontiguousarray(xy[ids].reshape(len(ids), 2 * frames), dtype=np.float32)
+    ids = complete_in_window(tracks.visible, start, frames, tracks.xy)
+    data = xy_to_traj(tracks.xy[ids, start : start + frames])
     return Trajectories(data=data, track_ids=ids)
 
 
@@ -66,11 +64,80 @@ def iter_windows(tracks: Tracks, frames: int, stride: int | None = None) -> Iter
         raise InputError(f"frames={frames} must be between 1 and the {num_frames} tracked frames")
     if stride < 1:
         raise InputError(f"stride={stride} must be >= 1")
-    starts = list(range(0, num_frames - frames + 1, stride))
+    starts = window_starts(num_frames, frames, "all", stride)
     if starts[-1] + frames < num_frames:
         starts.append(num_frames - frames)
     for start in starts:
         yield start, build_trajectories(tracks, frames=frames, start=start)
+
+
+WINDOW_MODES = ("first", "all")
+
+
+def xy_to_traj(xy: npt.ArrayLike) -> npt.NDArray[np.float32]:
+    """Flatten per-frame coordinates into trajectory rows.
+
+    Args:
+        xy: (N, F, 2) coordinates, last axis (x, y).
+
+    Returns:
+        (N, 2F) float32 with columns x_1, y_1, x_2, y_2, ..., x_F, y_F.
+    """
+    arr = np.asarray(xy, dtype=np.float32)
+    if arr.ndim != 3 or arr.shape[2] != 2:
+        raise InputError(f"xy must have shape (N, F, 2), got {arr.shape}")
+    return np.ascontiguousarray(arr.reshape(arr.shape[0], 2 * arr.shape[1]))
+
+
+def window_starts(num_frames: int, frames: int, mode: str = "first", stride: int = 1) -> list[int]:
+    """0-based start frames of the F-frame windows of a T-frame sequence.
+
+    Args:
+        num_frames: T, frames in the sequence.
+        frames: F, window length.
+        mode: "first" (only the window starting at frame 0) or "all" (every start, step `stride`).
+        stride: step between window starts in "all" mode.
+
+    Returns:
+        Start indices s with s + F <= T; empty when F > T.
+    """
+    if mode not in WINDOW_MODES:
+        raise InputError(f"window mode {mode!r} is not one of {WINDOW_MODES}")
+    if frames < 1:
+        raise InputError(f"window length frames={frames} must be >= 1")
+    if stride < 1:
+        raise InputError(f"window stride={stride} must be >= 1")
+    if frames > num_frames:
+        return []
+    if mode == "first":
+        return [0]
+    return list(range(0, num_frames - frames + 1, stride))
+
+
+def complete_in_window(
+    visible: npt.NDArray[np.bool_], start: int, frames: int, xy: npt.NDArray[np.floating] | None = None
+) -> npt.NDArray[np.int64]:
+    """Rows of the tracks visible in every frame of the window [start, start + frames): the one window cutter.
+
+    Args:
+        visible: (N, T) bool visibility.
+        start: 0-based first frame of the window.
+        frames: F, window length.
+        xy: optional (N, T, 2) coordinates; rows with a non-finite coordinate in the window are dropped too.
+
+    Returns:
+        (M,) int64 row indices, increasing.
+
+    Raises:
+        InputError: the window does not fit in the T frames.
+    """
+    vis = np.asarray(visible, dtype=bool)
+    if start < 0 or start + frames > vis.shape[1]:
+        raise InputError(f"window [{start}, {start + frames}) does not fit in {vis.shape[1]} frames")
+    keep = vis[:, start : start + frames].all(axis=1)
+    if xy is not None:
+        keep &= np.isfinite(xy[:, start : start + frames]).all(axis=(1, 2))
+    return np.flatnonzero(keep).astype(np.int64)
 
 
 def trajectories_from_matches(matches: Matches) -> Trajectories:

@@ -24,8 +24,9 @@ from mosegpipe.data.kt3dmoseg import (
     list_kt3d_sequences,
     read_kt3d_sequence,
 )
-from mosegpipe.data.windows import remap_labels, window_starts
+from mosegpipe.data.labels import remap_labels
 from mosegpipe.errors import DatasetError, InputError
+from mosegpipe.trajectories import window_starts
 from mosegpipe.types import LabeledClip
 
 

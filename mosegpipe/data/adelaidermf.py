@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.data.windows import remap_labels
+from mosegpipe.data.labels import remap_labels
 from mosegpipe.errors import DatasetError
 from mosegpipe.types import LabeledClip
 

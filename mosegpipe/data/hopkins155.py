@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mosegpipe.data.windows import remap_labels
+from mosegpipe.data.labels import remap_labels
 from mosegpipe.errors import DatasetError, InputError
 from mosegpipe.types import LabeledClip
 

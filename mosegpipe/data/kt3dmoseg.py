@@ -21,14 +21,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.data.windows import (
-    complete_in_window,
-    drop_small_groups,
-    remap_labels,
-    window_starts,
-    xy_to_traj,
-)
+from mosegpipe.data.labels import drop_small_groups, remap_labels
 from mosegpipe.errors import DatasetError
+from mosegpipe.trajectories import complete_in_window, window_starts, xy_to_traj
 from mosegpipe.types import LabeledClip
 
 logger = logging.getLogger(__name__)

@@ -15,6 +15,7 @@ from typing import Any
 from mosegpipe.errors import ConfigError
 from mosegpipe.model import ModelConfig
 from mosegpipe.training.loop import Sampler, TrainConfig, clip_sampler, mixture_sampler
+from mosegpipe.trajectories import window_starts
 from mosegpipe.types import LabeledClip
 
 SOURCES = {
@@ -159,9 +160,8 @@ def source_clips(source: str, data_root: Path | None, frames: int, exclude: Coll
 
 def _windows(clip: LabeledClip, frames: int, stride: int) -> list[LabeledClip]:
     """Consecutive F-frame windows of a complete-trajectory clip."""
-    total = clip.num_frames
     out = []
-    for start in range(0, total - frames + 1, stride):
+    for start in window_starts(clip.num_frames, frames, "all", stride):
         traj = clip.traj[:, 2 * start : 2 * (start + frames)]
         out.append(
             replace(
