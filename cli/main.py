@@ -384,41 +384,33 @@ def train(
     threads: Annotated[int, typer.Option("--threads", min=1)] = 2,
     verbose: Verbose = False,
 ) -> None:
-    """Train a SubspaceNet checkpoint from a named recipe (synthetic data generated on the fly)."""
-    _setup(threads, verbose)
-    from mosegpipe.model import SubspaceNet
-    from mosegpipe.training.loop import recipe_of, train_model, with_overrides
-    from mosegpipe.training.recipes import build_sampler, get_recipe
+    """Train a SubspaceNet checkpoint from a named recipe (synthetic data generated on the fly).
 
-    recipe = get_recipe(preset)
+    Without --init a recipe starts from its own starting recipe (clip-f5 from base-f5, pair-f2 from
+    synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
+    """
+    _setup(threads, verbose)
+    from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
+
     dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
-    sources = tuple((s, w) for s, w in recipe.sources if s not in dropped)
-    needs_data = any(not s.startswith("synthetic") and s != "lce" for s, _ in sources)
-    root = _data_root(data_root) if needs_data else data_root
-    cfg = with_overrides(
-        recipe.train, steps=steps, batch_size=batch_size, lr=lr, loss=loss, seed=seed, time_budget_s=time_budget
-    )
-    sampler, described = build_sampler(sources, root, cfg.frames, seed=cfg.seed)
-    start = SubspaceNet.from_checkpoint(init) if init else None
-    typer.echo(f"training {preset}: {cfg.steps} steps × {cfg.batch_size} clips, sources {described}")
-    result = train_model(
-        sampler,
-        cfg,
-        model_cfg=recipe.model,
-        init=start,
+    root = _data_root(data_root) if needs_data(preset, dropped) else data_root
+    result = train_recipe(
+        preset,
+        out,
+        root,
+        init=init,
+        overrides=TrainOverrides(
+            steps=steps, batch_size=batch_size, lr=lr, loss=loss, seed=seed, time_budget_s=time_budget
+        ),
+        exclude_sources=dropped,
+        command=" ".join(["moseg", *sys.argv[1:]]),
+        on_start=lambda recipe, cfg, described: typer.echo(
+            f"training {recipe.name}: {cfg.steps} steps × {cfg.batch_size} clips, sources {described}"
+        ),
         on_log=lambda e: typer.echo(
             f"step {int(e['step']):>6}  loss {e['loss']:.4f}  lr {e['lr']:.2e}  {e['seconds']:.0f} s"
         ),
     )
-    rec = recipe_of(cfg, described, result)
-    rec.update(
-        name=preset,
-        command=" ".join(["moseg", *sys.argv[1:]]),
-        init=str(init) if init else None,
-        excluded=sorted(dropped),
-    )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    result.model.save(out, recipe=rec)
     typer.echo(f"wrote {out} ({result.steps_done} steps, {result.seconds:.0f} s)")
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import mosegpipe.evaluation.benchmark as ev
+import mosegpipe.training.run as training_run
 from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.evaluation.benchmark import EvalConfig, embed_clip, evaluate_clips, run_protocol
@@ -230,7 +230,7 @@ def fake_data(monkeypatch: pytest.MonkeyPatch) -> list[tuple[tuple[Any, ...], tu
         calls.append((tuple(sources), tuple(exclude)))
         return toy_sampler, {"toy": {"weight": 1.0, "excluded": sorted(exclude)}}
 
-    monkeypatch.setattr(ev, "build_sampler", build_sampler)
+    monkeypatch.setattr(training_run, "build_sampler", build_sampler)
     return calls
 
 
@@ -272,7 +272,7 @@ def test_run_protocol_loo_saves_folds_and_resumes(
     assert json.loads((out / "results.json").read_text())["config"]["init"] == "checkpoint"
 
     # Run again: nothing trains, both folds are re-scored from their checkpoints with identical results.
-    monkeypatch.setattr(ev, "train_model", _no_training)
+    monkeypatch.setattr(training_run, "train_model", _no_training)
     said.clear()
     rows2, _, _ = run_protocol(loo_config(), tmp_path, out, init=init, progress=said.append)
     assert said == ["pairA: trained earlier, re-scored", "pairB: trained earlier, re-scored"]
@@ -299,13 +299,13 @@ def test_run_protocol_loo_retrains_when_training_changes(
     init = tiny_model()
     run_protocol(loo_config(), tmp_path, out, init=init)
     trained: list[int] = []
-    real = ev.train_model
+    real = training_run.train_model
 
     def counting(sampler: Any, cfg: TrainConfig, *a: Any, **k: Any) -> Any:
         trained.append(cfg.steps)
         return real(sampler, cfg, *a, **k)
 
-    monkeypatch.setattr(ev, "train_model", counting)
+    monkeypatch.setattr(training_run, "train_model", counting)
     said: list[str] = []
     cfg = loo_config(train=TrainConfig(frames=2, steps=4, batch_size=2, warmup=0))
     run_protocol(cfg, tmp_path, out, init=init, progress=said.append)

@@ -384,3 +384,43 @@ def test_cli_train_unknown_preset_one_line() -> None:
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1
     assert lines[0].startswith("moseg: error: unknown recipe 'nope'") and "synthetic-f2" in lines[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# One training entry point: presets rebuild the shipped weights
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("frames", "name", "init"), [(5, "clip-f5", "base-f5"), (2, "pair-f2", "synthetic-f2")])
+def test_presets_are_the_shipped_recipes(frames: int, name: str, init: str) -> None:
+    from dataclasses import asdict
+
+    shipped = SubspaceNet.default(frames=frames)
+    recipe = get_recipe(name)
+    assert shipped.recipe["name"] == name and recipe.init == init
+    assert asdict(recipe.train) == shipped.recipe["train_config"]
+    assert recipe.model == shipped.cfg
+    assert {s: w for s, w in recipe.sources} == {s: d["weight"] for s, d in shipped.recipe["sources"].items()}
+
+
+def test_train_recipe_trains_its_init_first_then_reuses_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from dataclasses import replace
+
+    from mosegpipe.training import recipes
+    from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
+
+    tiny = TrainConfig(frames=2, steps=2, batch_size=2, warmup=0)
+    base = recipes.Recipe("tiny-base", "t", tiny, TINY, (("synthetic-pair", 1.0),))
+    fine = replace(base, name="tiny-fine", init="tiny-base")
+    monkeypatch.setitem(recipes.RECIPES, "tiny-base", base)
+    monkeypatch.setitem(recipes.RECIPES, "tiny-fine", fine)
+    started: list[str] = []
+    out = tmp_path / "runs" / "fine.pt"
+    assert not needs_data("tiny-fine")
+    train_recipe("tiny-fine", out, on_start=lambda r, cfg, described: started.append(r.name))
+    assert started == ["tiny-base", "tiny-fine"]
+    model = SubspaceNet.from_checkpoint(out)
+    assert model.recipe["name"] == "tiny-fine" and model.recipe["init"] == str(tmp_path / "runs" / "tiny-base.pt")
+    train_recipe("tiny-fine", out, overrides=TrainOverrides(steps=1), on_start=lambda r, c, d: started.append(r.name))
+    assert started == ["tiny-base", "tiny-fine", "tiny-fine"]  # the base checkpoint is reused
+    assert SubspaceNet.from_checkpoint(out).recipe["steps_done"] == 1

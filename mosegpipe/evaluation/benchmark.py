@@ -27,8 +27,8 @@ from mosegpipe.evaluation.protocols import Variant, get_protocol, sequence_of
 from mosegpipe.evaluation.report import summarize, write_results
 from mosegpipe.io import atomic_write
 from mosegpipe.model import SubspaceNet
-from mosegpipe.training.loop import TrainConfig, recipe_of, train_model
-from mosegpipe.training.recipes import build_sampler
+from mosegpipe.training.loop import TrainConfig
+from mosegpipe.training.run import train_sources
 from mosegpipe.types import LabeledClip
 
 log = logging.getLogger(__name__)
@@ -193,13 +193,11 @@ def run_protocol(
         if cfg.synthetic_weight > 0:
             sources.append(("synthetic-pair" if cfg.frames == 2 else "synthetic", cfg.synthetic_weight))
         exclude = () if protocol.fold_key is None else (held_out,)
-        sampler, described = build_sampler(sources, data_root, cfg.frames, exclude=exclude, seed=cfg.train.seed)
         train_cfg = replace(cfg.train, frames=cfg.frames)
-        result = train_model(sampler, train_cfg, init=init)
+        result, recipe = train_sources(sources, data_root, train_cfg, init=init, exclude=exclude)
         fold_rows = evaluate_clips(result.model, test, cfg.cluster, cfg.baselines)
         for r in fold_rows:
             r["train_seconds"] = round(result.seconds, 1)
-        recipe = recipe_of(train_cfg, described, result)
         result.model.save(model_path, recipe={**recipe, "name": f"{cfg.protocol}/{held_out}"})
         with atomic_write(path) as tmp:
             Path(tmp).write_text(json.dumps({"config_hash": chash, "recipe": recipe, "rows": fold_rows}))

@@ -1,13 +1,15 @@
 """Named training recipes and the data sources they draw from.
 
-A source is a name ("synthetic", "kt3d", "hopkins", "adelaide", ...) turned into a sampler by
-`build_sampler`; a recipe is a weighted mix of sources plus model and training hyper-parameters.
+A source is a name ("synthetic", "kt3d", "hopkins", "adelaide", ...) turned into clips by its entry in
+`SOURCES` and into a sampler by `build_sampler`; a recipe is a weighted mix of sources plus model and
+training hyper-parameters and the recipe it starts from. Training itself is `run.train_recipe` /
+`run.train_sources`.
 Held-out sequences are excluded by name, so leave-one-out folds never see their test sequence.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -17,16 +19,6 @@ from mosegpipe.model import ModelConfig
 from mosegpipe.training.loop import Sampler, TrainConfig, clip_sampler, mixture_sampler
 from mosegpipe.trajectories import window_starts
 from mosegpipe.types import LabeledClip
-
-SOURCES = {
-    "synthetic": "multi-body perspective clips generated on the fly (data/synthetic.py)",
-    "synthetic-pair": "two-view synthetic scenes with gross outliers as their own group",
-    "kt3d": "every F-frame window of the KT3DMoSeg sequences (fully visible tracks)",
-    "kt3d-first": "the frames 1..F clip of each KT3DMoSeg sequence (the paper's 'vanilla' training set)",
-    "hopkins": "every F-frame window (stride F) of the Hopkins155 sequences",
-    "adelaide": "the AdelaideRMF two-view pairs, outliers as one more group",
-    "lce": "the synthetic lines/circles/ellipses training split",
-}
 
 
 @dataclass(frozen=True)
@@ -39,6 +31,8 @@ class Recipe:
         train: training hyper-parameters.
         model: architecture.
         sources: (source name, weight) pairs mixed by weight.
+        init: the recipe whose checkpoint training starts from (None = from scratch); see
+            run.train_recipe.
     """
 
     name: str
@@ -46,9 +40,16 @@ class Recipe:
     train: TrainConfig
     model: ModelConfig
     sources: tuple[tuple[str, float], ...]
+    init: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "description": self.description, "sources": [list(s) for s in self.sources]}
+        """The recipe as plain data (for the model card and checkpoints)."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "sources": [list(s) for s in self.sources],
+            "init": self.init,
+        }
 
 
 # 12 blocks rather than the paper's 30-50: on this 2-core CPU a 12-block step costs ~40 % of a
@@ -66,11 +67,13 @@ RECIPES: dict[str, Recipe] = {
             TrainConfig(frames=5, steps=1500, batch_size=8, lr=1e-3),
             _F5,
             (("kt3d", 0.5), ("hopkins", 0.25), ("synthetic", 0.25)),
+            init="base-f5",
         ),
         Recipe(
             "base-f5",
             "5-frame starting point without KT3DMoSeg: synthetic clips and Hopkins155 windows",
-            TrainConfig(frames=5, steps=5000, batch_size=8, lr=1e-3),
+            # The shipped base ran 4000 scheduled steps and was stopped by a 720 s budget (3933 steps done).
+            TrainConfig(frames=5, steps=4000, batch_size=8, lr=1e-3, time_budget_s=720.0),
             _F5,
             (("synthetic", 0.5), ("hopkins", 0.5)),
         ),
@@ -83,15 +86,16 @@ RECIPES: dict[str, Recipe] = {
         ),
         Recipe(
             "pair-f2",
-            "shipped two-view model: synthetic pairs mixed with AdelaideRMF",
-            TrainConfig(frames=2, steps=3000, batch_size=8, lr=1e-3, reverse=True),
+            "shipped two-view model: fine-tunes synthetic-f2 on synthetic pairs mixed with AdelaideRMF",
+            TrainConfig(frames=2, steps=1500, batch_size=8, lr=1e-3, loss="mimi"),
             _F2,
             (("synthetic-pair", 0.6), ("adelaide", 0.4)),
+            init="synthetic-f2",
         ),
         Recipe(
             "synthetic-f2",
             "two-view model from synthetic pairs only (zero-shot on AdelaideRMF)",
-            TrainConfig(frames=2, steps=3000, batch_size=8, lr=1e-3),
+            TrainConfig(frames=2, steps=2000, batch_size=8, lr=1e-3, loss="mimi"),
             _F2,
             (("synthetic-pair", 1.0),),
         ),
@@ -107,55 +111,14 @@ RECIPES: dict[str, Recipe] = {
 
 
 def get_recipe(name: str) -> Recipe:
-    """The recipe called `name`; ValueError listing the known names otherwise."""
+    """The recipe called `name`.
+
+    Raises:
+        ConfigError: no recipe has that name; the message lists them.
+    """
     if name not in RECIPES:
         raise ConfigError(f"unknown recipe {name!r}; choose from {', '.join(sorted(RECIPES))}")
     return RECIPES[name]
-
-
-def source_clips(source: str, data_root: Path | None, frames: int, exclude: Collection[str] = ()) -> list[LabeledClip]:
-    """The labelled clips of a real-data source, without the sequences named in `exclude`.
-
-    Args:
-        source: "kt3d", "kt3d-first", "hopkins", "adelaide" or "lce".
-        data_root: the benchmark folder (holding kt3dmoseg/, hopkins155/, adelaidermf/).
-        frames: F of the clips to produce.
-        exclude: sequence / pair names to leave out (held-out folds).
-    """
-    if source not in SOURCES or source.startswith("synthetic"):
-        raise ConfigError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
-    if source == "lce":
-        from mosegpipe.synth.lce import lce_splits
-
-        return list(lce_splits()["train"])
-    if data_root is None:
-        raise ConfigError(f"source {source!r} needs a data root")
-    if source in ("kt3d", "kt3d-first"):
-        from mosegpipe.data.kt3dmoseg import kt3d_windows, list_kt3d_sequences, read_kt3d_sequence
-
-        mode = "all" if source == "kt3d" else "first"
-        clips: list[LabeledClip] = []
-        for name in list_kt3d_sequences(data_root):
-            if name in exclude:
-                continue
-            clips.extend(kt3d_windows(read_kt3d_sequence(data_root, name), frames=frames, mode=mode))
-        return [c for c in clips if c.k >= 1]
-    if source == "hopkins":
-        from mosegpipe.data.hopkins155 import load_hopkins
-
-        out: list[LabeledClip] = []
-        for clip in load_hopkins(data_root):
-            if clip.name in exclude:
-                continue
-            out.extend(_windows(clip, frames, stride=frames))
-        return out
-    if source == "adelaide":
-        from mosegpipe.data.adelaidermf import load_adelaide
-
-        if frames != 2:
-            raise ConfigError("the adelaide source is two-view: it needs frames = 2")
-        return [c for c in load_adelaide(data_root) if c.name not in exclude]
-    raise ConfigError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
 
 
 def _windows(clip: LabeledClip, frames: int, stride: int) -> list[LabeledClip]:
@@ -171,6 +134,144 @@ def _windows(clip: LabeledClip, frames: int, stride: int) -> list[LabeledClip]:
     return out
 
 
+def _synthetic(frames: int) -> Sampler:
+    from mosegpipe.synth.trajectories import SyntheticConfig, generate_clip
+
+    scfg = SyntheticConfig(frames=frames)
+
+    def draw(rng: Any, _c: SyntheticConfig = scfg) -> LabeledClip:
+        return generate_clip(rng, _c)
+
+    return draw
+
+
+def _synthetic_pair(frames: int) -> Sampler:
+    from mosegpipe.synth.trajectories import PAIR_CONFIG, SyntheticConfig, generate_pair
+
+    def draw(rng: Any, _c: SyntheticConfig = PAIR_CONFIG) -> LabeledClip:
+        return generate_pair(rng, _c)
+
+    return draw
+
+
+def _kt3d(mode: str) -> Callable[[Path, int, Collection[str]], list[LabeledClip]]:
+    def clips(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+        from mosegpipe.data.kt3dmoseg import kt3d_windows, list_kt3d_sequences, read_kt3d_sequence
+
+        out: list[LabeledClip] = []
+        for name in list_kt3d_sequences(data_root):
+            if name in exclude:
+                continue
+            out.extend(kt3d_windows(read_kt3d_sequence(data_root, name), frames=frames, mode=mode))
+        return [c for c in out if c.k >= 1]
+
+    return clips
+
+
+def _hopkins(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.data.hopkins155 import load_hopkins
+
+    out: list[LabeledClip] = []
+    for clip in load_hopkins(data_root):
+        if clip.name in exclude:
+            continue
+        out.extend(_windows(clip, frames, stride=frames))
+    return out
+
+
+def _adelaide(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.data.adelaidermf import load_adelaide
+
+    if frames != 2:
+        raise ConfigError("the adelaide source is two-view: it needs frames = 2")
+    return [c for c in load_adelaide(data_root) if c.name not in exclude]
+
+
+def _lce(data_root: Path | None, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.synth.lce import lce_splits
+
+    return list(lce_splits()["train"])
+
+
+@dataclass(frozen=True)
+class Source:
+    """One training source: labelled clips read from a benchmark, or clips generated on the fly.
+
+    Attributes:
+        name: the name recipes and `--exclude` use.
+        description: one line for the model card and error messages.
+        generate: generated sources: frames -> sampler drawing a fresh clip per call.
+        clips: read sources: (data_root, frames, excluded names) -> the clips, loaded once.
+        needs_data: whether `clips` reads the benchmark folder.
+    """
+
+    name: str
+    description: str
+    generate: Callable[[int], Sampler] | None = None
+    clips: Callable[[Any, int, Collection[str]], list[LabeledClip]] | None = None
+    needs_data: bool = True
+
+
+SOURCES: dict[str, Source] = {
+    s.name: s
+    for s in (
+        Source(
+            "synthetic",
+            "multi-body perspective clips generated on the fly (synth/trajectories.py)",
+            generate=_synthetic,
+            needs_data=False,
+        ),
+        Source(
+            "synthetic-pair",
+            "two-view synthetic scenes with gross outliers as their own group",
+            generate=_synthetic_pair,
+            needs_data=False,
+        ),
+        Source("kt3d", "every F-frame window of the KT3DMoSeg sequences (fully visible tracks)", clips=_kt3d("all")),
+        Source(
+            "kt3d-first",
+            "the frames 1..F clip of each KT3DMoSeg sequence (the paper's 'vanilla' training set)",
+            clips=_kt3d("first"),
+        ),
+        Source("hopkins", "every F-frame window (stride F) of the Hopkins155 sequences", clips=_hopkins),
+        Source("adelaide", "the AdelaideRMF two-view pairs, outliers as one more group", clips=_adelaide),
+        Source("lce", "the synthetic lines/circles/ellipses training split", clips=_lce, needs_data=False),
+    )
+}
+"""Every training source by name; a new source is one more entry."""
+
+
+def get_source(name: str) -> Source:
+    """The training source called `name`.
+
+    Raises:
+        ConfigError: no source has that name; the message lists them.
+    """
+    if name not in SOURCES:
+        raise ConfigError(f"unknown source {name!r}; choose from {', '.join(sorted(SOURCES))}")
+    return SOURCES[name]
+
+
+def source_clips(source: str, data_root: Path | None, frames: int, exclude: Collection[str] = ()) -> list[LabeledClip]:
+    """The labelled clips of a read (not generated) source, without the sequences named in `exclude`.
+
+    Args:
+        source: the name of a source with `clips` ("kt3d", "kt3d-first", "hopkins", "adelaide", "lce").
+        data_root: the benchmark folder (holding kt3dmoseg/, hopkins155/, adelaidermf/).
+        frames: F of the clips to produce.
+        exclude: sequence / pair names to leave out (held-out folds).
+
+    Raises:
+        ConfigError: unknown or generated source, or no data root for a source that needs one.
+    """
+    src = get_source(source)
+    if src.clips is None:
+        raise ConfigError(f"unknown source {source!r}; choose from {', '.join(sorted(SOURCES))}")
+    if src.needs_data and data_root is None:
+        raise ConfigError(f"source {source!r} needs a data root")
+    return src.clips(data_root, frames, exclude)
+
+
 def build_sampler(
     sources: Sequence[tuple[str, float]],
     data_root: Path | None,
@@ -180,28 +281,20 @@ def build_sampler(
 ) -> tuple[Sampler, dict[str, Any]]:
     """A mixture sampler over `sources`, plus a plain-data description of what it holds.
 
-    Synthetic sources generate clips on the fly; real sources are loaded once.
+    Generated sources draw clips on the fly; read sources are loaded once.
+
+    Raises:
+        ConfigError: an unknown source, one without its data, one that gives no clips, or no
+            source with a positive weight.
     """
     parts: list[tuple[float, Sampler]] = []
     described: dict[str, Any] = {}
     for name, weight in sources:
         if weight <= 0:
             continue
-        if name in ("synthetic", "synthetic-pair"):
-            from mosegpipe.synth.trajectories import SyntheticConfig, generate_clip, generate_pair
-
-            if name == "synthetic":
-                scfg = SyntheticConfig(frames=frames)
-
-                def draw(rng: Any, _c: SyntheticConfig = scfg) -> LabeledClip:
-                    return generate_clip(rng, _c)
-            else:
-                from mosegpipe.synth.trajectories import PAIR_CONFIG
-
-                def draw(rng: Any, _c: SyntheticConfig = PAIR_CONFIG) -> LabeledClip:
-                    return generate_pair(rng, _c)
-
-            parts.append((weight, draw))
+        src = get_source(name)
+        if src.generate is not None:
+            parts.append((weight, src.generate(frames)))
             described[name] = {"weight": weight, "generated": True}
         else:
             clips = source_clips(name, data_root, frames, exclude)
