@@ -13,10 +13,8 @@ first appearance, so results are deterministic for a seed and easy to colour con
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import warnings
-from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import get_args
 
@@ -30,6 +28,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.metrics import pairwise_distances, silhouette_score
 
 from mosegpipe.errors import ConfigError, InputError
+from mosegpipe.runtime import limited_threads
 from mosegpipe.types import Clustering, KMethodName
 
 logger = logging.getLogger(__name__)
@@ -136,28 +135,6 @@ def relabel_by_size(labels: npt.ArrayLike) -> npt.NDArray[np.int64]:
     return new_id[inverse.ravel()]
 
 
-_limit_cache: list[int | None] = [None]
-
-
-def _current_limit() -> int | None:
-    """The thread limit set by the innermost `_limited` block (None outside one)."""
-    return _limit_cache[0]
-
-
-@contextlib.contextmanager
-def _limited(num_threads: int) -> Iterator[None]:
-    """One threadpool_limits for a whole sweep, so that each fit inside does not pay for its own."""
-    from threadpoolctl import threadpool_limits
-
-    previous = _limit_cache[0]
-    with threadpool_limits(num_threads):
-        _limit_cache[0] = num_threads
-        try:
-            yield
-        finally:
-            _limit_cache[0] = previous
-
-
 def kmeans(
     emb: npt.ArrayLike,
     k: int,
@@ -188,21 +165,14 @@ def kmeans(
     Raises:
         InputError: bad shape, non-finite values, or k outside 1..N.
     """
-    from threadpoolctl import threadpool_limits
-
     x = _check_embeddings(emb)
     n = x.shape[0]
     if k < 1:
         raise InputError(f"k={k} must be at least 1")
     if k > n:
         raise InputError(f"k={k} is larger than the number of points ({n})")
-    # Entering threadpool_limits costs ~4-12 ms (it scans the loaded libraries), more than a small
-    # fit: skip it when the pools are already at the limit (set_threads, or cluster_auto_k's sweep).
-    limit = _current_limit() != num_threads
-    with (
-        threadpool_limits(num_threads) if limit else contextlib.nullcontext(),
-        warnings.catch_warnings(record=True) as caught,
-    ):
+    # Inside cluster_auto_k's sweep the pools are already limited: limited_threads enters nothing then.
+    with limited_threads(num_threads), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConvergenceWarning)
         model = KMeans(n_clusters=k, n_init=n_init, random_state=seed).fit(x)
     for warning in caught:
@@ -274,7 +244,7 @@ def cluster_auto_k(
     Raises:
         InputError: bad embeddings, or k outside 1..N.
     """
-    with _limited(cfg.num_threads):
+    with limited_threads(cfg.num_threads):
         return _cluster_auto_k(emb, cfg, k)
 
 

@@ -14,9 +14,8 @@ from mosegpipe.evaluation.e2e import (
     jaccard,
     mask_scores,
     match_masks,
-    nearest_within,
-    transfer_labels,
 )
+from mosegpipe.evaluation.label_transfer import nearest_within, transfer_labels
 from mosegpipe.evaluation.protocols import PROTOCOLS, get_protocol
 from mosegpipe.pipeline import PipelineConfig
 

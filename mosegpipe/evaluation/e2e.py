@@ -42,9 +42,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
 
 from mosegpipe.errors import MosegError
+from mosegpipe.evaluation.label_transfer import nearest_within
 from mosegpipe.evaluation.metrics import misclassification_error
 from mosegpipe.masks import labels_to_masks
 from mosegpipe.model import SubspaceNet
@@ -61,79 +61,6 @@ ADELAIDE_MAX_DIST_PX = 3.0
 
 BOUNDARY_TOLERANCE = 0.008
 """DAVIS boundary tolerance as a fraction of the image diagonal (6.4 -> 7 px at 640x480)."""
-
-
-# ---------------------------------------------------------------------------------------------
-# Label transfer
-
-
-def _as_points(name: str, xy: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    arr = np.asarray(xy, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise ValueError(f"{name} must have shape (N, 2), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} of shape {arr.shape} holds NaN or inf")
-    return arr
-
-
-def nearest_within(our_xy: npt.ArrayLike, gt_xy: npt.ArrayLike, max_dist_px: float) -> npt.NDArray[np.int64]:
-    """Index of the nearest ground-truth point within a radius, for each of our points.
-
-    Args:
-        our_xy: (N, 2) pixel coordinates of our points.
-        gt_xy: (M, 2) pixel coordinates of the ground-truth points.
-        max_dist_px: largest accepted Euclidean distance, pixels (inclusive).
-
-    Returns:
-        (N,) int64 row of gt_xy, or -1 where no ground-truth point lies within max_dist_px.
-
-    Raises:
-        ValueError: bad shapes, NaN/inf coordinates or a negative radius.
-    """
-    ours = _as_points("our_xy", our_xy)
-    gt = _as_points("gt_xy", gt_xy)
-    if not max_dist_px >= 0:
-        raise ValueError(f"max_dist_px={max_dist_px} must be >= 0")
-    out = np.full(ours.shape[0], -1, dtype=np.int64)
-    if ours.shape[0] == 0 or gt.shape[0] == 0:
-        return out
-    # cKDTree's bound is strict; nudge it so that a point exactly at max_dist_px is accepted.
-    dist, idx = cKDTree(gt).query(ours, k=1, distance_upper_bound=np.nextafter(max_dist_px, np.inf))
-    found = np.isfinite(dist)
-    out[found] = idx[found]
-    return out
-
-
-def transfer_labels(
-    our_xy: npt.ArrayLike,
-    gt_xy: npt.ArrayLike,
-    gt_labels: npt.ArrayLike,
-    max_dist_px: float = 3.0,
-) -> npt.NDArray[np.int64]:
-    """Ground-truth label of the nearest ground-truth point within a radius.
-
-    Args:
-        our_xy: (N, 2) pixel coordinates of our points (tracks in one frame, or matches in one image).
-        gt_xy: (M, 2) pixel coordinates of the labelled ground-truth points in the same frame.
-        gt_labels: (M,) non-negative integer labels of the ground-truth points.
-        max_dist_px: largest accepted distance, pixels (inclusive).
-
-    Returns:
-        (N,) int64 label, -1 where no ground-truth point lies within max_dist_px.
-
-    Raises:
-        ValueError: bad shapes, NaN/inf coordinates, negative labels or radius.
-    """
-    labels = np.asarray(gt_labels)
-    gt = _as_points("gt_xy", gt_xy)
-    if labels.shape != (gt.shape[0],):
-        raise ValueError(f"gt_labels has shape {labels.shape}, expected ({gt.shape[0]},)")
-    if labels.size and (not np.issubdtype(labels.dtype, np.integer) or labels.min() < 0):
-        raise ValueError("gt_labels must be non-negative integers (-1 marks unmatched points)")
-    idx = nearest_within(our_xy, gt, max_dist_px)
-    out = np.full(idx.shape, -1, dtype=np.int64)
-    out[idx >= 0] = labels[idx[idx >= 0]]
-    return out
 
 
 # ---------------------------------------------------------------------------------------------
