@@ -10,12 +10,13 @@ Held-out sequences are excluded by name, so leave-one-out folds never see their 
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from mosegpipe.errors import ConfigError
 from mosegpipe.model import ModelConfig
+from mosegpipe.training.augment import PAIR_AUGMENT, TRACK_AUGMENT, TrackAugmentConfig, augment_point_set
 from mosegpipe.training.loop import Sampler, TrainConfig, clip_sampler, mixture_sampler
 from mosegpipe.trajectories import window_starts
 from mosegpipe.types import LabeledClip
@@ -187,6 +188,31 @@ def _adelaide(data_root: Path, frames: int, exclude: Collection[str]) -> list[La
     return [c for c in load_adelaide(data_root) if c.name not in exclude]
 
 
+def _kt3d_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.training.own_tracks import kt3d_own_clips
+
+    return kt3d_own_clips(data_root, frames=frames, exclude=exclude)
+
+
+def _adelaide_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.training.own_tracks import adelaide_own_clips
+
+    if frames != 2:
+        raise ConfigError("the adelaide-own source is two-view: it needs frames = 2")
+    return adelaide_own_clips(data_root, exclude=exclude)
+
+
+def _augmented(sampler: Sampler, cfg: TrackAugmentConfig) -> Sampler:
+    """`sampler` whose clips go through `augment_point_set` (a fresh draw of the augmentation each time)."""
+
+    def draw(rng: Any) -> LabeledClip:
+        clip = sampler(rng)
+        traj, labels = augment_point_set(clip.traj, clip.labels, rng, cfg)
+        return replace(clip, traj=traj, labels=labels)
+
+    return draw
+
+
 def _lce(data_root: Path | None, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
     from mosegpipe.synth.lce import lce_splits
 
@@ -203,6 +229,8 @@ class Source:
         generate: generated sources: frames -> sampler drawing a fresh clip per call.
         clips: read sources: (data_root, frames, excluded names) -> the clips, loaded once.
         needs_data: whether `clips` reads the benchmark folder.
+        augment: read sources: point-set augmentation applied to every drawn clip (see
+            training/augment.py), for sources made by our own front end; None = none.
     """
 
     name: str
@@ -210,6 +238,7 @@ class Source:
     generate: Callable[[int], Sampler] | None = None
     clips: Callable[[Any, int, Collection[str]], list[LabeledClip]] | None = None
     needs_data: bool = True
+    augment: TrackAugmentConfig | None = None
 
 
 SOURCES: dict[str, Source] = {
@@ -235,6 +264,18 @@ SOURCES: dict[str, Source] = {
         ),
         Source("hopkins", "every F-frame window (stride F) of the Hopkins155 sequences", clips=_hopkins),
         Source("adelaide", "the AdelaideRMF two-view pairs, outliers as one more group", clips=_adelaide),
+        Source(
+            "kt3d-own",
+            "our KLT tracks of every F-frame window of the KT3DMoSeg frames, labels by motion agreement",
+            clips=_kt3d_own,
+            augment=TRACK_AUGMENT,
+        ),
+        Source(
+            "adelaide-own",
+            "our SIFT matches of the AdelaideRMF image pairs, labels by motion agreement",
+            clips=_adelaide_own,
+            augment=PAIR_AUGMENT,
+        ),
         Source("lce", "the synthetic lines/circles/ellipses training split", clips=_lce, needs_data=False),
     )
 }
@@ -300,8 +341,11 @@ def build_sampler(
             clips = source_clips(name, data_root, frames, exclude)
             if not clips:
                 raise ConfigError(f"source {name!r} gave no clips (frames={frames}, excluded {sorted(exclude)})")
-            parts.append((weight, clip_sampler(clips)))
+            sampler = clip_sampler(clips)
+            parts.append((weight, sampler if src.augment is None else _augmented(sampler, src.augment)))
             described[name] = {"weight": weight, "num_clips": len(clips), "excluded": sorted(exclude)}
+            if src.augment is not None:
+                described[name]["augment"] = asdict(src.augment)
     if not parts:
         raise ConfigError("no training source with a positive weight")
     return mixture_sampler(parts), described

@@ -1,0 +1,192 @@
+"""Own-front-end training data: motion-agreement label transfer and point-set augmentation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mosegpipe.evaluation.label_transfer import (
+    PairTransferConfig,
+    TrackTransferConfig,
+    transfer_match_labels,
+    transfer_track_labels,
+)
+from mosegpipe.training.augment import TrackAugmentConfig, augment_point_set
+
+
+def _grid_scene(frames: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ground truth on an 8 px grid: left half (label 0) moves +1 px/frame in x, right half (label 1) +3 px in y."""
+    gx, gy = np.meshgrid(np.arange(0, 200, 8.0), np.arange(0, 100, 8.0))
+    start = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    labels = (start[:, 0] >= 100).astype(np.int64)
+    velocity = np.where(labels[:, None] == 0, [1.0, 0.0], [0.0, 3.0])
+    xy = start[:, None, :] + velocity[:, None, :] * np.arange(frames)[None, :, None]
+    return xy, np.ones(xy.shape[:2], dtype=bool), labels
+
+
+def test_track_transfer_labels_by_motion_beyond_the_nearest_point_radius() -> None:
+    gt_xy, vis, labels = _grid_scene()
+    t = np.arange(5)[:, None]
+    ours = np.stack(
+        [
+            np.array([45.0, 44.0]) + t * [1.0, 0.0],  # 5.7 px from the nearest seed, moves like label 0
+            np.array([150.0, 52.0]) + t * [0.0, 3.0],  # label 1
+            np.array([45.0, 44.0]) + t * [0.0, 3.0],  # in label 0's area, moves like label 1 (> 16 px away)
+            np.array([500.0, 500.0]) + t * [1.0, 0.0],  # far from every ground-truth point
+        ]
+    )
+    out = transfer_track_labels(ours, gt_xy, vis, labels)
+    assert out.tolist() == [0, 1, -1, -1]
+
+
+def test_track_transfer_is_ambiguous_when_two_labels_move_alike() -> None:
+    gt_xy, vis, labels = _grid_scene()
+    gt_xy = gt_xy[:, :1] + np.arange(5)[None, :, None] * np.array([1.0, 0.0])  # every point moves alike
+    ours = gt_xy[labels == 0][-1:].copy()
+    ours[0, :, 0] = 100.0 + np.arange(5)  # halfway between a label-0 and a label-1 column
+    assert transfer_track_labels(ours, gt_xy, vis, labels).tolist() == [-1]
+    # Without a margin the best candidate wins.
+    cfg = TrackTransferConfig(margin_px=-1.0)
+    assert transfer_track_labels(ours, gt_xy, vis, labels, cfg)[0] in (0, 1)
+
+
+def test_track_transfer_ignores_frames_where_the_ground_truth_is_hidden() -> None:
+    gt_xy, vis, labels = _grid_scene()
+    ours = gt_xy[:1] + np.array([3.0, 3.0])
+    gt_xy = gt_xy.copy()
+    gt_xy[0, 3:] = 0.0  # garbage where not visible
+    vis = vis.copy()
+    vis[0, 3:] = False
+    assert transfer_track_labels(ours, gt_xy, vis, labels).tolist() == [0]
+    with pytest.raises(ValueError, match="shapes"):
+        transfer_track_labels(ours[:, :4], gt_xy, vis, labels)
+
+
+def test_match_transfer_exact_agreeing_outlier_and_unknown() -> None:
+    rng = np.random.default_rng(0)
+    g1 = rng.uniform(0, 200, size=(300, 2))
+    g_lab = (g1[:, 0] > 100).astype(np.int64) + 1  # motions 1 and 2
+    g2 = g1 + np.where(g_lab[:, None] == 1, [10.0, 0.0], [0.0, -15.0])
+    g_lab[:5] = 0  # five gross outliers
+    g2[:5] = rng.uniform(0, 200, size=(5, 2))
+    xy1 = np.array([g1[0] + 1.0, [50.0, 50.5], [150.0, 50.0], [60.0, 60.0], [1000.0, 1000.0]])
+    xy2 = np.array([g2[0] + 1.0, [60.0, 50.5], [150.0, 35.0], [160.0, 160.0], [1010.0, 1000.0]])
+    out = transfer_match_labels(xy1, xy2, g1, g2, g_lab, PairTransferConfig())
+    assert out.tolist() == [0, 1, 2, 0, -1]
+
+
+def test_augment_is_seeded_keeps_labels_and_marks_added_points() -> None:
+    rng = np.random.default_rng(1)
+    traj = rng.uniform(0, 500, size=(800, 10)).astype(np.float32)
+    labels = rng.integers(-1, 3, size=800)
+    a = augment_point_set(traj, labels, np.random.default_rng(7))
+    b = augment_point_set(traj, labels, np.random.default_rng(7))
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    assert a[0].shape[1] == 10 and a[0].dtype == np.float32 and a[1].shape == (a[0].shape[0],)
+    assert set(np.unique(a[1])) <= {-1, 0, 1, 2}
+
+
+def test_augment_identity_when_every_operation_is_off() -> None:
+    off = TrackAugmentConfig(
+        prob_subsample=0,
+        prob_uneven=0,
+        prob_drop_region=0,
+        prob_small_object=0,
+        noise_px=(0.0, 0.0),
+        prob_drift=0,
+        prob_outliers=0,
+    )
+    traj = np.arange(40, dtype=np.float32).reshape(4, 10)
+    labels = np.array([0, 1, 1, -1])
+    out, lab = augment_point_set(traj, labels, np.random.default_rng(0), off)
+    np.testing.assert_allclose(out, traj)
+    assert lab.tolist() == labels.tolist()
+
+
+def test_augment_subsamples_thins_objects_and_adds_outliers_as_context() -> None:
+    rng = np.random.default_rng(2)
+    traj = rng.uniform(0, 500, size=(1000, 10)).astype(np.float32)
+    labels = np.zeros(1000, dtype=np.int64)
+    labels[:300] = 1
+    cfg = TrackAugmentConfig(
+        num_points=(100, 100),
+        prob_subsample=1,
+        prob_uneven=0,
+        prob_drop_region=0,
+        prob_small_object=0,
+        prob_drift=0,
+        prob_outliers=1,
+        outlier_fraction=(0.1, 0.1),
+    )
+    out, lab = augment_point_set(traj, labels, np.random.default_rng(3), cfg)
+    assert out.shape[0] == 110 and int((lab == -1).sum()) == 10
+    small = TrackAugmentConfig(
+        prob_subsample=0,
+        prob_uneven=0,
+        prob_drop_region=0,
+        prob_small_object=1,
+        small_object_points=(20, 20),
+        prob_drift=0,
+        prob_outliers=0,
+    )
+    out, lab = augment_point_set(traj, labels, np.random.default_rng(3), small)
+    assert int((lab == 1).sum()) == 20 and int((lab == 0).sum()) == 700
+
+
+def test_augment_never_drops_every_labelled_point() -> None:
+    traj = np.zeros((5, 4), dtype=np.float32)
+    traj[:, 0] = np.arange(5)
+    labels = np.array([0, -1, -1, -1, -1])
+    cfg = TrackAugmentConfig(
+        num_points=(1, 1),
+        prob_subsample=1,
+        prob_uneven=0,
+        prob_drop_region=0,
+        prob_small_object=0,
+        prob_drift=0,
+        prob_outliers=0,
+    )
+    for seed in range(20):
+        _, lab = augment_point_set(traj, labels, np.random.default_rng(seed), cfg)
+        assert (lab >= 0).any()
+
+
+# ---------------------------------------------------------------- real data (skipped without it)
+
+
+def test_kt3d_own_clips_track_label_and_cache(data_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mosegpipe.data.kt3dmoseg import list_kt3d_sequences
+    from mosegpipe.training import own_tracks
+
+    keep = "Seq009_Clip01"
+    others = [n for n in list_kt3d_sequences(data_root) if n != keep]
+    clips = own_tracks.kt3d_own_clips(data_root, frames=5, exclude=others, cache_dir=tmp_path)
+    assert clips and all(c.meta["sequence"] == keep for c in clips)
+    assert clips[0].name == f"{keep}/f1-5" and clips[0].traj.shape[1] == 10
+    labels = np.concatenate([c.labels for c in clips])
+    assert (labels == -1).any() and (labels >= 0).mean() > 0.2  # context points and labelled points
+    assert set(np.unique(labels)) <= {-1, 0, 1, 2, 3, 4}
+
+    def no_tracking(*args: object, **kwargs: object) -> None:
+        raise AssertionError("tracked again although the windows are cached")
+
+    monkeypatch.setattr(own_tracks, "track_klt", no_tracking)
+    again = own_tracks.kt3d_own_clips(data_root, frames=5, exclude=others, cache_dir=tmp_path)
+    assert [c.name for c in again] == [c.name for c in clips]
+    np.testing.assert_array_equal(again[0].labels, clips[0].labels)
+    with pytest.raises(AssertionError, match="tracked again"):  # other settings: another cache entry
+        own_tracks.kt3d_own_clips(data_root, frames=4, exclude=others, cache_dir=tmp_path)
+
+
+def test_adelaide_own_clips_outliers_first(data_root: Path, tmp_path: Path) -> None:
+    from mosegpipe.data.adelaidermf import list_adelaide
+    from mosegpipe.training.own_tracks import adelaide_own_clips
+
+    others = [n for n in list_adelaide(data_root) if n != "breadcube"]
+    (clip,) = adelaide_own_clips(data_root, exclude=others, cache_dir=tmp_path)
+    assert clip.name == "breadcube" and clip.traj.shape[1] == 4
+    known = clip.labels[clip.labels >= 0]
+    assert known.size > 0.5 * clip.num_points and set(np.unique(known)) <= {0, 1, 2, 3}
