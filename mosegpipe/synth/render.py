@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
+from mosegpipe.synth.camera import VIDEO_MOTIONS, rotation_matrix, video_camera_poses
 from mosegpipe.types import Frames
 
 __all__ = [
@@ -39,7 +40,7 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-CAMERA_MOTIONS: tuple[str, ...] = ("static", "pan", "forward", "handheld")
+CAMERA_MOTIONS = VIDEO_MOTIONS  # the names RenderConfig.camera_motion accepts (see synth.camera)
 """Camera motions render_clip knows."""
 
 TEXTURES: tuple[str, ...] = ("blobs", "checker", "mixed")
@@ -195,12 +196,6 @@ class RenderedClip:
         return Frames(images=self.frames, fps=fps, source="render")
 
 
-def _rotation(rotvec: npt.ArrayLike) -> npt.NDArray[np.float64]:
-    """Rotation matrix (3, 3) of a rotation vector (axis * angle, radians)."""
-    r, _ = cv2.Rodrigues(np.asarray(rotvec, dtype=np.float64).reshape(3, 1))
-    return r
-
-
 def _texture(rng: np.random.Generator, kind: str, size_wh: tuple[int, int]) -> npt.NDArray[np.uint8]:
     """A random RGB texture (h, w, 3) uint8 with many corners, cells of 6-20 texels."""
     w, h = size_wh
@@ -270,35 +265,6 @@ def _box_quads(
             th = int(np.clip(size[v] * texels_per_m, 16, 1024))
             quads.append(_Quad(corners, normal, _texture(rng, tex_kind, (tw, th))))
     return quads
-
-
-def _camera_poses(
-    rng: np.random.Generator, kind: str, frames: int
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """World->camera rotations (T, 3, 3) and camera centres (T, 3); frame 0 is the world frame."""
-    t = np.arange(frames, dtype=np.float64)[:, None]
-    deg = math.pi / 180.0
-    span = max(frames - 1, 1)
-    if kind == "static":
-        rotvec = np.zeros((frames, 3))
-        centre = np.zeros((frames, 3))
-    elif kind == "pan":
-        rate = min(rng.uniform(0.3, 0.8), 8.0 / span) * deg * rng.choice([-1.0, 1.0])
-        rotvec = t * np.array([rng.normal(0, 0.1) * abs(rate), rate, 0.0])
-        centre = np.zeros((frames, 3))
-    elif kind == "forward":
-        # At most 1.5 m in all, so the camera never reaches the nearest objects (3 m).
-        speed = min(rng.uniform(0.05, 0.15), 1.5 / span)
-        rotvec = np.zeros((frames, 3))
-        centre = t * np.array([0.0, 0.0, speed])
-    else:  # handheld
-        step = min(1.0, 10.0 / span)
-        rotvec = (rng.normal(0, 0.2 * deg * step, (frames, 3))).cumsum(axis=0)
-        centre = (rng.normal(0, 0.015 * step, (frames, 3))).cumsum(axis=0)
-        rotvec -= rotvec[0]
-        centre -= centre[0]
-    rot = np.stack([_rotation(r).T for r in rotvec])
-    return rot, centre
 
 
 def _sample_objects(rng: np.random.Generator, cfg: RenderConfig, f: float, cx: float, cy: float) -> list[ObjectSpec]:
@@ -393,7 +359,7 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
     f = 0.5 * w / math.tan(0.5 * math.radians(cfg.fov_deg))
     cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
     intrinsics = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
-    cam_rot, cam_centre = _camera_poses(rng, cfg.camera_motion, frames)
+    cam_rot, cam_centre = video_camera_poses(rng, cfg.camera_motion, frames)
     specs = list(cfg.objects) if cfg.objects is not None else _sample_objects(rng, cfg, f, cx, cy)
 
     still_rot = np.broadcast_to(np.eye(3), (frames, 3, 3))
@@ -434,8 +400,8 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
             quads = [_Quad(_rect(size[0], size[1]), np.array([0.0, 0.0, -1.0]), _texture(rng, cfg.texture, (tw, th)))]
         else:
             quads = _box_quads(rng, size, cfg.texture, texels_per_m)
-        orient = _rotation(spec.rotation)
-        rot = np.stack([_rotation(np.asarray(spec.spin) * k) @ orient for k in range(frames)])
+        orient = rotation_matrix(spec.rotation)
+        rot = np.stack([rotation_matrix(np.asarray(spec.spin) * k) @ orient for k in range(frames)])
         pos = np.asarray(spec.centre_m) + t * np.asarray(spec.velocity_m)
         bodies.append(_Body(i + 1, quads, rot, pos, cull=spec.shape == "box"))
 

@@ -35,6 +35,16 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
+from mosegpipe.synth.camera import (
+    NEAR_M,
+    TRAJECTORY_MOTIONS,
+    PinholeCamera,
+    axis_angle_matrix,
+    random_sign,
+    random_unit,
+    rotation_matrices,
+    trajectory_camera_poses,
+)
 from mosegpipe.synth.seeded import SeededClips
 from mosegpipe.types import LabeledClip
 
@@ -50,7 +60,7 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-CAMERA_MOTIONS: tuple[str, ...] = ("driving", "handheld", "static", "pan")
+CAMERA_MOTIONS = TRAJECTORY_MOTIONS  # the ego-motions SyntheticConfig.camera_motions accepts (see synth.camera)
 """Camera ego-motions the generator knows."""
 
 OBJECT_KINDS: tuple[str, ...] = ("rigid", "planar", "nonrigid", "articulated")
@@ -61,7 +71,6 @@ _MAX_TRIES = 100
 # about the requested number; each body is then cut back to its target count.
 _OVERSAMPLE = 1.4
 # Points closer than this to the camera (metres) are treated as behind it.
-_NEAR_M = 0.2
 
 
 @dataclass(frozen=True)
@@ -173,50 +182,6 @@ PAIR_CONFIG = SyntheticConfig(
 shots of a static or slightly moved 640x480 camera, sparse points, 10-60 % gross outliers."""
 
 
-def _rodrigues(rotvec: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """Rotation matrices (M, 3, 3) from rotation vectors (M, 3) (axis * angle, radians).
-
-    A zero vector gives the identity exactly, which keeps static points exactly static.
-    """
-    theta = np.sqrt((rotvec * rotvec).sum(axis=-1))[:, None, None]
-    k = rotvec / np.maximum(theta[:, :, 0], 1e-300)
-    skew = np.zeros((len(k), 3, 3))
-    skew[:, 0, 1] = -k[:, 2]
-    skew[:, 0, 2] = k[:, 1]
-    skew[:, 1, 0] = k[:, 2]
-    skew[:, 1, 2] = -k[:, 0]
-    skew[:, 2, 0] = -k[:, 1]
-    skew[:, 2, 1] = k[:, 0]
-    c = np.cos(theta)
-    return c * np.eye(3) + np.sin(theta) * skew + (1.0 - c) * (k[:, :, None] * k[:, None, :])
-
-
-def _rotation(axis: npt.NDArray[np.float64], angle: float) -> npt.NDArray[np.float64]:
-    """One rotation matrix (3, 3) about a unit axis (3,), angle in radians."""
-    # Scalar Rodrigues in plain Python: a dozen NumPy calls on 3-vectors cost more than this.
-    x, y, z = (float(v) for v in axis)
-    c, s = math.cos(angle), math.sin(angle)
-    d = 1.0 - c
-    return np.array(
-        [
-            [c + x * x * d, x * y * d - z * s, x * z * d + y * s],
-            [y * x * d + z * s, c + y * y * d, y * z * d - x * s],
-            [z * x * d - y * s, z * y * d + x * s, c + z * z * d],
-        ]
-    )
-
-
-def _unit(rng: np.random.Generator, n: int | None = None) -> npt.NDArray[np.float64]:
-    """Random unit vector(s), uniform on the sphere: (3,) or (n, 3)."""
-    g = rng.normal(size=(3,) if n is None else (n, 3))
-    return g / np.sqrt((g * g).sum(axis=-1, keepdims=True))
-
-
-def _sign(rng: np.random.Generator) -> float:
-    """-1.0 or 1.0 with equal probability (Generator.choice is slow for this)."""
-    return -1.0 if rng.random() < 0.5 else 1.0
-
-
 def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
@@ -232,81 +197,8 @@ def _sample_image_size(rng: np.random.Generator, cfg: SyntheticConfig) -> tuple[
     return max(16, round(w / aspect)), max(16, round(w))
 
 
-@dataclass
-class _Camera:
-    """Pinhole camera over F frames: x_cam = rot[t] @ (x_world - centre[t]).
-
-    Frame 0's camera frame is the world frame (x right, y down, z forward, metres).
-    """
-
-    f: float
-    cx: float
-    cy: float
-    h: int
-    w: int
-    rot: npt.NDArray[np.float64]  # (F, 3, 3) world -> camera
-    centre: npt.NDArray[np.float64]  # (F, 3) camera centre in the world, metres
-
-    def project(self, xyz: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """World points (F, N, 3) -> pixels (F, N, 2) and depth (F, N)."""
-        cam = (xyz - self.centre[:, None, :]) @ np.transpose(self.rot, (0, 2, 1))
-        z = cam[..., 2]
-        scale = (self.f / np.maximum(z, _NEAR_M))[..., None]
-        return cam[..., :2] * scale + np.array([self.cx, self.cy]), z
-
-    def rays(self, uv: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-        """Frame-0 rays (N, 3) with z = 1 through pixels (N, 2)."""
-        r = np.ones((len(uv), 3))
-        r[:, 0] = (uv[:, 0] - self.cx) / self.f
-        r[:, 1] = (uv[:, 1] - self.cy) / self.f
-        return r
-
-
-def _camera_poses(
-    rng: np.random.Generator, kind: str, frames: int, depth_m: float
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """World->camera rotations (F, 3, 3) and centres (F, 3) for one ego-motion kind.
-
-    depth_m is the typical scene depth; handheld translations scale with it.
-    """
-    t = np.arange(frames, dtype=np.float64)[:, None]
-    deg = math.pi / 180.0
-    if kind == "static":
-        rotvec = np.zeros((frames, 3))
-        centre = np.zeros((frames, 3))
-    elif kind == "pan":
-        axis = np.array([rng.normal(0, 0.3), 1.0, rng.normal(0, 0.1)])  # mostly yaw, some tilt
-        axis /= np.linalg.norm(axis)
-        rate = rng.uniform(0.2, 2.0) * deg * _sign(rng)
-        rotvec = t * rate * axis
-        centre = np.zeros((frames, 3))
-    elif kind == "driving":
-        # KITTI at 10 fps: 0.2-1.5 m per frame, heading changes of at most ~1.5 deg per frame.
-        speed = rng.uniform(0.2, 1.5)
-        yaw = rng.uniform(-1.5, 1.5) * deg * t[:, 0]
-        pitch = rng.normal(0, 0.1 * deg, frames).cumsum()
-        roll = rng.normal(0, 0.05 * deg, frames).cumsum()
-        rotvec = np.stack([pitch - pitch[0], yaw, roll - roll[0]], axis=1)
-        heading = np.stack([np.sin(yaw), np.zeros(frames), np.cos(yaw)], axis=1)
-        steps = speed * heading[:-1]
-        centre = np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
-        centre[:, 1] += np.concatenate([[0.0], rng.normal(0, 0.01, frames - 1).cumsum()])
-    elif kind == "handheld":
-        rot_rate = rng.uniform(0.0, 1.0) * deg * _unit(rng)
-        trans_rate = rng.uniform(0.002, 0.03) * depth_m * _unit(rng)
-        jitter_r = rng.normal(0, 0.15 * deg, (frames, 3)).cumsum(axis=0)
-        jitter = 0.3 * float(np.linalg.norm(trans_rate)) + 1e-4
-        jitter_t = rng.normal(0, jitter, (frames, 3)).cumsum(axis=0)
-        rotvec = t * rot_rate + jitter_r - jitter_r[0]
-        centre = t * trans_rate + jitter_t - jitter_t[0]
-    else:
-        raise InputError(f"unknown camera motion {kind!r}; choose from {CAMERA_MOTIONS}")
-    # rotvec is the camera->world rotation; the projection needs world->camera.
-    return np.transpose(_rodrigues(rotvec), (0, 2, 1)), centre
-
-
 def _background_points(
-    rng: np.random.Generator, cam: _Camera, n: int, driving: bool, depth_m: float, ground_m: float
+    rng: np.random.Generator, cam: PinholeCamera, n: int, driving: bool, depth_m: float, ground_m: float
 ) -> tuple[npt.NDArray[np.float64], str]:
     """World points (n, 3) of the static scene, all visible in frame 0, and the scene kind.
 
@@ -328,7 +220,7 @@ def _background_points(
         kind = "plane"
         tilt = rng.uniform(0.0, 50.0) * math.pi / 180.0
         axis = np.array([*rng.normal(size=2), 0.0])
-        normal = _rotation(axis / np.linalg.norm(axis), tilt) @ np.array([0, 0, 1.0])
+        normal = axis_angle_matrix(axis / np.linalg.norm(axis), tilt) @ np.array([0, 0, 1.0])
         depth = depth_m / np.maximum(r @ normal, 0.1)
         depth = np.minimum(depth, 10 * depth_m) * (1.0 + rng.normal(0, 0.005, n))
     else:
@@ -374,13 +266,13 @@ def _shape_points(
         axis = np.searchsorted(np.cumsum(area / area.sum())[:2], rng.random(n))
         p[np.arange(n), axis] = np.where(rng.random(n) < 0.5, -1.0, 1.0)
     else:
-        p = _unit(rng, n)
+        p = random_unit(rng, n)
     return p * half
 
 
 def _object_body(
     rng: np.random.Generator,
-    cam: _Camera,
+    cam: PinholeCamera,
     n: int,
     kind: str,
     driving: bool,
@@ -401,7 +293,7 @@ def _object_body(
         yaw = (0.0 if rng.random() < 0.5 else math.pi) + rng.normal(0, 0.15)
         if rng.random() < 0.2:
             yaw += math.pi / 2  # crossing traffic
-        orient = _rotation(np.array([0.0, 1.0, 0.0]), yaw)
+        orient = axis_angle_matrix(np.array([0.0, 1.0, 0.0]), yaw)
         heading = orient @ np.array([0.0, 0.0, 1.0])
         vel = heading * rng.uniform(0.3, 1.0) * 2 * half[2]
         spin = np.array([0.0, rng.normal(0, 0.05), 0.0])
@@ -411,14 +303,14 @@ def _object_body(
         centre = cam.rays(uv[None])[0] * depth
         footprint = _log_uniform(rng, 0.04, 0.35) * cam.w  # object width on screen, pixels
         half = 0.5 * footprint * depth / cam.f * rng.uniform(0.4, 1.0, 3)
-        orient = _rotation(_unit(rng), rng.uniform(0, math.pi))
-        vel = _unit(rng) * rng.uniform(0.3, 1.0) * 2 * half.max()
-        spin = _unit(rng) * rng.uniform(0.0, 0.3)
+        orient = axis_angle_matrix(random_unit(rng), rng.uniform(0, math.pi))
+        vel = random_unit(rng) * rng.uniform(0.3, 1.0) * 2 * half.max()
+        spin = random_unit(rng) * rng.uniform(0.0, 0.3)
     if kind == "planar":
         half = half.copy()
         half[rng.integers(3)] = 0.005 * half.max()
     local = _shape_points(rng, n, half, box=kind == "planar" or rng.random() < 0.6)
-    acc = vel * rng.uniform(-0.3, 0.3) + _unit(rng) * 0.1 * math.sqrt(vel @ vel)
+    acc = vel * rng.uniform(-0.3, 0.3) + random_unit(rng) * 0.1 * math.sqrt(vel @ vel)
     spin_acc = spin * rng.uniform(-0.3, 0.3)
     deform = np.zeros((n, 3))
     hinge_part = np.zeros(n, dtype=bool)
@@ -437,7 +329,7 @@ def _object_body(
         hinge_part = local[:, split] > hinge_point[split]
         axis = np.zeros(3)
         axis[(split + rng.integers(1, 3)) % 3] = 1.0
-        hinge_rotvec = axis * rng.uniform(0.3, 1.0) * _sign(rng)
+        hinge_rotvec = axis * rng.uniform(0.3, 1.0) * random_sign(rng)
     return _Body(
         kind,
         local,
@@ -484,13 +376,13 @@ class _World:
         """World points (F, N, 3) with every body's motion multiplied by scale (B,)."""
         f, b = self.frames, len(scale)
         s = scale[None, :, None]
-        rot = _rodrigues((s * (self.spin * self.tau + self.spin_acc * self.tau2)).reshape(-1, 3))
+        rot = rotation_matrices((s * (self.spin * self.tau + self.spin_acc * self.tau2)).reshape(-1, 3))
         # Row-vector form: x_world = x_local @ (R(t) @ orient)^T.
         rot_t = np.transpose(rot.reshape(f, b, 3, 3) @ self.orient, (1, 0, 3, 2))  # (B, F, 3, 3)
         trans = self.centre + s * (self.vel * self.tau + self.acc * self.tau2)  # (F, B, 3)
         hinge_t = None
         if self.has_hinge:
-            hinge = _rodrigues((s * self.hinge_rotvec * self.tau).reshape(-1, 3))
+            hinge = rotation_matrices((s * self.hinge_rotvec * self.tau).reshape(-1, 3))
             hinge_t = np.transpose(hinge.reshape(f, b, 3, 3), (1, 0, 3, 2))
         out = np.empty((f, len(self.body), 3))
         # Points are stored body by body; a batched matmul per body beats one gathered einsum.
@@ -587,8 +479,8 @@ def _draw(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str)
     driving = motion == "driving"
     depth_m = 15.0 if driving else _log_uniform(rng, 1.0, 20.0)
     ground_m = rng.uniform(1.4, 1.8)  # camera height above the road (driving)
-    rot, centre = _camera_poses(rng, motion, frames, depth_m)
-    cam = _Camera(f, (w - 1) / 2.0, (h - 1) / 2.0, h, w, rot, centre)
+    rot, centre = trajectory_camera_poses(rng, motion, frames, depth_m)
+    cam = PinholeCamera(f, (w - 1) / 2.0, (h - 1) / 2.0, h, w, rot, centre)
 
     min_pts = cfg.min_points_per_group
     need = 2 if cfg.num_bodies[0] >= 2 else 1  # bodies a clip must keep
@@ -669,7 +561,7 @@ def _draw(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str)
         walk = rng.normal(0.0, drift, (frames - 1, n, 2)).cumsum(axis=0)
         err[1:] += walk
     obs = uv + err
-    ok = (z > _NEAR_M).all(axis=0)
+    ok = (z > NEAR_M).all(axis=0)
     ok &= ((obs >= 0) & (obs <= np.array([w - 1.0, h - 1.0]))).all(axis=(0, 2))
     if objects:
         ok &= ~_occluded(uv, z, world.body, objects, ok)  # type: ignore[arg-type,operator]
