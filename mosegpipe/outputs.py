@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -115,6 +115,13 @@ def _write_masks_and_overlays(
         write_jpeg(folder / "overlay" / f"{index:06d}.jpg", overlay_image(image, mask, xy, labels), quality=90)
 
 
+def _timed_recording(summary: dict[str, Any], write: Callable[..., Any], *args: Any) -> None:
+    """Calls `write(*args)` (a viz writer) and records its seconds as summary["timings_s"]["rrd"]."""
+    t0 = time.perf_counter()
+    write(*args)
+    summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
+
+
 def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
     """The JSON summary of a clip run (schema: docs/OUTPUTS.md)."""
     c = result.clustering
@@ -184,19 +191,9 @@ def write_clip_outputs(
         if rrd:
             from mosegpipe.viz import write_recording
 
-            t0 = time.perf_counter()
-            write_recording(
-                tmp / "recording.rrd",
-                result.frames,
-                result.tracks,
-                traj.track_ids,
-                result.clustering.labels,
-                result.embeddings,
-                result.masks,
-                result.clustering.scores,
-                result.clustering.k,
-            )
-            summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
+            c = result.clustering
+            clip_args = (result.frames, result.tracks, traj.track_ids, c.labels, result.embeddings, result.masks)
+            _timed_recording(summary, write_recording, tmp / "recording.rrd", *clip_args, c.scores, c.k)
         write_json(tmp / "summary.json", summary)
     return summary
 
@@ -265,18 +262,9 @@ def write_pair_outputs(
         if rrd:
             from mosegpipe.viz import write_pair_recording
 
-            t0 = time.perf_counter()
-            write_pair_recording(
-                tmp / "recording.rrd",
-                result.images,
-                m,
-                result.labels,
-                result.embeddings,
-                result.masks,
-                result.clustering.scores,
-                result.clustering.k,
-            )
-            summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
+            c = result.clustering
+            pair_args = (result.images, m, result.labels, result.embeddings, result.masks)
+            _timed_recording(summary, write_pair_recording, tmp / "recording.rrd", *pair_args, c.scores, c.k)
         write_json(tmp / "summary.json", summary)
     return summary
 
