@@ -179,16 +179,15 @@ def test_summary_and_table_leave_unscored_rows_out() -> None:
 
 
 def test_protocol_registry() -> None:
-    assert list(PROTOCOLS) == [
-        "kt3d-test", "kt3d-loo", "adelaide-test", "adelaide-loo", "hopkins-test", "lce",
-        "kt3d-video", "adelaide-pairs", "rendered",
-    ]  # fmt: skip
-    e2e_names = {p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"}
-    assert e2e_names == {"kt3d-video", "adelaide-pairs", "rendered"}
+    shipped = ["kt3d-test", "kt3d-loo", "adelaide-test", "adelaide-loo", "hopkins-test", "lce"]
+    end_to_end = ["kt3d-video", "adelaide-pairs", "rendered"]
+    names = list(PROTOCOLS)
+    assert [n for n in names if n in shipped + end_to_end] == shipped + end_to_end  # more may follow
+    assert set(end_to_end) <= {p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"}
     for p in PROTOCOLS.values():
         assert callable(p.run) and p.description and p.default_frames >= 1
         assert (p.end_to_end is not None) == (p.kind == "end-to-end") != (p.load_clips is not None)
-    assert [p.name for p in PROTOCOLS.values() if not p.is_test_only] == ["kt3d-loo", "adelaide-loo", "lce"]
+    assert {"kt3d-loo", "adelaide-loo", "lce"} <= {p.name for p in PROTOCOLS.values() if not p.is_test_only}
     with pytest.raises(ConfigError, match="unknown protocol 'kitti'; choose from kt3d-test, kt3d-loo"):
         get_protocol("kitti")
 
