@@ -7,7 +7,10 @@ TypeError, ... and keeps its traceback: it must never be dressed up as a user er
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import TypeVar
+
+T = TypeVar("T")
 
 
 class MosegError(Exception):
@@ -56,3 +59,21 @@ def check_choice(what: str, value: str, choices: Iterable[str]) -> str:
         listed = " or ".join(f"'{c}'" for c in allowed) if len(allowed) <= 3 else ", ".join(allowed)
         raise ConfigError(f"{what} {value!r}: choose {listed}")
     return value
+
+
+def lookup(registry: Mapping[str, T], name: str, what: str, sort: bool = False) -> T:
+    """The entry called `name` of a registry (protocols, recipes, training sources).
+
+    Args:
+        registry: name -> entry.
+        name: the name asked for.
+        what: what an entry is, for the message ("protocol", "recipe", ...).
+        sort: list the names sorted in the message (else in registry order).
+
+    Raises:
+        ConfigError: no entry has that name; the message lists the names.
+    """
+    if name not in registry:
+        names = sorted(registry) if sort else list(registry)
+        raise ConfigError(f"unknown {what} {name!r}; choose from {', '.join(names)}")
+    return registry[name]

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 
-from mosegpipe.errors import ConfigError, check_choice
+from mosegpipe.errors import check_choice, lookup
 from mosegpipe.types import KMethodName
 
 if TYPE_CHECKING:
@@ -346,6 +346,4 @@ def get_protocol(name: str) -> Protocol:
     Raises:
         ConfigError: no protocol has that name; the message lists them.
     """
-    if name not in PROTOCOLS:
-        raise ConfigError(f"unknown protocol {name!r}; choose from {', '.join(PROTOCOLS)}")
-    return PROTOCOLS[name]
+    return lookup(PROTOCOLS, name, "protocol")

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from mosegpipe.errors import ConfigError
+from mosegpipe.errors import ConfigError, lookup
 from mosegpipe.model import ModelConfig
 from mosegpipe.training.augment import PAIR_AUGMENT, TRACK_AUGMENT, TrackAugmentConfig, augment_point_set
 from mosegpipe.training.loop import Sampler, TrainConfig, clip_sampler, mixture_sampler
@@ -117,9 +117,7 @@ def get_recipe(name: str) -> Recipe:
     Raises:
         ConfigError: no recipe has that name; the message lists them.
     """
-    if name not in RECIPES:
-        raise ConfigError(f"unknown recipe {name!r}; choose from {', '.join(sorted(RECIPES))}")
-    return RECIPES[name]
+    return lookup(RECIPES, name, "recipe", sort=True)
 
 
 def _windows(clip: LabeledClip, frames: int, stride: int) -> list[LabeledClip]:
@@ -288,9 +286,7 @@ def get_source(name: str) -> Source:
     Raises:
         ConfigError: no source has that name; the message lists them.
     """
-    if name not in SOURCES:
-        raise ConfigError(f"unknown source {name!r}; choose from {', '.join(sorted(SOURCES))}")
-    return SOURCES[name]
+    return lookup(SOURCES, name, "source", sort=True)
 
 
 def source_clips(source: str, data_root: Path | None, frames: int, exclude: Collection[str] = ()) -> list[LabeledClip]:
