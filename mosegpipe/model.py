@@ -7,11 +7,13 @@ unit vector per point, trained so that points of one motion land close together 
 
 Layout (B clips, N points, D = 2F input channels, C = width, E = embed_dim)::
 
-    x (B, D, N) pixels --input norm (fixed)--> (B, N, D)
+    x (B, N, D) pixels --input norm (fixed)--> (B, N, D)
       -> Linear D->C                                    h0 (B, N, C)
       -> num_blocks x  h + W2(ReLU(CN(W1(ReLU(CN(h))))))  (pre-activation residual block)
       -> W_out(ReLU(CN(h)))  C->E                       (B, N, E)
-      -> L2 normalise per point, transpose              z (B, E, N)
+      -> L2 normalise per point                         z (B, N, E)
+
+One layout in and out: points before channels, (B, N, D) -> (B, N, E), as `embed` (N, D) -> (N, E).
 
 The blocks use the pre-activation order of He et al. (ECCV 2016): the residual stream is never
 normalised itself, each branch starts with CN -> ReLU, and the head repeats that before its linear map.
@@ -231,24 +233,24 @@ class SubspaceNet(nn.Module):
         """Embed a batch of clips.
 
         Args:
-            x: (B, D, N) float32 trajectory coordinates, pixels (any consistent unit: the input is
-                normalised per clip), D = cfg.in_dim.
+            x: (B, N, D) float32 trajectory coordinates, pixels (any consistent unit: the input is
+                normalised per clip), D = cfg.in_dim (pad_batch builds it).
             mask: optional (B, N) bool, True on real points; None means all points are real.
                 Padded points never influence the real points' outputs.
 
         Returns:
-            (B, E, N) float32 embeddings, unit L2 norm at every real point, 0 at padded points.
+            (B, N, E) float32 embeddings, unit L2 norm at every real point, 0 at padded points.
 
         Raises:
             InputError: x or mask has the wrong shape.
         """
-        if x.ndim != 3 or x.shape[1] != self.cfg.in_dim:
-            raise InputError(f"x shape {tuple(x.shape)}: expected (B, {self.cfg.in_dim}, N)")
-        if mask is not None and (mask.shape != (x.shape[0], x.shape[2]) or mask.dtype != torch.bool):
+        if x.ndim != 3 or x.shape[2] != self.cfg.in_dim:
+            raise InputError(f"x shape {tuple(x.shape)}: expected (B, N, {self.cfg.in_dim})")
+        if mask is not None and (mask.shape != (x.shape[0], x.shape[1]) or mask.dtype != torch.bool):
             raise InputError(
-                f"mask shape {tuple(mask.shape)} dtype {mask.dtype}: expected bool ({x.shape[0]}, {x.shape[2]})"
+                f"mask shape {tuple(mask.shape)} dtype {mask.dtype}: expected bool ({x.shape[0]}, {x.shape[1]})"
             )
-        return self._embed_points(x.transpose(1, 2).to(torch.float32), mask).transpose(1, 2)
+        return self._embed_points(x.to(torch.float32), mask)
 
     @property
     def num_frames(self) -> int:
@@ -444,7 +446,8 @@ def pad_batch(
         labels: optional B label vectors (N_i,), integers >= 0.
 
     Returns:
-        x: (B, D, Nmax) float32, 0 on padding.
+        x: (B, Nmax, D) float32, 0 on padding (a transposed view of channels-first storage: the
+            memory layout the shipped weights were trained with, so that training stays bit-exact).
         labels: (B, Nmax) int64, -1 on padding (None when no labels were given).
         mask: (B, Nmax) bool, True on real points.
 
@@ -465,16 +468,16 @@ def pad_batch(
             if np.shape(lab) != (a.shape[0],):
                 raise InputError(f"pad_batch: clip {i} labels shape {np.shape(lab)}, expected ({a.shape[0]},)")
     num_max = max(a.shape[0] for a in arrays)
-    x = torch.zeros((len(arrays), dim, num_max), dtype=torch.float32)  # type: ignore[arg-type]
+    x_cf = torch.zeros((len(arrays), dim, num_max), dtype=torch.float32)  # type: ignore[arg-type]
     mask = torch.zeros((len(arrays), num_max), dtype=torch.bool)
     lab_t = None if labels is None else torch.full((len(arrays), num_max), -1, dtype=torch.int64)
     for i, a in enumerate(arrays):
         n = a.shape[0]
-        x[i, :, :n] = torch.from_numpy(np.ascontiguousarray(a.T, dtype=np.float32))
+        x_cf[i, :, :n] = torch.from_numpy(np.ascontiguousarray(a.T, dtype=np.float32))
         mask[i, :n] = True
         if lab_t is not None and labels is not None:
             lab_t[i, :n] = torch.from_numpy(np.asarray(labels[i], dtype=np.int64))
-    return x, lab_t, mask
+    return x_cf.transpose(1, 2), lab_t, mask
 
 
 def num_parameters(model: nn.Module) -> int:

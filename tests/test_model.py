@@ -40,12 +40,12 @@ def _traj(n: int, d: int = 10, seed: int = 0) -> npt.NDArray[np.float32]:
 def test_forward_shapes_unit_norm_and_zero_padding() -> None:
     net = _net(ModelConfig())  # the full 30 x 64 architecture
     x, labels, mask = pad_batch([_traj(40), _traj(25, seed=1)], [np.zeros(40, int), np.ones(25, int)])
-    assert x.shape == (2, 10, 40) and labels is not None and labels.shape == (2, 40) and mask.shape == (2, 40)
+    assert x.shape == (2, 40, 10) and labels is not None and labels.shape == (2, 40) and mask.shape == (2, 40)
     z = net(x, mask)
-    assert z.shape == (2, 5, 40) and z.dtype == torch.float32
-    norms = z.norm(dim=1)
+    assert z.shape == (2, 40, 5) and z.dtype == torch.float32
+    norms = z.norm(dim=2)
     assert torch.allclose(norms[mask], torch.ones(65), atol=1e-6)
-    assert (z[1, :, 25:] == 0).all()
+    assert (z[1, 25:] == 0).all()
     assert num_parameters(net) == 10 * 64 + 64 + 30 * 2 * (64 * 64 + 64) + 64 * 5 + 5
 
 
@@ -53,13 +53,13 @@ def test_padded_batch_equals_clips_alone() -> None:
     net = _net()
     a, b = _traj(37, seed=2), _traj(60, seed=3)
     x, _, mask = pad_batch([a, b])
-    x[0, :, 37:] = float("nan")  # whatever the padding holds must not matter
+    x[0, 37:] = float("nan")  # whatever the padding holds must not matter
     z = net(x, mask).detach()
-    alone_a = net(torch.from_numpy(a.T.copy())[None]).detach()
-    alone_b = net(torch.from_numpy(b.T.copy())[None]).detach()
-    assert torch.allclose(z[0, :, :37], alone_a[0], atol=1e-5, rtol=0)
+    alone_a = net(torch.from_numpy(a.copy())[None]).detach()
+    alone_b = net(torch.from_numpy(b.copy())[None]).detach()
+    assert torch.allclose(z[0, :37], alone_a[0], atol=1e-5, rtol=0)
     assert torch.allclose(z[1], alone_b[0], atol=1e-5, rtol=0)
-    assert np.allclose(net.embed(a), alone_a[0].T.numpy(), atol=1e-6)
+    assert np.allclose(net.embed(a), alone_a[0].numpy(), atol=1e-6)
 
 
 @pytest.mark.parametrize("input_norm", ["shared", "channel", "motion"])
@@ -117,7 +117,7 @@ def test_wrong_dimension_raises_input_error() -> None:
     with pytest.raises(InputError, match="NaN"):
         net.embed(np.full((3, 10), np.nan))
     with pytest.raises(InputError, match="expected"):
-        net(torch.zeros(1, 4, 30))
+        net(torch.zeros(1, 30, 4))
     with pytest.raises(InputError, match="one D"):
         pad_batch([np.zeros((3, 10)), np.zeros((3, 4))])
 
@@ -213,9 +213,9 @@ def test_pad_batch_values_and_errors() -> None:
     a = np.arange(6, dtype=np.float64).reshape(3, 2)
     b = np.ones((1, 2))
     x, labels, mask = pad_batch([a, b], [np.array([2, 0, 1]), np.array([5])])
-    assert x.dtype == torch.float32 and x.shape == (2, 2, 3)
-    assert torch.equal(x[0], torch.tensor(a.T, dtype=torch.float32))
-    assert torch.equal(x[1], torch.tensor([[1.0, 0, 0], [1.0, 0, 0]]))
+    assert x.dtype == torch.float32 and x.shape == (2, 3, 2)
+    assert torch.equal(x[0], torch.tensor(a, dtype=torch.float32))
+    assert torch.equal(x[1], torch.tensor([[1.0, 1.0], [0, 0], [0, 0]]))
     assert labels is not None and torch.equal(labels, torch.tensor([[2, 0, 1], [5, -1, -1]]))
     assert torch.equal(mask, torch.tensor([[True, True, True], [True, False, False]]))
     assert pad_batch([a])[1] is None

@@ -11,8 +11,8 @@ from mosegpipe.training.losses import LOSSES, MIMI_EPS, ce_affinity_loss, l2_aff
 
 
 def _batch(points: list[list[float]], labels: list[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One clip: (N, E) points -> z (1, E, N), labels (1, N), mask (1, N)."""
-    z = torch.tensor(points, dtype=torch.float64).T.unsqueeze(0)
+    """One clip: (N, E) points -> z (1, N, E), labels (1, N), mask (1, N)."""
+    z = torch.tensor(points, dtype=torch.float64).unsqueeze(0)
     lab = torch.tensor([labels], dtype=torch.int64)
     return z, lab, torch.ones_like(lab, dtype=torch.bool)
 
@@ -74,7 +74,8 @@ def test_l2_matches_naive_formula() -> None:
         mask[1, 6:] = False
         mask[2, 4:] = False
         labels[~mask] = -1
-        assert l2_affinity_loss(z, labels, mask).item() == pytest.approx(_naive_l2(z, labels, mask).item(), abs=1e-12)
+        loss = l2_affinity_loss(z.transpose(1, 2), labels, mask)  # z is (B, E, N) here; losses take (B, N, E)
+        assert loss.item() == pytest.approx(_naive_l2(z, labels, mask).item(), abs=1e-12)
 
 
 def test_ce_hand_computed() -> None:
@@ -94,7 +95,7 @@ def test_gradients_match_finite_differences(name: str) -> None:
     z = torch.randn(2, 3, 7, generator=gen, dtype=torch.float64, requires_grad=True)
     labels = torch.tensor([[0, 0, 0, 1, 1, 2, 2], [4, 4, 1, 1, 1, -1, -1]])
     mask = labels >= 0
-    assert torch.autograd.gradcheck(lambda t: LOSSES[name](t, labels, mask), (z,), eps=1e-6, atol=1e-6)
+    assert torch.autograd.gradcheck(lambda t: LOSSES[name](t.transpose(1, 2), labels, mask), (z,), eps=1e-6, atol=1e-6)
 
 
 @pytest.mark.parametrize("name", sorted(LOSSES))
@@ -105,15 +106,16 @@ def test_padding_does_not_change_loss(name: str) -> None:
     la = torch.tensor([[0, 0, 1, 1, 2, 2]])
     zb = F.normalize(torch.randn(1, 4, 9, generator=gen, dtype=torch.float64), dim=1)
     lb = torch.tensor([[1, 0, 1, 0, 1, 0, 1, 0, 0]])
-    alone_a = fn(za, la, torch.ones_like(la, dtype=torch.bool))
-    alone_b = fn(zb, lb, torch.ones_like(lb, dtype=torch.bool))
+    # Built channels-first (E before N) as (1, E, N); the losses take (B, N, E).
+    alone_a = fn(za.transpose(1, 2), la, torch.ones_like(la, dtype=torch.bool))
+    alone_b = fn(zb.transpose(1, 2), lb, torch.ones_like(lb, dtype=torch.bool))
     # Pad clip a to 9 points with garbage (NaN embeddings, real-looking labels) that the mask removes.
     z = torch.cat([torch.cat([za, torch.full((1, 4, 3), float("nan"), dtype=za.dtype)], dim=2), zb])
     labels = torch.cat([torch.cat([la, torch.tensor([[0, 1, 2]])], dim=1), lb])
     mask = torch.ones(2, 9, dtype=torch.bool)
     mask[0, 6:] = False
     z.requires_grad_(True)
-    batch = fn(z, labels, mask)
+    batch = fn(z.transpose(1, 2), labels, mask)
     assert batch.item() == pytest.approx(((alone_a + alone_b) / 2).item(), abs=1e-12)
     batch.backward()
     assert torch.isfinite(z.grad).all()
@@ -121,7 +123,7 @@ def test_padding_does_not_change_loss(name: str) -> None:
 
 
 def test_empty_batch_gives_zero() -> None:
-    z = torch.randn(1, 3, 4, requires_grad=True)
+    z = torch.randn(1, 4, 3, requires_grad=True)
     labels = torch.full((1, 4), -1)
     for fn in LOSSES.values():
         loss = fn(z, labels, labels >= 0)
@@ -156,7 +158,7 @@ def test_minimising_mimi_separates_two_clusters() -> None:
 
     inter0, spread0 = stats(F.normalize(raw.detach(), dim=1))
     for _ in range(300):
-        loss = mimi_loss(F.normalize(raw, dim=1), labels, mask)
+        loss = mimi_loss(F.normalize(raw, dim=1).transpose(1, 2), labels, mask)
         opt.zero_grad()
         loss.backward()
         opt.step()

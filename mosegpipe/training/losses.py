@@ -1,7 +1,7 @@
 """Training losses for SubspaceNet embeddings, masked for padded batches.
 
 Every loss takes
-    z: (B, E, N) float embeddings (unit L2 norm per point, as SubspaceNet outputs them),
+    z: (B, N, E) float embeddings (unit L2 norm per point, as SubspaceNet outputs them),
     labels: (B, N) int64 ground-truth group of each point, -1 on padding,
     mask: (B, N) bool, True on real points,
 and returns a scalar: the mean over the batch's clips of a per-clip loss computed on that clip's real
@@ -27,10 +27,17 @@ from mosegpipe.errors import InputError
 MIMI_EPS = 1e-6
 
 
+def _channels_first(z: Tensor) -> Tensor:
+    """(B, N, E) embeddings -> the (B, E, N) view the loss terms are written in (no copy)."""
+    if z.ndim != 3:
+        raise InputError(f"embeddings shape {tuple(z.shape)}: expected (B, N, E)")
+    return z.transpose(1, 2)
+
+
 def _valid_points(z: Tensor, labels: Tensor, mask: Tensor) -> Tensor:
     """Check shapes and return the (B, N) bool of points that count (mask True and label >= 0)."""
     if z.ndim != 3:
-        raise InputError(f"embeddings shape {tuple(z.shape)}: expected (B, E, N)")
+        raise InputError(f"embeddings shape {tuple(z.shape)}: expected (B, N, E)")
     expected = (z.shape[0], z.shape[2])
     if labels.shape != expected or mask.shape != expected:
         raise InputError(
@@ -69,7 +76,7 @@ def mimi_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Te
     (1 - alpha) * log(intra + eps), which still pulls the group together.
 
     Args:
-        z: (B, E, N) embeddings.
+        z: (B, N, E) embeddings.
         labels: (B, N) int64 groups, -1 on padding.
         mask: (B, N) bool, True on real points.
         alpha: weight of the inter term, in [0, 1].
@@ -77,6 +84,7 @@ def mimi_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Te
     Returns:
         Scalar tensor, mean over clips.
     """
+    z = _channels_first(z)
     if not 0.0 <= alpha <= 1.0:
         raise InputError(f"mimi_loss alpha={alpha}: must lie in [0, 1]")
     valid = _valid_points(z, labels, mask)
@@ -115,13 +123,14 @@ def l2_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor) -> Tensor:
     so the cost is O(N (E + K) E) instead of O(N^2 E).
 
     Args:
-        z: (B, E, N) embeddings.
+        z: (B, N, E) embeddings.
         labels: (B, N) int64 groups, -1 on padding.
         mask: (B, N) bool, True on real points.
 
     Returns:
         Scalar tensor, mean over clips.
     """
+    z = _channels_first(z)
     valid = _valid_points(z, labels, mask)
     dense, num_groups = _dense_labels(labels, valid)
     zm = torch.where(valid.unsqueeze(1), z, torch.zeros((), dtype=z.dtype, device=z.device))
@@ -145,7 +154,7 @@ def ce_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor, scale: float = 1.0
     Forms a (B, N, N) tensor: fine up to N ~ 2000.
 
     Args:
-        z: (B, E, N) embeddings.
+        z: (B, N, E) embeddings.
         labels: (B, N) int64 groups, -1 on padding.
         mask: (B, N) bool, True on real points.
         scale: multiplier of the affinities before the sigmoid, > 0.
@@ -153,6 +162,7 @@ def ce_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor, scale: float = 1.0
     Returns:
         Scalar tensor: per clip the mean over its real pairs, then the mean over clips.
     """
+    z = _channels_first(z)
     if not scale > 0.0:
         raise InputError(f"ce_affinity_loss scale={scale}: must be > 0")
     valid = _valid_points(z, labels, mask)
