@@ -34,7 +34,6 @@ import importlib.resources
 import logging
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,6 +45,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from mosegpipe.errors import CheckpointError, InputError
+from mosegpipe.io import atomic_write
 from mosegpipe.trajectories import resample_frames
 from mosegpipe.types import Trajectories
 
@@ -322,24 +322,17 @@ class SubspaceNet(nn.Module):
     def save(
         self, path: str | os.PathLike[str], recipe: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None
     ) -> Path:
-        """Write `checkpoint(recipe, metrics)` to `path` atomically (temp file + os.replace).
+        """Write `checkpoint(recipe, metrics)` to `path` atomically (io.atomic_write: temp file + rename).
 
         Returns:
             The path written. A reader never sees a half-written file, even if saving is interrupted.
         """
         path = Path(path)
         ckpt = self.checkpoint(recipe, metrics)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                torch.save(ckpt, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_write(path) as tmp, open(tmp, "wb") as f:
+            torch.save(ckpt, f)
+            f.flush()
+            os.fsync(f.fileno())
         logger.debug("saved SubspaceNet checkpoint %s", path)
         return path
 
