@@ -44,7 +44,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from mosegpipe.errors import CheckpointError, InputError
+from mosegpipe.errors import CheckpointError, ConfigError, InputError
 from mosegpipe.io import atomic_write
 from mosegpipe.trajectories import resample_frames
 from mosegpipe.types import Trajectories
@@ -93,11 +93,11 @@ class ModelConfig:
         for name in ("in_dim", "width", "embed_dim"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise InputError(f"ModelConfig.{name}={value!r}: must be a positive int")
+                raise ConfigError(f"ModelConfig.{name}={value!r}: must be a positive int")
         if not isinstance(self.num_blocks, int) or self.num_blocks < 0:
-            raise InputError(f"ModelConfig.num_blocks={self.num_blocks!r}: must be an int >= 0")
+            raise ConfigError(f"ModelConfig.num_blocks={self.num_blocks!r}: must be an int >= 0")
         if self.input_norm not in INPUT_NORMS:
-            raise InputError(f"ModelConfig.input_norm={self.input_norm!r}: expected one of {INPUT_NORMS}")
+            raise ConfigError(f"ModelConfig.input_norm={self.input_norm!r}: expected one of {INPUT_NORMS}")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all fields (stored in checkpoints)."""
@@ -245,9 +245,9 @@ class SubspaceNet(nn.Module):
             InputError: x or mask has the wrong shape.
         """
         if x.ndim != 3 or x.shape[2] != self.cfg.in_dim:
-            raise InputError(f"x shape {tuple(x.shape)}: expected (B, N, {self.cfg.in_dim})")
+            raise ValueError(f"x shape {tuple(x.shape)}: expected (B, N, {self.cfg.in_dim})")
         if mask is not None and (mask.shape != (x.shape[0], x.shape[1]) or mask.dtype != torch.bool):
-            raise InputError(
+            raise ValueError(
                 f"mask shape {tuple(mask.shape)} dtype {mask.dtype}: expected bool ({x.shape[0]}, {x.shape[1]})"
             )
         return self._embed_points(x.to(torch.float32), mask)
@@ -448,18 +448,18 @@ def pad_batch(
         InputError: empty list, mismatched D, or labels that do not match the trajectories.
     """
     if not trajs:
-        raise InputError("pad_batch: no trajectory matrices given")
+        raise ValueError("pad_batch: no trajectory matrices given")
     arrays = [np.asarray(t) for t in trajs]
     dims = {a.shape[1] if a.ndim == 2 else None for a in arrays}
     if len(dims) != 1 or None in dims:
-        raise InputError(f"pad_batch: trajectory shapes {[a.shape for a in arrays]}: expected (N_i, D), one D")
+        raise ValueError(f"pad_batch: trajectory shapes {[a.shape for a in arrays]}: expected (N_i, D), one D")
     dim = dims.pop()
     if labels is not None:
         if len(labels) != len(arrays):
-            raise InputError(f"pad_batch: {len(labels)} label vectors for {len(arrays)} clips")
+            raise ValueError(f"pad_batch: {len(labels)} label vectors for {len(arrays)} clips")
         for i, (a, lab) in enumerate(zip(arrays, labels)):
             if np.shape(lab) != (a.shape[0],):
-                raise InputError(f"pad_batch: clip {i} labels shape {np.shape(lab)}, expected ({a.shape[0]},)")
+                raise ValueError(f"pad_batch: clip {i} labels shape {np.shape(lab)}, expected ({a.shape[0]},)")
     num_max = max(a.shape[0] for a in arrays)
     x_cf = torch.zeros((len(arrays), dim, num_max), dtype=torch.float32)  # type: ignore[arg-type]
     mask = torch.zeros((len(arrays), num_max), dtype=torch.bool)

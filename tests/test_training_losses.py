@@ -133,7 +133,7 @@ def test_empty_batch_gives_zero() -> None:
 
 def test_bad_shapes_and_arguments_raise() -> None:
     z, lab, mask = _batch(CROSS, [0, 0, 1, 1])
-    with pytest.raises(InputError, match="expected"):
+    with pytest.raises(ValueError, match="expected"):
         mimi_loss(z, lab[:, :3], mask[:, :3])
     with pytest.raises(InputError, match="alpha=1.5"):
         mimi_loss(z, lab, mask, alpha=1.5)

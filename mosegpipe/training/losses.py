@@ -7,6 +7,7 @@ Every loss takes
 and returns a scalar: the mean over the batch's clips of a per-clip loss computed on that clip's real
 points only (mask True and label >= 0). Clips without real points are left out of the mean; a batch
 without any real point gives 0 (still attached to the graph). Labels need not be contiguous.
+Tensors of the wrong shape are a bug in the caller (ValueError); bad settings are a ConfigError.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from mosegpipe.errors import InputError
+from mosegpipe.errors import ConfigError
 
 # Added inside the logarithms of MIMI. Embeddings are unit vectors, so squared distances lie in
 # [0, 4]; a perfectly collapsed group has intra spread 0 and log(0) = -inf. 1e-6 bounds the loss
@@ -30,22 +31,22 @@ MIMI_EPS = 1e-6
 def _channels_first(z: Tensor) -> Tensor:
     """(B, N, E) embeddings -> the (B, E, N) view the loss terms are written in (no copy)."""
     if z.ndim != 3:
-        raise InputError(f"embeddings shape {tuple(z.shape)}: expected (B, N, E)")
+        raise ValueError(f"embeddings shape {tuple(z.shape)}: expected (B, N, E)")
     return z.transpose(1, 2)
 
 
 def _valid_points(z: Tensor, labels: Tensor, mask: Tensor) -> Tensor:
     """Check shapes and return the (B, N) bool of points that count (mask True and label >= 0)."""
     if z.ndim != 3:
-        raise InputError(f"embeddings shape {tuple(z.shape)}: expected (B, N, E)")
+        raise ValueError(f"embeddings shape {tuple(z.shape)}: expected (B, N, E)")
     expected = (z.shape[0], z.shape[2])
     if labels.shape != expected or mask.shape != expected:
-        raise InputError(
+        raise ValueError(
             f"labels shape {tuple(labels.shape)} / mask shape {tuple(mask.shape)}: "
             f"expected {expected} for embeddings {tuple(z.shape)}"
         )
     if mask.dtype != torch.bool:
-        raise InputError(f"mask dtype {mask.dtype}: expected torch.bool")
+        raise ValueError(f"mask dtype {mask.dtype}: expected torch.bool")
     return mask & (labels >= 0)
 
 
@@ -86,7 +87,7 @@ def mimi_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Te
     """
     z = _channels_first(z)
     if not 0.0 <= alpha <= 1.0:
-        raise InputError(f"mimi_loss alpha={alpha}: must lie in [0, 1]")
+        raise ConfigError(f"mimi_loss alpha={alpha}: must lie in [0, 1]")
     valid = _valid_points(z, labels, mask)
     terms = []
     # A Python loop over clips: B is small (<= 8) and each clip has its own number of groups.
@@ -164,7 +165,7 @@ def ce_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor, scale: float = 1.0
     """
     z = _channels_first(z)
     if not scale > 0.0:
-        raise InputError(f"ce_affinity_loss scale={scale}: must be > 0")
+        raise ConfigError(f"ce_affinity_loss scale={scale}: must be > 0")
     valid = _valid_points(z, labels, mask)
     # Zero the padding first: NaN there would otherwise leak into the gradient through the BCE.
     zm = torch.where(valid.unsqueeze(1), z, torch.zeros((), dtype=z.dtype, device=z.device))
