@@ -1,10 +1,13 @@
 """Evaluation: metrics, baselines, label transfer, the protocol registry and the report writer.
 
 Modules:
-    metrics: misclassification error, NMI, correct-K rate, mask J and boundary F (pure NumPy).
+    metrics: misclassification error, NMI, correct-K rate (pure NumPy).
     baselines: K-means, spectral clustering and sparse subspace clustering on raw trajectories.
+    label_transfer: ground-truth labels for our own tracks and matches.
     benchmark: protocols on labelled trajectory benchmarks (KT3DMoSeg, Hopkins155, AdelaideRMF, LCE).
-    e2e: end-to-end protocols (our own tracks or matches against ground truth; rendered clips).
+    e2e: end-to-end protocols (our own tracks or matches against ground truth; mask J / boundary F).
+    protocols: the `Protocol` registry behind `moseg eval NAME` (a new protocol is one entry).
+    report: summaries, Markdown tables and the results files.
 
 Nothing in the inference pipeline imports this package.
 """
