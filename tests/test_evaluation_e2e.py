@@ -19,7 +19,7 @@ from mosegpipe.evaluation.label_transfer import nearest_within, transfer_labels
 from mosegpipe.evaluation.protocols import PROTOCOLS, get_protocol
 from mosegpipe.pipeline import PipelineConfig
 
-from helpers import tiny_model
+from helpers import tiny_checkpoint, tiny_model
 
 
 def _square(size_hw: tuple[int, int], x0: int, y0: int, side: int) -> np.ndarray:
@@ -183,7 +183,7 @@ def test_protocol_registry() -> None:
     end_to_end = ["kt3d-video", "adelaide-pairs", "rendered"]
     names = list(PROTOCOLS)
     assert [n for n in names if n in shipped + end_to_end] == shipped + end_to_end  # more may follow
-    assert set(end_to_end) <= {p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"}
+    assert {n for n in end_to_end} <= {p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"}
     for p in PROTOCOLS.values():
         assert callable(p.run) and p.description and p.default_frames >= 1
         assert (p.end_to_end is not None) == (p.kind == "end-to-end") != (p.load_clips is not None)
@@ -240,3 +240,45 @@ def test_adelaide_one_pair(data_root: Path) -> None:
     assert row["name"] == "breadcube"
     assert 0 < row["num_scored"] < row["num_matches"]
     assert row["k_true"] >= 1 and 0.0 <= row["error"] <= 1.0
+
+
+def test_end_to_end_loo_excludes_the_held_out_sequence_and_resumes(
+    data_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mosegpipe.evaluation.protocols import EvalRequest
+    from mosegpipe.training import run
+    from mosegpipe.training.loop import TrainResult
+
+    calls: list[tuple[tuple[str, float], ...]] = []
+    excluded: list[tuple[str, ...]] = []
+
+    def fake_train(sources, data_root, cfg, model_cfg=None, init=None, exclude=(), **kw):  # type: ignore[no-untyped-def]
+        calls.append(tuple(sources))
+        excluded.append(tuple(exclude))
+        return TrainResult(model=tiny_model(5), seconds=0.1, steps_done=cfg.steps), {"steps": cfg.steps}
+
+    monkeypatch.setattr(run, "train_sources", fake_train)
+    proto = get_protocol("kt3d-video-loo")
+    init = tiny_checkpoint(tmp_path / "init.pt", 5)
+    req = EvalRequest(
+        out_dir=tmp_path / "out",
+        data_root=data_root,
+        init=init,
+        steps=3,
+        baselines=("kmeans-raw",),
+        folds=("Seq009_Clip01",),
+    )
+    first = proto.run(proto, req)
+    assert excluded == [("Seq009_Clip01",)] and dict(calls[0])["kt3d-own"] > 0
+    (row,) = first.rows
+    assert row["name"] == "Seq009_Clip01" and row["num_scored"] > 0 and "kmeans-raw@K" in row and "error_true_k" in row
+    assert (tmp_path / "out" / "folds" / "Seq009_Clip01.pt").is_file() and (tmp_path / "out" / "results.json").is_file()
+    # Other clustering settings re-score the stored fold; other training settings train again.
+    from dataclasses import replace
+
+    proto.run(proto, replace(req, k_method="residual"))
+    assert len(calls) == 1
+    proto.run(proto, replace(req, steps=4))
+    assert len(calls) == 2
+    with pytest.raises(ConfigError, match="not in kt3d-video-loo"):
+        proto.run(proto, replace(req, folds=("NoSuchSequence",)))

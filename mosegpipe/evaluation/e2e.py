@@ -49,6 +49,7 @@ from mosegpipe.evaluation.metrics import misclassification_error
 from mosegpipe.masks import labels_to_masks
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair
+from mosegpipe.trajectories import trajectories_from_matches
 from mosegpipe.types import Frames
 
 log = logging.getLogger(__name__)
@@ -306,6 +307,42 @@ def _score(pred: npt.NDArray[np.int64], gt: npt.NDArray[np.int64]) -> tuple[int,
     return int(np.unique(gt).size), misclassification_error(pred, gt)
 
 
+def same_point_scores(
+    traj: npt.NDArray[np.float32],
+    emb: npt.NDArray[np.float32],
+    scored: npt.NDArray[np.bool_],
+    gt: npt.NDArray[np.int64],
+    cfg: PipelineConfig,
+    baselines: Sequence[str] = (),
+) -> dict[str, float]:
+    """SubspaceNet with the true K, and baselines with the true K, on the very points the pipeline segmented.
+
+    Every method clusters all N points (as the pipeline does) and is scored on the `scored` ones.
+
+    Args:
+        traj: (N, 2F) trajectory matrix the pipeline embedded, pixels.
+        emb: (N, E) its embeddings.
+        scored: (N,) bool, the points with a ground-truth label.
+        gt: (scored.sum(),) their ground-truth labels.
+        cfg: pipeline settings (K-means settings of cfg.cluster).
+        baselines: names from evaluation.baselines.BASELINES.
+
+    Returns:
+        {"error_true_k": ..., "<baseline>@K": ...}; NaN when nothing is scored.
+    """
+    from mosegpipe.cluster import cluster_auto_k
+    from mosegpipe.evaluation.baselines import BASELINES
+
+    k = int(np.unique(gt).size)
+    if k == 0:
+        return {"error_true_k": float("nan"), **{f"{b}@K": float("nan") for b in baselines}}
+    k = min(k, traj.shape[0])
+    out = {"error_true_k": misclassification_error(cluster_auto_k(emb, cfg.cluster, k=k).labels[scored], gt)}
+    for b in baselines:
+        out[f"{b}@K"] = misclassification_error(BASELINES[b](traj, k)[scored], gt)
+    return out
+
+
 def kt3d_video_rows(
     data_root: str | Path,
     model: SubspaceNet | None,
@@ -314,6 +351,7 @@ def kt3d_video_rows(
     max_dist_px: float = KT3D_MAX_DIST_PX,
     names: Sequence[str] | None = None,
     warmup: bool = True,
+    baselines: Sequence[str] | None = None,
 ) -> list[dict[str, Any]]:
     """The full clip pipeline on the first F frames of every KT3DMoSeg sequence.
 
@@ -325,12 +363,15 @@ def kt3d_video_rows(
         max_dist_px: label-transfer radius in frame 1, pixels (see the module docstring).
         names: only these sequences (None = all 22).
         warmup: run the first clip once untimed, so that one-off costs stay out of `seconds`.
+        baselines: also score SubspaceNet with the true K and these baselines with the true K on
+            the same tracks (`same_point_scores`); None = neither.
 
     Returns:
         One row per sequence: name, num_tracks (tracks segmented), num_scored (tracks with a
         ground-truth label), k_true (ground-truth groups among the scored tracks), k_pred, error
         (misclassification over the scored tracks, NaN when none), seconds (segment_frames:
-        tracking, embedding, automatic K, masks; reading the JPEGs excluded).
+        tracking, embedding, automatic K, masks; reading the JPEGs excluded), and with
+        `baselines` error_true_k and `<baseline>@K`.
 
     Raises:
         DatasetError: the KT3DMoSeg folder is missing or malformed.
@@ -372,17 +413,17 @@ def kt3d_video_rows(
         scored = matched & ~(seen_last & apart)
         gt = seq.labels[gt_rows[scored]]
         k_true, error = _score(result.clustering.labels[scored], gt)
-        rows.append(
-            {
-                **row,
-                "num_tracks": result.trajectories.num_points,
-                "num_scored": int(scored.sum()),
-                "k_true": k_true,
-                "k_pred": result.clustering.k,
-                "error": error,
-                "seconds": seconds,
-            }
+        row.update(
+            num_tracks=result.trajectories.num_points,
+            num_scored=int(scored.sum()),
+            k_true=k_true,
+            k_pred=result.clustering.k,
+            error=error,
+            seconds=seconds,
         )
+        if baselines is not None:
+            row.update(same_point_scores(result.trajectories.data, result.embeddings, scored, gt, cfg, baselines))
+        rows.append(row)
         log.info("%s: %d/%d tracks scored, error %.4f", name, scored.sum(), scored.size, error)
     return rows
 
@@ -394,6 +435,7 @@ def adelaide_pair_rows(
     max_dist_px: float = ADELAIDE_MAX_DIST_PX,
     names: Sequence[str] | None = None,
     warmup: bool = True,
+    baselines: Sequence[str] | None = None,
 ) -> list[dict[str, Any]]:
     """The full pair pipeline (SIFT matching included) on every AdelaideRMF pair.
 
@@ -404,6 +446,8 @@ def adelaide_pair_rows(
         max_dist_px: label-transfer radius, pixels, checked in both images.
         names: only these pairs (None = all 19).
         warmup: run the first pair once untimed.
+        baselines: also score SubspaceNet and these baselines with the true K (outliers one group,
+            no outlier cluster) on the same matches; None = neither.
 
     Returns:
         One row per pair: name, num_matches (our SIFT matches), num_scored (matches with a
@@ -437,18 +481,20 @@ def adelaide_pair_rows(
         agree2 = np.linalg.norm(m.xy2 - pair.xy2[gt_i], axis=1) <= max_dist_px
         scored = (idx >= 0) & agree2
         pred = _with_outlier_group(result.labels)
-        k_true, error = _score(pred[scored], pair.labels[gt_i[scored]])
-        rows.append(
-            {
-                **row,
-                "num_matches": m.num_matches,
-                "num_scored": int(scored.sum()),
-                "k_true": k_true,
-                "k_pred": result.clustering.k,
-                "error": error,
-                "seconds": seconds,
-            }
+        gt = pair.labels[gt_i[scored]]
+        k_true, error = _score(pred[scored], gt)
+        row.update(
+            num_matches=m.num_matches,
+            num_scored=int(scored.sum()),
+            k_true=k_true,
+            k_pred=result.clustering.k,
+            error=error,
+            seconds=seconds,
         )
+        if baselines is not None:
+            traj = trajectories_from_matches(m).data
+            row.update(same_point_scores(traj, result.embeddings, scored, gt, cfg, baselines))
+        rows.append(row)
     return rows
 
 

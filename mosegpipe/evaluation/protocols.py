@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 
-from mosegpipe.errors import check_choice, lookup
+from mosegpipe.errors import ConfigError, check_choice, lookup
 from mosegpipe.types import KMethodName
 
 if TYPE_CHECKING:
@@ -87,6 +87,13 @@ class EvalResult:
     table: str
 
 
+EndToEnd = Callable[
+    ["Path | None", "SubspaceNet | None", "PipelineConfig", "Sequence[str] | None", "Sequence[str] | None"],
+    list[dict[str, Any]],
+]
+"""(data_root, model, cfg, names, baselines) -> one row per clip (see evaluation/e2e.py)."""
+
+
 @dataclass(frozen=True)
 class Protocol:
     """One evaluation protocol.
@@ -103,7 +110,11 @@ class Protocol:
             (a name in training.recipes.SOURCES); None = never trains.
         fold_key: how test clips group into leave-one-out folds (None = one fold, trained only when
             no model is given).
-        end_to_end: end-to-end protocols: (data_root, model, cfg) -> rows.
+        end_to_end: end-to-end protocols: (data_root, model, cfg, names, baselines) -> rows; names
+            None = every clip, baselines None = none.
+        fold_recipe: end-to-end leave-one-out: the training recipe every fold follows (without the
+            held-out sequence / pair in any of its sources).
+        fold_names: end-to-end leave-one-out: data_root -> the held-out names, one fold each.
     """
 
     name: str
@@ -115,12 +126,16 @@ class Protocol:
     load_clips: Callable[[Path, int], list[LabeledClip]] | None = None
     train_source: Callable[[str], str] | None = None
     fold_key: Callable[[LabeledClip], str] | None = None
-    end_to_end: Callable[[Path | None, SubspaceNet | None, PipelineConfig], list[dict[str, Any]]] | None = None
+    end_to_end: EndToEnd | None = None
+    fold_recipe: str | None = None
+    fold_names: Callable[[Path], list[str]] | None = None
 
     @property
     def is_test_only(self) -> bool:
         """Whether it scores a given model and never trains."""
-        return self.kind == "end-to-end" or self.train_source is None
+        return (self.kind == "end-to-end" and self.fold_recipe is None) or (
+            self.kind == "benchmark" and self.train_source is None
+        )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -177,13 +192,105 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
     cfg = PipelineConfig(frames=f, cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max))
     net = load_model(f, req.model)
-    rows = protocol.end_to_end(req.data_root, net, cfg)
+    rows = protocol.end_to_end(req.data_root, net, cfg, None, req.baselines or None)
     config = {
         "protocol": protocol.name,
         "frames": f,
         "k_method": req.k_method,
         "k_max": req.k_max,
         "model": str(req.model or "shipped default"),
+    }
+    table = format_rows(rows)
+    summary = summarize_rows(rows)
+    write_results(req.out_dir, rows, summary, config, table)
+    return EvalResult(rows, summary, table)
+
+
+def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
+    """End to end, leave one out: per held-out sequence, train the protocol's recipe without it, then run
+    the whole pipeline on it.
+
+    Each fold trains `protocol.fold_recipe` exactly as written (the request's steps / batch size / lr /
+    loss override it) from the recipe's init checkpoint (`req.init`, else `out_dir/<init>.pt`, trained
+    first by its own recipe when missing; no init recipe reads the protocol's dataset). The held-out
+    name is excluded from every source, so its frames and tracks never reach training. Fold models and
+    rows are kept in out_dir/folds/ under a hash of what training depends on: an interrupted run
+    resumes, a re-run with other clustering settings or baselines re-scores without training.
+    """
+    import hashlib
+    import json
+    from dataclasses import asdict, replace
+
+    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
+    from mosegpipe.io import write_text
+    from mosegpipe.model import SubspaceNet
+    from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.training.recipes import get_recipe
+    from mosegpipe.training.run import TrainOverrides, train_recipe, train_sources
+
+    assert protocol.end_to_end is not None and protocol.fold_recipe is not None and protocol.fold_names is not None
+    if req.data_root is None:
+        raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
+    recipe = get_recipe(protocol.fold_recipe)
+    train_cfg = TrainOverrides(steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss).apply(recipe.train)
+    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
+    cfg = PipelineConfig(frames=train_cfg.frames, cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max))
+    say = req.progress or (lambda _msg: None)
+    names = protocol.fold_names(req.data_root)
+    if req.folds is not None:
+        unknown = sorted(set(req.folds) - set(names))
+        if unknown:
+            raise ConfigError(f"--folds {', '.join(unknown)}: not in {protocol.name} (choose from {', '.join(names)})")
+        names = [n for n in names if n in set(req.folds)]
+
+    init: SubspaceNet | None = None
+    init_path: Path | None = req.init
+    if init_path is None and recipe.init is not None:
+        init_path = req.out_dir / f"{recipe.init}.pt"
+        if not (init_path.is_file() and SubspaceNet.from_checkpoint(init_path).recipe.get("name") == recipe.init):
+            say(f"training the folds' starting point {recipe.init} -> {init_path}")
+            train_recipe(recipe.init, init_path, req.data_root)
+    init_hash = None
+    if init_path is not None:
+        init = SubspaceNet.from_checkpoint(init_path)
+        init_hash = hashlib.sha256(init_path.read_bytes()).hexdigest()[:16]
+    training = {"recipe": recipe.to_dict(), "train": asdict(train_cfg), "init_sha256": init_hash}
+    chash = hashlib.sha256(json.dumps(training, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+    fold_dir = req.out_dir / "folds"
+    rows: list[dict[str, Any]] = []
+    for name in names:
+        meta_path, model_path = fold_dir / f"{name}.json", fold_dir / f"{name}.pt"
+        stored = json.loads(meta_path.read_text()) if meta_path.is_file() and model_path.is_file() else {}
+        if stored.get("config_hash") == chash:
+            model = SubspaceNet.from_checkpoint(model_path)
+            seconds = stored.get("train_seconds")
+            trained = "trained earlier"
+        else:
+            result, rec = train_sources(
+                recipe.sources, req.data_root, train_cfg, model_cfg=recipe.model, init=init, exclude=(name,)
+            )
+            model, seconds = result.model, round(result.seconds, 1)
+            rec.update(name=f"{protocol.name}/{name}", init=str(init_path) if init_path else None, excluded=[name])
+            model.save(model_path, recipe=rec)
+            write_text(meta_path, json.dumps({"config_hash": chash, "train_seconds": seconds, "training": training}))
+            trained = f"trained {result.steps_done} steps in {seconds:.0f} s"
+        fold_rows = protocol.end_to_end(req.data_root, model, cfg, [name], req.baselines)
+        for r in fold_rows:
+            r["train_seconds"] = seconds
+        rows.extend(fold_rows)
+        errs = ", ".join(f"{100 * r['error']:.2f} % (K {r['k_pred']}/{r['k_true']})" for r in fold_rows)
+        say(f"{name}: {trained}; {errs}")
+    config = {
+        "protocol": protocol.name,
+        "fold_recipe": recipe.name,
+        "train": asdict(train_cfg),
+        "init": str(init_path) if init_path else None,
+        "k_method": req.k_method,
+        "k_max": req.k_max,
+        "baselines": list(req.baselines),
+        "folds": names,
     }
     table = format_rows(rows)
     summary = summarize_rows(rows)
@@ -228,22 +335,52 @@ def _clip_name(clip: LabeledClip) -> str:
     return clip.name
 
 
-def _kt3d_video(data_root: Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
+def _kt3d_video(
+    data_root: Path | None,
+    model: SubspaceNet | None,
+    cfg: PipelineConfig,
+    names: Sequence[str] | None = None,
+    baselines: Sequence[str] | None = None,
+) -> list[dict[str, Any]]:
     from mosegpipe.evaluation.e2e import kt3d_video_rows
 
     assert data_root is not None
-    return kt3d_video_rows(data_root, model, cfg)
+    return kt3d_video_rows(data_root, model, cfg, names=names, baselines=baselines)
 
 
-def _adelaide_pairs(data_root: Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
+def _adelaide_pairs(
+    data_root: Path | None,
+    model: SubspaceNet | None,
+    cfg: PipelineConfig,
+    names: Sequence[str] | None = None,
+    baselines: Sequence[str] | None = None,
+) -> list[dict[str, Any]]:
     from mosegpipe.evaluation.e2e import adelaide_pair_rows
 
     assert data_root is not None
-    return adelaide_pair_rows(data_root, model, cfg)
+    return adelaide_pair_rows(data_root, model, cfg, names=names, baselines=baselines)
 
 
-def _rendered(data_root: Path | None, model: SubspaceNet | None, cfg: PipelineConfig) -> list[dict[str, Any]]:
-    """`rendered_rows` with its defaults; data_root is not used (the clips are rendered)."""
+def _kt3d_names(data_root: Path) -> list[str]:
+    from mosegpipe.data.kt3dmoseg import list_kt3d_sequences
+
+    return list_kt3d_sequences(data_root)
+
+
+def _adelaide_names(data_root: Path) -> list[str]:
+    from mosegpipe.data.adelaidermf import list_adelaide
+
+    return list_adelaide(data_root)
+
+
+def _rendered(
+    data_root: Path | None,
+    model: SubspaceNet | None,
+    cfg: PipelineConfig,
+    names: Sequence[str] | None = None,
+    baselines: Sequence[str] | None = None,
+) -> list[dict[str, Any]]:
+    """`rendered_rows` with its defaults; data_root, names and baselines are not used (the clips are rendered)."""
     from mosegpipe.evaluation.e2e import rendered_rows
 
     return rendered_rows(model, cfg, frames=cfg.frames)
@@ -324,6 +461,29 @@ _PROTOCOLS: Sequence[Protocol] = (
         run=run_end_to_end,
         kind="end-to-end",
         end_to_end=_adelaide_pairs,
+    ),
+    Protocol(
+        "kt3d-video-loo",
+        "end to end, leave one sequence out: each fold trains clip-f5 without the held-out sequence, "
+        "then KLT tracks on its frames 1-5",
+        default_frames=5,
+        data="kt3dmoseg",
+        run=run_end_to_end_loo,
+        kind="end-to-end",
+        end_to_end=_kt3d_video,
+        fold_recipe="clip-f5",
+        fold_names=_kt3d_names,
+    ),
+    Protocol(
+        "adelaide-pairs-loo",
+        "end to end, leave one pair out: each fold trains pair-f2 without the held-out pair, then SIFT on its images",
+        default_frames=2,
+        data="adelaidermf",
+        run=run_end_to_end_loo,
+        kind="end-to-end",
+        end_to_end=_adelaide_pairs,
+        fold_recipe="pair-f2",
+        fold_names=_adelaide_names,
     ),
     Protocol(
         "rendered",

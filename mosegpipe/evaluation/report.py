@@ -134,10 +134,15 @@ def summarize_rows(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def _is_error(col: str) -> bool:
+    """Error columns: SubspaceNet's ("error", "error_true_k", ...) and the baselines' ("ssc@K", ...)."""
+    return "error" in col or col.endswith(("@K", "@auto"))
+
+
 def _fmt(col: str, val: Any, digits: int = 1) -> str:
     if isinstance(val, (float, np.floating)) and not np.isfinite(val):
         return "–"
-    if "error" in col:
+    if _is_error(col):
         return f"{100 * val:.2f}"
     if col == "seconds":
         return f"{1000 * val:.0f}"
@@ -163,7 +168,7 @@ def format_rows(rows: Sequence[dict[str, Any]]) -> str:
         return "(no rows)\n"
     summary = summarize_rows(rows)
     cols = list(rows[0])
-    heads = [f"{c} (%)" if "error" in c else "ms" if c == "seconds" else c for c in cols]
+    heads = [f"{c} (%)" if _is_error(c) else "ms" if c == "seconds" else c for c in cols]
     body = [[_fmt(c, r.get(c, "")) for c in cols] for r in rows]
     for stat in ("mean", "median"):
         body.append(
