@@ -473,11 +473,16 @@ def _run_process(
 # ---------------------------------------------------------------------------------------------
 
 _RAY_CACHE: dict[str, tuple[SubspaceNet, _Job]] = {}
+_STARTED = "started"
 
 
-def _ray_task(shared: list[Any], item: BatchItem) -> dict[str, Any]:
-    """A Ray task: the model and job (object refs, wrapped so Ray does not fetch them per task) are
-    fetched and set up once per worker process."""
+def _ray_task(shared: list[Any], item: BatchItem) -> Iterator[Any]:
+    """A Ray task (a streaming generator): yields _STARTED once the worker is set up, then the row.
+
+    The model and job (an object ref, wrapped in a list so that Ray does not fetch it for every
+    task) are fetched and set up once per worker process and batch. The first yield tells the
+    driver when the clip really starts, so that --clip-timeout does not count a worker's start-up.
+    """
     import ray
 
     key = shared[0]
@@ -491,7 +496,8 @@ def _ray_task(shared: list[Any], item: BatchItem) -> dict[str, Any]:
         _RAY_CACHE.clear()
         _RAY_CACHE[key] = (model.eval(), job)
     model, job = _RAY_CACHE[key]
-    return process_clip(item, job, model)
+    yield _STARTED
+    yield process_clip(item, job, model)
 
 
 def _import_ray() -> Any:
@@ -526,7 +532,8 @@ def _run_ray(
 
     Uses the Ray instance this process is already connected to, else connects to `address`, else
     starts a local one with `jobs` CPUs (shut down at the end). At most `jobs` tasks (default: the
-    cluster's CPUs) are in flight, so that a task's clock starts when a worker can take it.
+    cluster's CPUs) are in flight; a task past clip_timeout (from the moment it started) is
+    cancelled with force, which kills its worker.
     """
     ray = _import_ray()
     started = False
@@ -542,38 +549,49 @@ def _run_ray(
     try:
         limit = jobs or max(1, int(ray.cluster_resources().get("CPU", 1)))
         shared = [secrets.token_hex(8), ray.put((model, job))]  # a key per batch: workers set up once per batch
-        remote = ray.remote(_ray_task).options(num_cpus=1, max_retries=0, retry_exceptions=False)
+        remote = ray.remote(_ray_task).options(num_cpus=1, max_retries=0, num_returns="streaming")
         pending = collections.deque(todo)
-        inflight: dict[Any, tuple[int, BatchItem, float]] = {}
+        # generator -> [index, item, when it started (None: queued)]
+        inflight: dict[Any, list[Any]] = {}
+
+        def fail(gen: Any, error: str) -> None:
+            index, item, t0 = inflight.pop(gen)
+            log.warning("%s: %s", item.name, error)
+            emit(index, _row(item, status="failed", error=error, seconds=round(time.monotonic() - t0, 3) if t0 else ""))
+
         try:
             while pending or inflight:
                 while pending and len(inflight) < limit:
                     index, item = pending.popleft()
-                    inflight[remote.remote(shared, item)] = (index, item, time.monotonic())
+                    inflight[remote.remote(shared, item)] = [index, item, None]
                 wait_s = None
-                if clip_timeout is not None:
-                    wait_s = max(0.0, min(t0 for _, _, t0 in inflight.values()) + clip_timeout - time.monotonic())
+                running = [t0 for _, _, t0 in inflight.values() if t0 is not None]
+                if clip_timeout is not None and running:
+                    wait_s = max(0.0, min(running) + clip_timeout - time.monotonic())
                 ready, _ = ray.wait(list(inflight), num_returns=1, timeout=wait_s)
-                for ref in ready:
-                    index, item, t0 = inflight.pop(ref)
+                for gen in ready:
                     try:
-                        emit(index, ray.get(ref))
+                        value = ray.get(next(gen))
+                    except StopIteration:
+                        fail(gen, "its Ray task ended without a result (cancelled?)")
+                        continue
                     except ray.exceptions.RayError as exc:
-                        reason = _ray_failure(ray, exc)
-                        log.warning("%s: %s", item.name, reason)
-                        emit(index, _row(item, status="failed", error=reason, seconds=round(time.monotonic() - t0, 3)))
+                        fail(gen, _ray_failure(ray, exc))
+                        continue
+                    if isinstance(value, str) and value == _STARTED:
+                        inflight[gen][2] = time.monotonic()
+                    else:
+                        index, item, _ = inflight.pop(gen)
+                        emit(index, value)
                 now = time.monotonic()
-                for ref, (index, item, t0) in list(inflight.items()):
-                    if clip_timeout is not None and now - t0 >= clip_timeout:
-                        ray.cancel(ref, force=True)  # kills the worker running it
-                        del inflight[ref]
-                        log.warning("%s: timed out after %g s", item.name, clip_timeout)
-                        emit(index, _row(item, status="failed", error=f"timed out after {clip_timeout:g} s (--clip-timeout)",
-                                         seconds=round(now - t0, 3)))
+                for gen, (_, _, t0) in list(inflight.items()):
+                    if clip_timeout is not None and t0 is not None and now - t0 >= clip_timeout:
+                        ray.cancel(gen, force=True)  # kills the worker running it
+                        fail(gen, f"timed out after {clip_timeout:g} s (--clip-timeout)")
         except BaseException:
-            for ref in inflight:
+            for gen in inflight:
                 with contextlib.suppress(Exception):
-                    ray.cancel(ref, force=True)
+                    ray.cancel(gen, force=True)
             raise
     finally:
         if started:
