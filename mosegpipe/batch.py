@@ -34,7 +34,7 @@ import queue
 import secrets
 import shutil
 import signal
-import sys
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -281,24 +281,22 @@ def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, An
 _WORKER: dict[str, Any] = {}
 
 
-def _die_with_parent(parent_pid: int) -> None:
-    """Linux: the kernel kills this worker when its parent dies (a SIGKILLed batch leaves no orphans)."""
-    if not sys.platform.startswith("linux"):
-        return
-    with contextlib.suppress(Exception):
-        import ctypes
+def _watch_parent(lifeline: Any) -> None:
+    """Ends this worker when the batch process is gone (its end of the lifeline pipe closes).
 
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-        if os.getppid() != parent_pid:  # the parent died before prctl
-            os._exit(1)
+    Killing a parent does not kill its children, and forkserver workers are not even the batch
+    process's children: without this, the workers of a SIGKILLed batch would go on writing.
+    """
+    with contextlib.suppress(EOFError, OSError):
+        lifeline.recv()  # nothing is ever sent: this returns when the other end closes
+    os._exit(1)
 
 
-def _init_worker(model: SubspaceNet, job: _Job, ready: Any) -> None:
+def _init_worker(model: SubspaceNet, job: _Job, ready: Any, lifeline: Any) -> None:
     """Pool initializer: one thread, quiet decoders, Ctrl-C left to the parent, the model kept."""
     from mosegpipe.runtime import set_threads
 
-    _die_with_parent(os.getppid())
+    threading.Thread(target=_watch_parent, args=(lifeline,), name="moseg-lifeline", daemon=True).start()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the pool on Ctrl-C
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
@@ -352,7 +350,11 @@ class _Pool:
     def __init__(self, workers: int, model: SubspaceNet, job: _Job, startup_timeout: float = 600.0) -> None:
         ctx = _mp_context()
         self.ready = ctx.Queue()
-        self.executor = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready))
+        # Only this process holds the sending end: when it dies, however, the workers see EOF and exit.
+        lifeline, self.lifeline = ctx.Pipe(duplex=False)
+        self.executor = cf.ProcessPoolExecutor(
+            workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
+        )
         self.pids: set[int] = set()
         pings = [self.executor.submit(_ping) for _ in range(workers)]  # one submit starts one worker
         deadline = time.monotonic() + startup_timeout
@@ -363,7 +365,11 @@ class _Pool:
                 except queue.Empty:
                     failed = [f for f in pings if f.done() and f.exception() is not None]
                     if failed:
-                        raise RuntimeError(f"batch worker processes failed to start: {_one_line(failed[0].exception())}")
+                        raise RuntimeError(
+                            f"batch worker processes failed to start ({_one_line(failed[0].exception())}); see the "
+                            "worker's traceback above. A script that calls run_batch must do so under "
+                            "`if __name__ == '__main__':`, since the workers import the main module"
+                        )
                     if time.monotonic() > deadline:
                         raise RuntimeError(f"batch worker processes did not start within {startup_timeout:g} s")
             cf.wait(pings)
@@ -382,6 +388,7 @@ class _Pool:
             with contextlib.suppress(Exception):
                 p.kill()
         self.executor.shutdown(wait=False, cancel_futures=True)
+        self.lifeline.close()
         for p in procs:
             with contextlib.suppress(Exception):
                 p.join(5)

@@ -289,12 +289,29 @@ run_batch({root!r}, {out!r}, PipelineConfig(k=2), checkpoint={model!r}, rrd=Fals
 """
 
 
+def _processes_with(marker: str) -> list[int]:
+    """Live (not zombie) processes whose environment holds `marker` (Linux /proc)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            if marker.encode() in (proc / "environ").read_bytes().split(b"\0") and " Z " not in (proc / "stat").read_text():
+                found.append(int(proc.name))
+        except OSError:
+            continue
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/environ").exists(), reason="needs Linux /proc")
 def test_sigkill_of_the_parent_loses_and_duplicates_nothing(tmp_path: Path, model_path: Path, clip_bytes: bytes) -> None:
     names = [f"slow{i:02d}.avi" for i in range(10)]
     root = _tree(tmp_path / "clips", names, clip_bytes)
     out = tmp_path / "out"
     script = _KILLED_BATCH.format(tests=str(Path(__file__).parent), root=str(root), out=str(out), model=str(model_path))
-    child = subprocess.Popen([sys.executable, "-c", script], env={**os.environ, "OMP_NUM_THREADS": "1"})
+    marker = f"MOSEG_KILLED_BATCH={tmp_path}"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MOSEG_KILLED_BATCH": str(tmp_path)}
+    child = subprocess.Popen([sys.executable, "-c", script], env=env)
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not any(p.is_dir() and not p.name.startswith(".") for p in out.glob("*")):
@@ -303,7 +320,10 @@ def test_sigkill_of_the_parent_loses_and_duplicates_nothing(tmp_path: Path, mode
         child.send_signal(signal.SIGKILL)
     finally:
         child.wait(10)
-    time.sleep(1.0)  # the workers die with their parent (PR_SET_PDEATHSIG): nothing writes after this
+    deadline = time.monotonic() + 10  # the workers (and the forkserver) end with the batch process
+    while _processes_with(marker) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert _processes_with(marker) == []
     before = sorted(p.name for p in out.iterdir())
     time.sleep(1.0)
     assert sorted(p.name for p in out.iterdir()) == before
