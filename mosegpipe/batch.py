@@ -250,6 +250,11 @@ def _one_line(exc: BaseException) -> str:
 def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, Any]:
     """Segments one clip and writes its folder atomically; every failure becomes a "failed" row.
 
+    Args:
+        item: the clip and its output folder.
+        job: the batch's settings (pipeline config, recording flag, config hash, segment function).
+        model: the model, in eval mode.
+
     Returns:
         The row (FIELDS), plus "_traceback" for an unexpected exception (logged by the caller).
     """
@@ -350,7 +355,7 @@ class _Pool:
     def __init__(self, workers: int, model: SubspaceNet, job: _Job, startup_timeout: float = 600.0) -> None:
         ctx = _mp_context()
         self.ready = ctx.Queue()
-        # Only this process holds the sending end: when it dies, however, the workers see EOF and exit.
+        # Only this process holds the sending end: when it dies, however it dies, the workers see EOF and exit.
         lifeline, self.lifeline = ctx.Pipe(duplex=False)
         self.executor = cf.ProcessPoolExecutor(
             workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
@@ -363,10 +368,10 @@ class _Pool:
                 try:
                     self.pids.add(self.ready.get(timeout=0.2))
                 except queue.Empty:
-                    failed = [f for f in pings if f.done() and f.exception() is not None]
+                    failed = [e for f in pings if f.done() and (e := f.exception()) is not None]
                     if failed:
                         raise RuntimeError(
-                            f"batch worker processes failed to start ({_one_line(failed[0].exception())}); see the "
+                            f"batch worker processes failed to start ({_one_line(failed[0])}); see the "
                             "worker's traceback above. A script that calls run_batch must do so under "
                             "`if __name__ == '__main__':`, since the workers import the main module"
                         )

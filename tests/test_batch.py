@@ -338,3 +338,11 @@ def test_sigkill_of_the_parent_loses_and_duplicates_nothing(tmp_path: Path, mode
     assert {r["name"] for r in rows if r["status"] == "skipped"} == set(done)
     assert {r["name"] for r in rows if r["status"] == "ok"} == set(names) - set(done)
     assert sorted(p.name for p in out.iterdir()) == sorted([*names, "batch_summary.csv", "batch_summary.json"])
+
+
+def test_engine_ray_without_ray_is_one_line(tmp_path: Path, model_path: Path, clip_bytes: bytes, monkeypatch: pytest.MonkeyPatch) -> None:
+    root = _tree(tmp_path / "clips", ["a.avi"], clip_bytes)
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    result = runner.invoke(app, ["batch", str(root), "-o", str(tmp_path / "out"), "--model", str(model_path), "--engine", "ray"])
+    assert result.exit_code == 1
+    assert result.stderr == "moseg: error: --engine ray needs Ray: pip install 'mosegpipe[ray]'\n"
