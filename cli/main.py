@@ -267,24 +267,62 @@ def batch(
         bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")
     ] = False,
     no_rrd: NoRrd = False,
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            "--jobs",
+            "-j",
+            min=1,
+            help="Clips at once: worker processes (default: the number of cores), or Ray tasks in flight with --engine ray (default: the cluster's CPUs).",
+        ),
+    ] = None,
+    engine: Annotated[
+        str,
+        typer.Option(
+            "--engine",
+            help="'process' (worker processes on this machine), 'ray' (Ray tasks: pip install 'mosegpipe[ray]') or 'inline' (this process, one clip after another).",
+        ),
+    ] = "process",
+    address: Annotated[
+        str | None,
+        typer.Option(
+            "--address",
+            help="With --engine ray: the cluster to use ('auto', 'ray://HEAD:10001', ...); default: a local Ray instance. On a cluster --out must be a shared path.",
+        ),
+    ] = None,
+    clip_timeout: Annotated[
+        float | None,
+        typer.Option(
+            "--clip-timeout",
+            help="Seconds a clip may run before its worker is killed and it is reported failed (default: no limit).",
+        ),
+    ] = None,
     threads: Threads = 1,
     verbose: Verbose = False,
 ) -> None:
     """Segment every clip under FOLDER (video files and frame folders, searched recursively).
 
     Each clip gets its own sub-folder of --out (as from 'moseg run'), and batch_summary.csv/json
-    list every clip with its status. A clip that fails is reported and the others go on; a re-run
-    skips the clips already done (resume). Exit code: 0 when every clip was segmented or skipped,
-    1 when any clip failed (after all the others were processed and the summary written).
+    list every clip with its status. --jobs clips run at once, each worker with one thread. A clip
+    that fails, runs past --clip-timeout or kills its worker is reported and the others go on; a
+    re-run skips the clips already done with the same options and weights (resume) and redoes the
+    others.
+
+    Exit code: 0 when every clip was segmented or skipped, 1 when any clip failed (after all the
+    others were processed and the summary written).
     """
     _setup(threads, verbose)
     from rich.markup import escape
     from rich.progress import Progress
 
-    from mosegpipe.batch import plan, run_batch
+    from mosegpipe.batch import ENGINES, plan, run_batch
     from mosegpipe.pipeline import load_model
 
     cfg = _pipeline_cfg(frames, k, k_method, k_max)
+    if engine not in ENGINES:
+        raise InputError(f"--engine {engine!r}: choose {', '.join(map(repr, ENGINES))}")
+    if address is not None and engine != "ray":
+        raise InputError("--address only applies with --engine ray")
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder; choose another --out")
     items = plan(folder, out)
@@ -299,7 +337,19 @@ def batch(
             if row["status"] == "failed":
                 bar.console.print(f"[red]failed[/red] {escape(item.name)}: {escape(row['error'])}")
 
-        rows = run_batch(folder, out, cfg, net, rrd=not no_rrd, overwrite=overwrite, on_item=step)
+        rows = run_batch(
+            folder,
+            out,
+            cfg,
+            net,
+            rrd=not no_rrd,
+            overwrite=overwrite,
+            on_item=step,
+            jobs=jobs,
+            engine=engine,
+            address=address,
+            clip_timeout=clip_timeout,
+        )
     width = max(4, *(len(r["name"]) for r in rows))
     typer.echo(f"{'clip':<{width}}  status    K  tracks  seconds")
     for r in rows:
