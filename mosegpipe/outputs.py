@@ -36,7 +36,8 @@ from mosegpipe.pipeline import (
     segment_video,
 )
 
-SUMMARY_SCHEMA = "mosegpipe.summary/1"
+SUMMARY_SCHEMA = "mosegpipe.summary/2"
+"""Version 2: mask value = motion label (0 = the dominant motion), 255 = unknown (version 1: label + 1, 0 unknown)."""
 _FALLBACK_FPS = 10.0  # frame folders carry no rate; the overlay video needs one
 
 
@@ -314,7 +315,7 @@ def write_video_outputs(
     """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
 
     Output folder (built atomically; see docs/OUTPUTS.md): masks/NNNNNN.png for every frame (palette
-    PNG, value = global motion label + 1, 0 = unknown), overlay.avi (MJPG), labels.npz, summary.json
+    PNG, value = global motion label, 255 = unknown), overlay.mp4 (H.264), labels.npz, summary.json
     and recording.rrd. Only one window's frames are held at a time.
 
     Args:

@@ -77,7 +77,7 @@ class ClipResult:
         trajectories: the tracks visible in all frames (N rows, track_ids into `tracks`).
         embeddings: (N, E) float32 SubspaceNet embeddings.
         clustering: labels (N,) and the automatic-K evidence.
-        masks: (T, H, W) uint8, 0 = no track nearby, k + 1 = motion k.
+        masks: (T, H, W) uint8, k = motion k, 255 = no track nearby (unknown).
         timings: seconds per stage.
         model_info: the model's recipe name, input frames and checkpoint format.
     """
@@ -103,7 +103,7 @@ class PairResult:
         clustering: labels (N,) in 0..k-1 as clustered.
         labels: (N,) int64 final labels: motions 0..m-1, -1 for the outlier cluster (if one was found).
         outlier_cluster: which cluster was labelled outliers (None when none was).
-        masks: two (H_i, W_i) uint8 masks, 0 = unknown / outlier, m + 1 = motion m.
+        masks: two (H_i, W_i) uint8 masks, m = motion m, 255 = unknown / outlier.
         timings: seconds per stage.
         model_info: as in ClipResult.
     """
@@ -205,7 +205,7 @@ def segment_frames(
         model: the model (None = the shipped default for T frames).
 
     Returns:
-        ClipResult; its masks are (T, H, W) uint8 with 0 = unknown and k + 1 = motion k.
+        ClipResult; its masks are (T, H, W) uint8 with k = motion k and 255 = unknown.
 
     Raises:
         TooFewTracksError: fewer than cfg.min_tracks tracks live through all frames.
@@ -231,7 +231,7 @@ def segment_frames(
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k)
     timings["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    masks = labels_to_masks(tracks, traj.track_ids, clustering.labels, cfg.mask)
+    masks = labels_to_masks(tracks, traj.track_ids, clustering.labels, cfg.mask, frames.images)
     timings["masks"] = time.perf_counter() - t0
     return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, model_info(model))
 
@@ -354,8 +354,8 @@ def segment_pair(
     t0 = time.perf_counter()
     inl = labels >= 0
     masks = (
-        labels_to_mask(matches.xy1[inl], labels[inl], im1.shape[:2], cfg.mask),
-        labels_to_mask(matches.xy2[inl], labels[inl], im2.shape[:2], cfg.mask),
+        labels_to_mask(matches.xy1[inl], labels[inl], im1.shape[:2], cfg.mask, im1),
+        labels_to_mask(matches.xy2[inl], labels[inl], im2.shape[:2], cfg.mask, im2),
     )
     timings["masks"] = time.perf_counter() - t0
     return PairResult((im1, im2), matches, emb, clustering, labels, outlier, masks, timings, model_info(model))
@@ -372,7 +372,7 @@ class LabelBook:
         next_label: the next never-used label.
         last_window: label -> the last window that used it.
         num_reused: how many times a label was handed out again (only after 255 labels).
-        max_label: largest label a mask can hold (mask value = label + 1 <= 255).
+        max_label: largest label a mask can hold (mask value = label <= 254; 255 = unknown).
     """
 
     next_label: int = 0
@@ -454,7 +454,7 @@ class VideoFrame:
         track_ids: (N,) int64 ids of the tracks live in this frame.
         xy: (N, 2) float32 pixel positions of those tracks.
         labels: (N,) int64 global motion label of each track, -1 = unlabelled.
-        mask: (H, W) uint8, 0 = unknown, label + 1 = motion.
+        mask: (H, W) uint8, label = motion, 255 = unknown.
     """
 
     index: int
@@ -575,7 +575,7 @@ def segment_video(
         for t, img, ids, xy in new:
             lab = np.array([labels_by_id.get(int(i), -1) for i in ids], dtype=np.int64)
             keep = lab >= 0
-            mask = labels_to_mask(xy[keep], lab[keep], img.shape[:2], cfg.mask)
+            mask = labels_to_mask(xy[keep], lab[keep], img.shape[:2], cfg.mask, img)
             labelled.append(VideoFrame(t, img, ids, xy, lab, mask))
         num_windows += 1
         return WindowResult(

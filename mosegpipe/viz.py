@@ -6,8 +6,9 @@ without mixing, and each is written atomically (temporary file, closed, then ren
 
 Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`VideoRecorder`):
 
-- ``/``: AnnotationContext (static): class 0 "unknown" (black), class i "motion i" (cluster i-1)
-  with the colours of io.default_palette(), the same values and colours as the mask PNGs.
+- ``/``: AnnotationContext (static): class i "motion i" (motion label i; 0 = the dominant motion,
+  usually the background) and class 255 "unknown", with the colours of io.default_palette(): the
+  same values, names and colours as the mask PNGs and labels.npz.
 - ``video/frame``: the frame (JPEG EncodedImage, or a raw Image when jpeg_quality is 0).
 - ``video/mask``: SegmentationImage, values as in Segmentation.masks.
 - ``video/tracks``: LineStrips2D, the recent history of each labelled track.
@@ -17,7 +18,7 @@ Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`
 
 Time-varying entities use the sequence timeline "frame" (index of the frame in the source video).
 An image pair (:func:`write_pair_recording`) is static, with ``image1/...`` and ``image2/...``
-in place of ``video/...`` and class 0 also standing for outlier matches.
+in place of ``video/...`` and class 255 also standing for outlier matches.
 """
 
 from __future__ import annotations
@@ -49,8 +50,17 @@ logger = logging.getLogger(__name__)
 TIMELINE = "frame"
 """Name of the sequence timeline frames are logged on."""
 
-MAX_CLASSES = 254
-"""Most motions a recording can name: class ids are mask values (uint8, 0 = unknown, 255 unused)."""
+MAX_CLASSES = 255
+"""Most motions a recording can name: class ids are mask values (uint8: motion 0..254, 255 = unknown)."""
+
+UNKNOWN_CLASS = 255
+"""Class id of unknown mask pixels and of unlabelled / outlier points (label -1)."""
+
+
+def class_ids_of(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.uint16]:
+    """Class ids of point labels: the label itself, UNKNOWN_CLASS for -1 (unlabelled / outlier)."""
+    labels = np.asarray(labels, dtype=np.int64)
+    return np.where(labels < 0, UNKNOWN_CLASS, labels).astype(np.uint16)
 
 
 @dataclass(frozen=True)
@@ -93,8 +103,11 @@ VIDEO_VIZ = VizConfig(trail_frames=10, max_side_px=960)
 
 
 def class_names(k: int, unknown: str = "unknown") -> dict[int, str]:
-    """Class id -> display name: 0 `unknown`, i "motion i" for i = 1..k (cluster i - 1)."""
-    return {0: unknown, **{i: f"motion {i}" for i in range(1, k + 1)}}
+    """Class id -> display name: i "motion i" for i = 0..k-1 (0 "motion 0 (dominant)"), 255 `unknown`."""
+    names = {i: f"motion {i}" for i in range(k)}
+    if k:
+        names[0] = "motion 0 (dominant)"
+    return {**names, UNKNOWN_CLASS: unknown}
 
 
 def embedding_to_3d(embeddings: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
@@ -226,21 +239,40 @@ def _log_embedding_and_scores(
     rec.log("summary", rr.TextDocument(summary, media_type="text/markdown"), static=True)
 
 
-def _open(tmp: Path, app_id: str, blueprint: rrb.Blueprint) -> rr.RecordingStream:
-    import rerun as rr
+class _Sink:
+    """A recording stream into memory, written to its file by Python when finished.
 
-    rec = rr.RecordingStream(app_id)
-    rec.save(tmp, default_blueprint=blueprint)
-    return rec
+    Rerun's own file sink writes on a thread of its own: when the disk fills up, that thread dies
+    and the next flush waits forever (dropping the stream too), Ctrl-C cannot stop it, and Rerun
+    prints its own error lines. Here the stream goes to a memory buffer and Python writes the bytes,
+    so a full disk is an ordinary OSError (ENOSPC) raised in the caller's thread. The price is that
+    the recording is held in memory until it is written (a 5-frame clip: about 0.5 MB; a whole
+    video: about 0.2 MB per frame at 960 px). Draining the buffer in pieces does not give a
+    readable .rrd (one footer per drain), so it is drained once.
+    """
+
+    def __init__(self, tmp: Path, app_id: str, blueprint: rrb.Blueprint) -> None:
+        import rerun as rr
+
+        self.tmp = tmp
+        self.rec = rr.RecordingStream(app_id)
+        self._memory = self.rec.memory_recording()
+        self.rec.send_blueprint(blueprint, make_active=False, make_default=True)
+
+    def finish(self, write: bool = True) -> None:
+        """Ends the stream; writes the recording to `tmp` when `write` (OSError when that fails)."""
+        try:
+            self.rec.flush(timeout_sec=_FLUSH_TIMEOUT_S)
+            data = self._memory.drain_as_bytes()
+        finally:
+            self.rec.disconnect()
+        if write:
+            with open(self.tmp, "wb") as fh:
+                fh.write(data)
 
 
-def _close(rec: rr.RecordingStream) -> None:
-    # Closing the file sink writes the rrd footer; it must happen before the rename, and on
-    # failure too, so that the temporary file can be removed.
-    try:
-        rec.flush()
-    finally:
-        rec.disconnect()
+# Flushing a memory sink only encodes what was logged; it takes milliseconds per frame.
+_FLUSH_TIMEOUT_S = 120.0
 
 
 def _log_written(final: Path, what: str, started: float) -> None:
@@ -305,7 +337,7 @@ def write_recording(
         track_ids: (N,) int64 rows of `tracks` that were segmented (Trajectories.track_ids).
         labels: (N,) int64 cluster of each, in 0..k-1.
         embeddings: (N, E) float embedding of each (SubspaceNet output).
-        masks: (T, H, W) uint8 dense masks (label + 1, 0 unknown), or None.
+        masks: (T, H, W) uint8 dense masks (label, 255 unknown), or None.
         k_scores: criterion value per candidate K (may be empty when K was forced).
         k: number of clusters.
         app_id: Rerun application id (the viewer groups recordings and blueprints by it).
@@ -324,7 +356,7 @@ def write_recording(
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     embeddings = np.asarray(embeddings)
     _validate_clip(frames, tracks, track_ids, labels, embeddings, masks, k)
-    class_ids = (labels + 1).astype(np.uint16)
+    class_ids = class_ids_of(labels)
     xy, visible = tracks.xy[track_ids], tracks.visible[track_ids]  # (N, T, 2), (N, T)
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
@@ -339,7 +371,8 @@ def write_recording(
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        rec = _open(tmp, app_id, blueprint)
+        sink = _Sink(tmp, app_id, blueprint)
+        rec, written = sink.rec, False
         try:
             rec.log("/", _annotation_context(k), static=True)
             _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, summary, cfg)
@@ -351,8 +384,9 @@ def write_recording(
                 first = 0 if cfg.trail_frames is None else max(0, t + 1 - cfg.trail_frames)
                 strips = [xy[n, first : t + 1][visible[n, first : t + 1]] for n in np.flatnonzero(seen)]
                 _log_trails(rec, strips, class_ids[seen], cfg)
+            written = True
         finally:
-            _close(rec)
+            sink.finish(write=written)
     _log_written(final, f"{frames.num_frames} frames, {len(track_ids)} tracks", started)
     return final
 
@@ -380,9 +414,9 @@ def write_pair_recording(
         path: output .rrd file.
         images: the two (H_i, W_i, 3) uint8 RGB images (sizes may differ).
         matches: Matches between them (N correspondences).
-        labels: (N,) int64 motion of each match, -1 for an outlier (shown as class 0).
+        labels: (N,) int64 motion of each match, -1 for an outlier (shown as class 255).
         embeddings: (N, E) float embedding of each match.
-        masks: the two (H_i, W_i) uint8 masks (label + 1, 0 unknown), or None.
+        masks: the two (H_i, W_i) uint8 masks (label, 255 unknown / outlier), or None.
         k_scores: criterion value per candidate K (may be empty).
         k: number of clusters; classes up to max(k, labels.max() + 1) are named.
         app_id: Rerun application id.
@@ -414,7 +448,7 @@ def write_pair_recording(
     num_classes = max(k, int(labels.max()) + 1 if len(labels) else 0)
     if not 1 <= num_classes <= MAX_CLASSES or (len(labels) and labels.min() < -1):
         raise InputError(f"labels must be in -1..{MAX_CLASSES - 1} and k in 1..{MAX_CLASSES}; got k={k}")
-    class_ids = (labels + 1).astype(np.uint16)
+    class_ids = class_ids_of(labels)
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
@@ -431,15 +465,17 @@ def write_pair_recording(
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        rec = _open(tmp, app_id, blueprint)
+        sink = _Sink(tmp, app_id, blueprint)
+        rec, written = sink.rec, False
         try:
             rec.log("/", _annotation_context(num_classes, unknown="unknown / outlier"), static=True)
             _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, summary, cfg)
             for i, xy in enumerate((matches.xy1, matches.xy2)):
                 mask = None if masks is None else masks[i]
                 _log_image_layers(rec, f"image{i + 1}", images[i], mask, xy, class_ids, cfg, static=True)
+            written = True
         finally:
-            _close(rec)
+            sink.finish(write=written)
     _log_written(final, f"pair, {matches.num_matches} matches", started)
     return final
 
@@ -478,7 +514,7 @@ class VideoRecorder:
         tmp = self._target.__enter__()
         blueprint = rrb.Blueprint(rrb.Spatial2DView(origin="video", name="video"), collapse_panels=False)
         try:
-            self._rec: rr.RecordingStream | None = _open(tmp, app_id, blueprint)
+            self._sink: _Sink | None = _Sink(tmp, app_id, blueprint)
         except BaseException as exc:
             self._target.__exit__(type(exc), exc, exc.__traceback__)
             raise
@@ -499,13 +535,13 @@ class VideoRecorder:
             image: (H, W, 3) uint8 RGB.
             xy: (M, 2) float32 pixel positions of the labelled points in this frame.
             ids: (M,) int64 their track ids (stable across frames: trails follow them).
-            labels: (M,) int64 their motion ids, 0..253 (-1 = unlabelled, shown as class 0).
-            mask: (H, W) uint8 mask (label + 1, 0 unknown), or None.
+            labels: (M,) int64 their motion ids, 0..254 (-1 = unlabelled, shown as class 255).
+            mask: (H, W) uint8 mask (label, 255 unknown), or None.
 
         Raises:
             InputError: the recorder is closed, or shapes/labels are invalid.
         """
-        if self._rec is None:
+        if self._sink is None:
             raise InputError(f"{self.path}: recorder already closed")
         xy = np.asarray(xy, dtype=np.float32).reshape(-1, 2)
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
@@ -517,13 +553,13 @@ class VideoRecorder:
         if mask is not None and mask.shape != image.shape[:2]:
             raise InputError(f"frame {t}: mask {mask.shape} and image {image.shape[:2]} sizes differ")
         image, mask, xy = self._downscale(image, mask, xy)
-        rec = self._rec
+        rec = self._sink.rec
         needed = int(labels.max()) + 1 if len(labels) else 0
         if needed > self._num_classes or self._num_frames == 0:
             self._num_classes = max(needed, self._num_classes, 1)
             rec.log("/", _annotation_context(self._num_classes), static=True)
         rec.set_time(TIMELINE, sequence=int(t))
-        class_ids = (labels + 1).astype(np.uint16)
+        class_ids = class_ids_of(labels)
         _log_image_layers(rec, "video", image, mask, xy, class_ids, self.cfg)
         live = set(ids.tolist())
         for stale in [i for i in self._trails if i not in live]:
@@ -557,10 +593,10 @@ class VideoRecorder:
         Returns:
             The path written.
         """
-        if self._rec is not None:
-            rec, self._rec = self._rec, None
+        if self._sink is not None:
+            sink, self._sink = self._sink, None
             try:
-                _close(rec)
+                sink.finish()
             except BaseException as exc:
                 self._target.__exit__(type(exc), exc, exc.__traceback__)
                 raise
@@ -570,10 +606,10 @@ class VideoRecorder:
 
     def abort(self) -> None:
         """Stop recording and remove the temporary file; nothing is written under the final name."""
-        if self._rec is not None:
-            rec, self._rec = self._rec, None
+        if self._sink is not None:
+            sink, self._sink = self._sink, None
             try:
-                _close(rec)
+                sink.finish(write=False)
             finally:
                 err = RuntimeError(f"{self.path}: recording aborted")
                 self._target.__exit__(RuntimeError, err, None)

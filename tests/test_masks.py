@@ -5,34 +5,81 @@ import pytest
 
 from mosegpipe.errors import InputError
 from mosegpipe.io import default_palette
-from mosegpipe.masks import MaskConfig, labels_to_mask, labels_to_masks, overlay_mask
+from mosegpipe.masks import UNKNOWN, MaskConfig, labels_to_mask, labels_to_masks, overlay_mask
 from mosegpipe.types import Tracks
+
+NEAREST = MaskConfig(method="nearest", max_distance_px=100)
 
 
 def test_two_points_split_the_image_at_the_bisector() -> None:
     xy = np.array([[2.0, 2.0], [7.0, 2.0]], np.float32)
-    mask = labels_to_mask(xy, np.array([0, 1]), (5, 10), MaskConfig(max_distance_px=100))
+    mask = labels_to_mask(xy, np.array([0, 1]), (5, 10), NEAREST)
     expected = np.zeros((5, 10), np.uint8)
-    expected[:, :5] = 1  # columns 0..4 are nearer x = 2 (bisector at 4.5)
-    expected[:, 5:] = 2
+    expected[:, 5:] = 1  # columns 0..4 are nearer x = 2 (bisector at 4.5); the value is the label
     np.testing.assert_array_equal(mask, expected)
     assert mask.dtype == np.uint8
 
 
-def test_pixels_far_from_every_point_are_unknown() -> None:
-    mask = labels_to_mask(np.array([[10.0, 10.0]]), np.array([3]), (21, 31), MaskConfig(max_distance_px=6))
+@pytest.mark.parametrize("method", ["nearest", "watershed"])
+def test_pixels_far_from_every_point_are_unknown(method: str) -> None:
+    image = np.full((21, 31, 3), 90, np.uint8)
+    cfg = MaskConfig(max_distance_px=6, method=method, min_agree=1)
+    mask = labels_to_mask(np.array([[10.0, 10.0]]), np.array([3]), (21, 31), cfg, image)
     yy, xx = np.mgrid[0:21, 0:31]
     dist = np.hypot(xx - 10, yy - 10)
     clear = np.abs(dist - 6) > 0.5  # the distance transform is approximate right at the radius
-    np.testing.assert_array_equal(mask[clear], np.where(dist[clear] <= 6, 4, 0))
+    np.testing.assert_array_equal(mask[clear], np.where(dist[clear] <= 6, 3, UNKNOWN))
 
 
 def test_points_outside_the_image_or_not_finite_are_ignored() -> None:
     xy = np.array([[1.0, 1.0], [-5.0, 1.0], [np.nan, 2.0], [3.0, 40.0]], np.float32)
     mask = labels_to_mask(xy, np.array([1, 0, 0, 0]), (4, 4), MaskConfig(max_distance_px=50))
-    np.testing.assert_array_equal(mask, np.full((4, 4), 2, np.uint8))
+    np.testing.assert_array_equal(mask, np.full((4, 4), 1, np.uint8))
     empty = labels_to_mask(np.zeros((0, 2)), np.zeros(0, np.int64), (3, 5))
-    np.testing.assert_array_equal(empty, np.zeros((3, 5), np.uint8))
+    np.testing.assert_array_equal(empty, np.full((3, 5), UNKNOWN, np.uint8))
+
+
+def _two_regions() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 60x80 image, dark left of x = 50 and bright right of it, with tracks on a 10 px grid."""
+    image = np.zeros((60, 80, 3), np.uint8)
+    image[:, 50:] = 200
+    gy, gx = np.mgrid[5:60:10, 5:80:10]
+    xy = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32)
+    labels = (xy[:, 0] > 50).astype(np.int64)
+    return image, xy, labels
+
+
+def test_watershed_puts_the_border_on_the_image_edge() -> None:
+    image, xy, labels = _two_regions()
+    cfg = MaskConfig(method="watershed", max_distance_px=100)
+    mask = labels_to_mask(xy, labels, (60, 80), cfg, image)
+    expected = np.where(np.arange(80) >= 50, 1, 0)[None].repeat(60, axis=0)
+    np.testing.assert_array_equal(mask, expected)
+    # Half-way between the tracks at x = 45 and 55 is x = 50 too; move the edge to see the difference.
+    image2 = np.zeros_like(image)
+    image2[:, 47:] = 200
+    labels2 = (xy[:, 0] > 47).astype(np.int64)
+    ws = labels_to_mask(xy, labels2, (60, 80), cfg, image2)
+    near = labels_to_mask(xy, labels2, (60, 80), NEAREST)
+    assert (ws[:, 47:50] == 1).all() and (near[:, 47:50] == 0).all()
+
+
+def test_watershed_ignores_an_isolated_wrong_track() -> None:
+    image, xy, labels = _two_regions()
+    odd = int(np.flatnonzero((xy[:, 0] == 25) & (xy[:, 1] == 25))[0])
+    labels[odd] = 2
+    seeded = labels_to_mask(
+        xy, labels, (60, 80), MaskConfig(method="watershed", max_distance_px=100, min_agree=1), image
+    )
+    robust = labels_to_mask(xy, labels, (60, 80), MaskConfig(method="watershed", max_distance_px=100), image)
+    assert (seeded == 2).sum() > 0  # with every track seeding, the odd one floods a region
+    assert (robust == 2).sum() == 0 and (robust[:, :50] == 0).all()
+
+
+def test_watershed_without_an_image_is_the_nearest_partition() -> None:
+    _, xy, labels = _two_regions()
+    ws = labels_to_mask(xy, labels, (60, 80), MaskConfig(method="watershed", max_distance_px=100))
+    np.testing.assert_array_equal(ws, labels_to_mask(xy, labels, (60, 80), NEAREST))
 
 
 def test_vote_outvotes_an_isolated_wrong_label() -> None:
@@ -41,10 +88,10 @@ def test_vote_outvotes_an_isolated_wrong_label() -> None:
     labels = np.zeros(len(xy), np.int64)
     odd = int(np.flatnonzero((xy[:, 0] == 22) & (xy[:, 1] == 22))[0])
     labels[odd] = 1
-    nearest = labels_to_mask(xy, labels, (44, 44), MaskConfig(max_distance_px=20))
+    nearest = labels_to_mask(xy, labels, (44, 44), MaskConfig(method="nearest", max_distance_px=20))
     vote = labels_to_mask(xy, labels, (44, 44), MaskConfig(max_distance_px=20, method="vote", vote_downsample=2))
-    assert nearest[22, 22] == 2 and (nearest == 2).sum() == 36  # the odd track's 6x6 Voronoi cell
-    assert vote.shape == (44, 44) and (vote == 1).all()
+    assert nearest[22, 22] == 1 and (nearest == 1).sum() == 36  # the odd track's 6x6 Voronoi cell
+    assert vote.shape == (44, 44) and (vote == 0).all()
 
 
 def test_median_smoothing_removes_single_pixel_specks() -> None:
@@ -52,10 +99,10 @@ def test_median_smoothing_removes_single_pixel_specks() -> None:
     xy = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(np.float32)  # a track on every pixel
     labels = (xy[:, 0] >= 5).astype(np.int64)
     labels[4 * 10 + 2] = 1  # one speck at (x=2, y=4)
-    raw = labels_to_mask(xy, labels, (10, 10), MaskConfig(max_distance_px=5))
-    smooth = labels_to_mask(xy, labels, (10, 10), MaskConfig(max_distance_px=5, median_px=3))
-    assert raw[4, 2] == 2
-    expected = np.where(gx >= 5, 2, 1).astype(np.uint8)
+    raw = labels_to_mask(xy, labels, (10, 10), MaskConfig(method="nearest", max_distance_px=5))
+    smooth = labels_to_mask(xy, labels, (10, 10), MaskConfig(method="nearest", max_distance_px=5, median_px=3))
+    assert raw[4, 2] == 1
+    expected = np.where(gx >= 5, 1, 0).astype(np.uint8)
     np.testing.assert_array_equal(smooth, expected)
 
 
@@ -65,9 +112,13 @@ def test_bad_labels_and_config() -> None:
     with pytest.raises(InputError, match="0..254"):
         labels_to_mask(np.zeros((1, 2)), np.array([255]), (4, 4))
     with pytest.raises(ValueError, match="method"):
-        MaskConfig(method="watershed")
+        MaskConfig(method="grabcut")
     with pytest.raises(ValueError, match="median_px"):
         MaskConfig(median_px=4)
+    with pytest.raises(ValueError, match="min_agree"):
+        MaskConfig(min_agree=9)
+    with pytest.raises(ValueError, match="image is"):
+        labels_to_mask(np.zeros((1, 2)), np.array([0]), (4, 4), image=np.zeros((5, 4, 3), np.uint8))
 
 
 def test_labels_to_masks_uses_points_visible_in_each_frame() -> None:
@@ -81,19 +132,20 @@ def test_labels_to_masks_uses_points_visible_in_each_frame() -> None:
     )
     visible = np.array([[True, True], [True, False], [True, True]])
     tracks = Tracks(xy=xy, visible=visible, size_hw=(5, 10))
-    masks = labels_to_masks(tracks, np.array([0, 1]), np.array([0, 1]), MaskConfig(max_distance_px=100))
+    masks = labels_to_masks(tracks, np.array([0, 1]), np.array([0, 1]), NEAREST)
     assert masks.shape == (2, 5, 10) and masks.dtype == np.uint8
-    assert (masks[0, :, :5] == 1).all() and (masks[0, :, 5:] == 2).all()
-    assert (masks[1] == 1).all()
+    assert (masks[0, :, :5] == 0).all() and (masks[0, :, 5:] == 1).all()
+    assert (masks[1] == 0).all()
     with pytest.raises(InputError, match="track ids"):
         labels_to_masks(tracks, np.array([0, 3]), np.array([0, 1]))
 
 
-def test_overlay_mask_blends_only_known_pixels() -> None:
+def test_overlay_mask_tints_moving_motions_and_greys_unknown() -> None:
     image = np.full((2, 3, 3), 100, np.uint8)
-    mask = np.array([[0, 1, 2], [0, 0, 1]], np.uint8)
+    mask = np.array([[0, 1, 2], [0, UNKNOWN, 1]], np.uint8)
     pal = default_palette()
     out = overlay_mask(image, mask, pal, alpha=0.5)
-    np.testing.assert_array_equal(out[mask == 0], image[mask == 0])
+    np.testing.assert_array_equal(out[mask == 0], image[mask == 0])  # motion 0 (background) as it is
     np.testing.assert_array_equal(out[0, 1], [114, 50, 50])  # (100 + 128) / 2, (100 + 0) / 2
     np.testing.assert_array_equal(out[0, 2], [50, 114, 50])
+    np.testing.assert_array_equal(out[1, 1], [120, 120, 120])  # grey: 0.6 * 100 + 60

@@ -86,12 +86,12 @@ def test_recording_holds_every_entity(tmp_path: Path) -> None:
     counts = [len(p) for p in _column(points, "Points2D:positions")]
     assert sorted(counts) == [4, 5, 5]  # track 2 lost in the last frame; track 5 never drawn
     class_ids = _column(points, "Points2D:class_ids")
-    assert sorted(class_ids, key=len)[0] == [1, 1, 2, 2]  # labels + 1, without the lost track
+    assert sorted(class_ids, key=len)[0] == [0, 0, 1, 1]  # the labels, without the lost track
 
     embedding = _column(got["batches"]["/embedding"], "Points3D:positions")[0]
     assert len(embedding) == 5 and len(embedding[0]) == 3
     context = str(got["batches"]["/"])
-    assert "motion 1" in context and "motion 2" in context and "unknown" in context
+    assert "motion 0" in context and "motion 1" in context and "unknown" in context
 
 
 def test_recording_without_masks_and_with_raw_frames(tmp_path: Path) -> None:
@@ -138,7 +138,7 @@ def test_embedding_to_3d() -> None:
 
 
 def test_class_names_match_mask_values() -> None:
-    assert class_names(2) == {0: "unknown", 1: "motion 1", 2: "motion 2"}
+    assert class_names(2) == {0: "motion 0 (dominant)", 1: "motion 1", 255: "unknown"}
 
 
 def test_pair_recording(tmp_path: Path) -> None:
@@ -160,7 +160,7 @@ def test_pair_recording(tmp_path: Path) -> None:
     for entity in ("/image1/frame", "/image1/mask", "/image1/points", "/image2/frame", "/image2/points", "/embedding"):
         assert got["rows"][entity] == 1, entity
     class_ids = _column(got["batches"]["/image2/points"], "Points2D:class_ids")[0]
-    assert class_ids == [1, 1, 2, 2, 0, 3]  # outlier -> class 0
+    assert class_ids == [0, 0, 1, 1, 255, 2]  # outlier -> class 255 (unknown)
     assert "unknown / outlier" in str(got["batches"]["/"])
     with pytest.raises(InputError, match="sizes do not match"):
         write_pair_recording(tmp_path / "bad.rrd", (img2, img1), matches, labels, np.zeros((6, 2)), None, {}, 3)
@@ -190,7 +190,7 @@ def test_video_recorder_streams_frames_and_grows_classes(tmp_path: Path) -> None
     # Trails hold at most trail_frames=2 points.
     strips = _column(got["batches"]["/video/tracks"], "LineStrips2D:strips")
     assert max(len(s) for frame in strips if frame for s in frame) == 2
-    assert "motion 3" in str(got["batches"]["/"])
+    assert "motion 2" in str(got["batches"]["/"]) and "motion 3" not in str(got["batches"]["/"])
 
 
 def test_video_recorder_abort_leaves_nothing(tmp_path: Path) -> None:

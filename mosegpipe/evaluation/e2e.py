@@ -46,7 +46,7 @@ from scipy.optimize import linear_sum_assignment
 from mosegpipe.errors import MosegError
 from mosegpipe.evaluation.label_transfer import nearest_within
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.masks import labels_to_masks
+from mosegpipe.masks import UNKNOWN, labels_to_masks
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair
 from mosegpipe.trajectories import trajectories_from_matches
@@ -183,7 +183,7 @@ class MaskScores:
     assignment: dict[int, int | None]
 
 
-def match_masks(pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, unknown: int | None = 0) -> dict[int, int | None]:
+def match_masks(pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, unknown: int | None = 255) -> dict[int, int | None]:
     """One-to-one map of ground-truth groups to predicted labels maximising the overlap.
 
     Overlaps are pixel counts summed over all frames (one assignment per clip, as labels are
@@ -234,7 +234,7 @@ def mask_scores(
     pred_masks: npt.ArrayLike,
     gt_masks: npt.ArrayLike,
     background: int | None = 0,
-    unknown: int | None = 0,
+    unknown: int | None = 255,
     tolerance: float = BOUNDARY_TOLERANCE,
 ) -> MaskScores:
     """Region similarity J and boundary F of label masks, after the best one-to-one label matching.
@@ -247,7 +247,7 @@ def mask_scores(
     group). A group absent from a frame, whose matched label is absent there too, scores 1 there.
 
     Args:
-        pred_masks: (T, H, W) non-negative int predicted labels (pipeline masks: 0 = unknown).
+        pred_masks: (T, H, W) non-negative int predicted labels (pipeline masks: 255 = unknown).
         gt_masks: (T, H, W) non-negative int ground-truth group ids.
         background: ground-truth id left out of the averages (still matched), or None.
         unknown: predicted value meaning "no label", or None.
@@ -573,7 +573,7 @@ def rendered_rows(
         ids = result.trajectories.track_ids
         gt_tracks = clip.label_at(0, result.tracks.xy[ids, 0])
         k_true, track_error = _score(result.clustering.labels, gt_tracks)
-        scores = mask_scores(result.masks, clip.masks, background=0, unknown=0, tolerance=tolerance)
+        scores = mask_scores(result.masks, clip.masks, background=0, unknown=UNKNOWN, tolerance=tolerance)
         row.update(
             num_tracks=int(ids.size),
             k_true=k_true,
@@ -585,8 +585,8 @@ def rendered_rows(
         if oracle:
             # The ground-truth track labels through the same densification: the best J / F that
             # these tracks and mask settings allow.
-            best = labels_to_masks(result.tracks, ids, gt_tracks, cfg.mask)
-            best_scores = mask_scores(best, clip.masks, background=0, unknown=0, tolerance=tolerance)
+            best = labels_to_masks(result.tracks, ids, gt_tracks, cfg.mask, clip.frames)
+            best_scores = mask_scores(best, clip.masks, background=0, unknown=UNKNOWN, tolerance=tolerance)
             row.update(J_oracle=best_scores.j, F_oracle=best_scores.f)
         rows.append({**row, "seconds": seconds})
     return rows
