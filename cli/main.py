@@ -109,6 +109,13 @@ KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered 
 ModelOpt = Annotated[Path | None, typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results already in the output folder.")]
 NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
+MaskMethod = Annotated[
+    str,
+    typer.Option(
+        "--mask-method",
+        help="Dense masks from track labels: 'watershed' (default: follows image edges), 'nearest' (nearest track) or 'vote'.",
+    ),
+]
 
 
 def _protocol_help() -> str:
@@ -120,12 +127,20 @@ def _protocol_help() -> str:
     return f"{', '.join(bench)}; end to end: {', '.join(e2e)}."
 
 
-def _pipeline_cfg(frames: int, k: int | None, k_method: str, k_max: int) -> Any:
+def _pipeline_cfg(frames: int, k: int | None, k_method: str, k_max: int, mask_method: str = "watershed") -> Any:
     from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
 
     method = cast(KMethodName, check_choice("--k-method", k_method, get_args(KMethodName)))
-    return PipelineConfig(frames=frames, k=k, cluster=replace(ClusterConfig(), method=method, k_max=k_max))
+    if mask_method not in MASK_METHODS:
+        raise InputError(f"--mask-method {mask_method!r}: choose {', '.join(map(repr, MASK_METHODS))}")
+    return PipelineConfig(
+        frames=frames,
+        k=k,
+        cluster=replace(ClusterConfig(), method=method, k_max=k_max),
+        mask=MaskConfig(method=mask_method),
+    )
 
 
 def _plural(n: int, word: str, plural: str = "") -> str:
@@ -178,6 +193,7 @@ def run(
     k: KOpt = None,
     k_method: KMethod = "silhouette",
     k_max: KMax = 8,
+    mask_method: MaskMethod = "watershed",
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     no_rrd: NoRrd = False,
@@ -193,7 +209,7 @@ def run(
     from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
     from mosegpipe.pipeline import load_model, segment_clip
 
-    cfg = _pipeline_cfg(frames, k, k_method, k_max)
+    cfg = _pipeline_cfg(frames, k, k_method, k_max, mask_method)
     if not clip.exists():
         raise InputError(f"{clip}: no such file or folder")
     if max_frames is not None and not whole:
@@ -209,7 +225,7 @@ def run(
         )
         typer.echo(f"{summary['seconds']:.1f} s, {summary['processing_fps']:.1f} frames/s")
         typer.echo(
-            f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.avi" + (", recording.rrd)" if not no_rrd else ")")
+            f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.mp4" + (", recording.rrd)" if not no_rrd else ")")
         )
         return
     result = segment_clip(clip, cfg, net)
@@ -229,6 +245,7 @@ def pair(
     k: KOpt = None,
     k_method: KMethod = "silhouette",
     k_max: KMax = 8,
+    mask_method: MaskMethod = "watershed",
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     no_rrd: NoRrd = False,
@@ -240,7 +257,7 @@ def pair(
     from mosegpipe.outputs import check_output_dir, write_pair_outputs
     from mosegpipe.pipeline import load_model, segment_pair
 
-    cfg = _pipeline_cfg(2, k, k_method, k_max)
+    cfg = _pipeline_cfg(2, k, k_method, k_max, mask_method)
     for p in (img1, img2):
         if not p.is_file():
             raise InputError(f"{p}: no such image file")

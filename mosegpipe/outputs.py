@@ -368,7 +368,7 @@ def write_video_outputs(
                         yield overlay_image(fr.image, fr.mask, fr.xy[keep], fr.labels[keep])
                     del window, fr  # before the next window is read: hold one window's frames at most
 
-            write_video(tmp / "overlay.avi", overlays(), fps)
+            write_video(tmp / "overlay.mp4", overlays(), fps)
         labelled = [w for w in windows if w.is_labelled]
         write_npz(
             tmp / "labels.npz",

@@ -88,7 +88,7 @@ def test_whole_video_keeps_each_object_on_one_label(
     assert sorted(p.name for p in out.iterdir()) == [
         "labels.npz",
         "masks",
-        "overlay.avi",
+        "overlay.mp4",
         "recording.rrd",
         "summary.json",
     ]
@@ -115,7 +115,7 @@ def test_whole_video_keeps_each_object_on_one_label(
         assert z["track_ids"].shape == z["labels"].shape == z["window"].shape == (n,)
         assert set(np.unique(z["window"])) == {0, 1, 2, 3}
         assert z["labels"].max() + 1 <= summary["num_motions"]
-    cap = cv2.VideoCapture(str(out / "overlay.avi"))
+    cap = cv2.VideoCapture(str(out / "overlay.mp4"))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == T
     cap.release()
     rows = read_rrd(out / "recording.rrd")
@@ -128,7 +128,7 @@ def test_cli_whole_with_max_frames(tmp_path: Path, frames_dir: Path, model_path:
     result = runner.invoke(app, [str(a) for a in args])
     assert result.exit_code == 0, result.output
     assert result.stdout.startswith("9 frames in 2 windows of 5 (2 labelled) -> 3 motion labels\n")
-    assert f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.avi)" in result.stdout
+    assert f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.mp4)" in result.stdout
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 9 and summary["k_method"] == "fixed"
     assert len(list((out / "masks").iterdir())) == 9 and not (out / "recording.rrd").exists()

@@ -1,0 +1,50 @@
+"""--mask-method on the command line, and the methods against each other on a rendered clip."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from mosegpipe.cli.main import app
+from mosegpipe.evaluation.e2e import mask_scores
+from mosegpipe.masks import UNKNOWN, MaskConfig, labels_to_masks
+from mosegpipe.track import track_klt
+from mosegpipe.trajectories import build_trajectories
+
+from helpers import render_scene, write_frames
+
+runner = CliRunner(env={"COLUMNS": "200"})
+
+
+def test_bad_mask_method_is_one_error_line(tmp_path: Path) -> None:
+    clip = write_frames(tmp_path / "clip", render_scene(5).frames)
+    result = runner.invoke(app, ["run", str(clip), "--mask-method", "grabcut", "--out", str(tmp_path / "o")])
+    assert result.exit_code == 1
+    assert "--mask-method 'grabcut': choose 'watershed', 'nearest', 'vote'" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_watershed_beats_nearest_on_boundaries_with_true_labels() -> None:
+    scene = render_scene(5)
+    tracks = track_klt(scene.to_frames())
+    traj = build_trajectories(tracks)
+    gt = scene.label_at(0, tracks.xy[traj.track_ids, 0])
+    scores = {}
+    for method in ("nearest", "watershed"):
+        masks = labels_to_masks(tracks, traj.track_ids, gt, MaskConfig(method=method), scene.frames)
+        assert set(np.unique(masks)) <= {0, 1, 2, UNKNOWN}
+        scores[method] = mask_scores(masks, scene.masks, background=0, unknown=UNKNOWN)
+    assert scores["watershed"].f > scores["nearest"].f + 0.05, {m: s.f for m, s in scores.items()}
+    assert scores["watershed"].j >= scores["nearest"].j - 0.01
+
+
+@pytest.mark.parametrize("method", ["nearest", "vote", "watershed"])
+def test_every_method_writes_masks_from_the_cli(tmp_path: Path, method: str) -> None:
+    clip = write_frames(tmp_path / "clip", render_scene(5).frames)
+    out = tmp_path / method
+    result = runner.invoke(app, ["run", str(clip), "--mask-method", method, "--out", str(out), "--no-rrd"])
+    assert result.exit_code == 0, result.output
+    assert '"method": "' + method + '"' in (out / "summary.json").read_text()
