@@ -8,13 +8,15 @@ summary.json schema are in docs/OUTPUTS.md.
 
 from __future__ import annotations
 
+import queue
 import shutil
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -31,6 +33,7 @@ from mosegpipe.pipeline import (
     WindowResult,
     check_video_settings,
     decode_errors,
+    frame_mask,
     load_model,
     model_info,
     segment_video,
@@ -303,6 +306,57 @@ def video_summary(
     }
 
 
+_WINDOWS_AHEAD = 2
+"""Windows the tracking thread may run ahead of the writer (memory: that many windows' frames)."""
+
+_T = TypeVar("_T")
+_DONE = object()
+
+
+def _ahead(items: Iterator[_T], depth: int) -> Iterator[_T]:
+    """Runs the iterator `items` on a background thread, at most `depth` items ahead of the consumer.
+
+    Whole-video mode spends its time in OpenCV, PyAV and BLAS calls that release the GIL: KLT
+    tracking and clustering (this thread) overlap with masks, overlays and encoding (the caller's).
+    An exception in `items` is raised in the caller; when the caller stops early (an error, Ctrl-C),
+    the thread is told to stop and exits at its next item.
+    """
+    q: queue.Queue[Any] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item: Any) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def run() -> None:
+        try:
+            for item in items:
+                if not put(item):
+                    return
+            put(_DONE)
+        except BaseException as exc:  # handed to the consumer, raised there
+            put(exc)
+
+    worker = threading.Thread(target=run, name="moseg-segment", daemon=True)
+    worker.start()
+    try:
+        while True:
+            item = q.get()
+            if item is _DONE:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        worker.join(timeout=5.0)
+
+
 def write_video_outputs(
     path: str | Path,
     out_dir: str | Path,
@@ -355,18 +409,19 @@ def write_video_outputs(
 
             def overlays() -> Iterator[npt.NDArray[np.uint8]]:
                 """Writes each frame's mask (and recording) as the windows arrive; yields its overlay."""
-                for window in segment_video(path, cfg, model, max_frames):
+                for window in _ahead(segment_video(path, cfg, model, max_frames, masks=False), _WINDOWS_AHEAD):
                     # Keep what the summary and labels.npz need, not the images (flat memory).
                     windows.append(replace(window, frames=()))
                     for fr in window.frames:
                         keep = fr.labels >= 0
-                        write_palette_png(tmp / "masks" / f"{fr.index:06d}.png", fr.mask, palette)
+                        mask = frame_mask(fr, cfg.mask)
+                        write_palette_png(tmp / "masks" / f"{fr.index:06d}.png", mask, palette)
                         if recorder is not None:
                             recorder.log_frame(
-                                fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], fr.mask
+                                fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask
                             )
-                        yield overlay_image(fr.image, fr.mask, fr.xy[keep], fr.labels[keep])
-                    del window, fr  # before the next window is read: hold one window's frames at most
+                        yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
+                    del window, fr  # before the next window is read: hold a few windows' frames at most
 
             write_video(tmp / "overlay.mp4", overlays(), fps)
         labelled = [w for w in windows if w.is_labelled]

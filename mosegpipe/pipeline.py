@@ -454,7 +454,8 @@ class VideoFrame:
         track_ids: (N,) int64 ids of the tracks live in this frame.
         xy: (N, 2) float32 pixel positions of those tracks.
         labels: (N,) int64 global motion label of each track, -1 = unlabelled.
-        mask: (H, W) uint8, label = motion, 255 = unknown.
+        mask: (H, W) uint8, label = motion, 255 = unknown; None when segment_video was asked for
+            no masks (see `frame_mask`).
     """
 
     index: int
@@ -462,7 +463,19 @@ class VideoFrame:
     track_ids: npt.NDArray[np.int64]
     xy: npt.NDArray[np.float32]
     labels: npt.NDArray[np.int64]
-    mask: npt.NDArray[np.uint8]
+    mask: npt.NDArray[np.uint8] | None
+
+
+def frame_mask(frame: VideoFrame, cfg: MaskConfig = MaskConfig()) -> npt.NDArray[np.uint8]:
+    """The dense mask of one whole-video frame from its labelled tracks (what segment_video computes).
+
+    Returns:
+        (H, W) uint8, label = motion, 255 = unknown.
+    """
+    if frame.mask is not None:
+        return frame.mask
+    keep = frame.labels >= 0
+    return labels_to_mask(frame.xy[keep], frame.labels[keep], frame.image.shape[:2], cfg, frame.image)
 
 
 @dataclass(frozen=True)
@@ -521,6 +534,7 @@ def segment_video(
     cfg: PipelineConfig = PipelineConfig(),
     model: SubspaceNet | None = None,
     max_frames: int | None = None,
+    masks: bool = True,
 ) -> Iterator[WindowResult]:
     """Segments a whole video window by window, streamed: yields each window as soon as it is labelled.
 
@@ -529,6 +543,8 @@ def segment_video(
         cfg: pipeline settings; cfg.frames is the window length F (>= 2).
         model: the model (None = shipped default for cfg.frames).
         max_frames: stop after this many frames (None = whole video).
+        masks: compute each frame's dense mask; False leaves VideoFrame.mask None for the caller
+            to compute with `frame_mask` (e.g. on another thread, as outputs.write_video_outputs does).
 
     Yields:
         WindowResult per window, in order; together their `frames` cover every frame read once.
@@ -574,9 +590,8 @@ def segment_video(
         labelled = []
         for t, img, ids, xy in new:
             lab = np.array([labels_by_id.get(int(i), -1) for i in ids], dtype=np.int64)
-            keep = lab >= 0
-            mask = labels_to_mask(xy[keep], lab[keep], img.shape[:2], cfg.mask, img)
-            labelled.append(VideoFrame(t, img, ids, xy, lab, mask))
+            fr = VideoFrame(t, img, ids, xy, lab, None)
+            labelled.append(replace(fr, mask=frame_mask(fr, cfg.mask)) if masks else fr)
         num_windows += 1
         return WindowResult(
             start=window[0][0],

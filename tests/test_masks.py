@@ -71,7 +71,9 @@ def test_watershed_ignores_an_isolated_wrong_track() -> None:
     seeded = labels_to_mask(
         xy, labels, (60, 80), MaskConfig(method="watershed", max_distance_px=100, min_agree=1), image
     )
-    robust = labels_to_mask(xy, labels, (60, 80), MaskConfig(method="watershed", max_distance_px=100), image)
+    robust = labels_to_mask(
+        xy, labels, (60, 80), MaskConfig(method="watershed", max_distance_px=100, min_agree=2), image
+    )
     assert (seeded == 2).sum() > 0  # with every track seeding, the odd one floods a region
     assert (robust == 2).sum() == 0 and (robust[:, :50] == 0).all()
 
