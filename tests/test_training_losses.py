@@ -1,13 +1,23 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import pytest
 import torch
 import torch.nn.functional as F
 
 from mosegpipe.errors import InputError
-from mosegpipe.training.losses import LOSSES, MIMI_EPS, ce_affinity_loss, l2_affinity_loss, mimi_loss
+from mosegpipe.training.losses import (
+    LOSSES,
+    MIMI_EPS,
+    ce_affinity_loss,
+    facility_location_loss,
+    l2_affinity_loss,
+    lifted_structured_loss,
+    mimi_loss,
+    triplet_loss,
+)
 
 
 def _batch(points: list[list[float]], labels: list[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -166,3 +176,129 @@ def test_minimising_mimi_separates_two_clusters() -> None:
     assert inter0 < 1.0 and spread0 > 0.5  # random start: overlapping groups
     assert inter > 3.0  # means nearly antipodal (max 4 on the unit sphere)
     assert spread < 0.01  # every point within 0.1 of its group's mean
+
+
+# Metric-learning baselines (Table 2 of the paper). Points on a line (E = 1): a=0, b=1 in group 0,
+# c=1.4, e=3 in group 1.
+LINE = [[0.0], [1.0], [1.4], [3.0]]
+
+
+def test_triplet_semihard_hand_computed() -> None:
+    # Squared distances: ab 1, ac 1.96, ae 9, bc .16, be 4, ce 2.56. Margin 1, ordered positive pairs:
+    # (a,b): a's negatives c 1.96, e 9; first beyond 1 is c -> 1 - 1.96 + 1 = .04.
+    # (b,a): b's negatives .16, 4 -> e: 1 - 4 + 1 < 0 -> 0.
+    # (c,e): c's negatives a 1.96, b .16, none beyond 2.56 -> the farthest, a: 2.56 - 1.96 + 1 = 1.6.
+    # (e,c): e's negatives 9, 4 -> b: 2.56 - 4 + 1 < 0 -> 0.        Mean over 4 pairs: 1.64 / 4.
+    z, lab, mask = _batch(LINE, [0, 0, 1, 1])
+    assert triplet_loss(z, lab, mask, margin=1.0).item() == pytest.approx(0.41, abs=1e-12)
+    # Margin 0.2 (the default): (a,b) -> 0, (c,e) -> .8: .2.
+    assert triplet_loss(z, lab, mask).item() == pytest.approx(0.2, abs=1e-12)
+
+
+def test_triplet_batch_all_hand_computed() -> None:
+    # Every (anchor, positive, negative) with margin 1: a,b: c .04, e 0; b,a: c 1.84, e 0;
+    # c,e: a 1.6, b 3.4; e,c: a 0, b 0. Mean over the 8 triplets: 6.88 / 8.
+    z, lab, mask = _batch(LINE, [0, 0, 1, 1])
+    assert triplet_loss(z, lab, mask, margin=1.0, mining="all").item() == pytest.approx(0.86, abs=1e-12)
+
+
+def test_lifted_hand_computed() -> None:
+    # Distances: ab 1, ac 1.4, ae 3, bc .4, be 2, ce 1.6. Positive pairs (a,b) and (c,e); both pairs'
+    # negatives give the same sum s = e^(1-1.4) + e^(1-3) + e^(1-.4) + e^(1-2) (a: c, e; b: c, e;
+    # c: a, b; e: a, b). J_ab = log s + 1, J_ce = log s + 1.6; loss = (J_ab^2 + J_ce^2) / (2 * 2).
+    z, lab, mask = _batch(LINE, [0, 0, 1, 1])
+    s = math.exp(-0.4) + math.exp(-2) + math.exp(0.6) + math.exp(-1)
+    expected = ((math.log(s) + 1) ** 2 + (math.log(s) + 1.6) ** 2) / 4
+    assert lifted_structured_loss(z, lab, mask).item() == pytest.approx(expected, abs=1e-12)
+    # Far-apart groups: every J_ij < 0 -> 0.
+    z, lab, mask = _batch([[0.0], [0.1], [50.0], [50.1]], [0, 0, 1, 1])
+    assert lifted_structured_loss(z, lab, mask).item() == 0.0
+
+
+def test_facility_location_hand_computed() -> None:
+    # x = 0, 2 (group 0) and .9, 3.5 (group 1), gamma 1, n = 4, K = 2. Ground truth: best own medoids
+    # cost 2 (group 0) and 2.6 (group 1): F~ = -4.6 / 4 = -1.15. Loss-augmented greedy: step 1, every
+    # single medoid has NMI 0; mean distances 1.6, 1.15, 1.15, 1.9 -> x=2 or x=.9. Step 2 from either:
+    # {0, 2} assigns (0, .9 | 2, 3.5): F = -(.9 + 1.5) / 4 = -.6, NMI 0 -> -.6 + 1 = .4, the best
+    # bracket (the exact maximum over all pairs too). Loss = .4 - (-1.15) = 1.55.
+    z, lab, mask = _batch([[0.0], [2.0], [0.9], [3.5]], [0, 0, 1, 1])
+    assert facility_location_loss(z, lab, mask).item() == pytest.approx(1.55, abs=1e-12)
+    # Tight, far-apart groups: the true medoids win with NMI 1 -> bracket = F~ -> 0.
+    z, lab, mask = _batch([[0.0], [0.1], [50.0], [50.1], [50.2]], [0, 0, 1, 1, 1])
+    assert facility_location_loss(z, lab, mask).item() == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "fn",
+    [
+        lambda z, y, m: triplet_loss(z, y, m, mining="all"),
+        lambda z, y, m: facility_location_loss(z, y, m, gamma=0.3),
+        lambda z, y, m: lifted_structured_loss(z, y, m, margin=0.5),
+    ],
+    ids=["triplet-all", "facility-gamma", "lifted-margin"],
+)
+def test_metric_loss_options_match_finite_differences(fn: Callable[..., torch.Tensor]) -> None:
+    gen = torch.Generator().manual_seed(3)
+    z = torch.randn(2, 8, 3, generator=gen, dtype=torch.float64, requires_grad=True)
+    labels = torch.tensor([[0, 0, 0, 1, 1, 2, 2, 2], [4, 4, 1, 1, 1, 7, -1, -1]])
+    assert torch.autograd.gradcheck(lambda t: fn(t, labels, labels >= 0), (z,), eps=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["triplet", "lifted", "facility"])
+def test_metric_losses_ignore_unlabelled_points(name: str) -> None:
+    # Label -1 inside the mask (a point without ground truth) counts as little as padding.
+    gen = torch.Generator().manual_seed(4)
+    z = F.normalize(torch.randn(1, 7, 3, generator=gen, dtype=torch.float64), dim=2)
+    labels = torch.tensor([[0, 0, 1, -1, 1, 2, -1]])
+    keep = labels[0] >= 0
+    alone = LOSSES[name](z[:, keep], labels[:, keep], torch.ones(1, 5, dtype=torch.bool))
+    z.requires_grad_(True)
+    full = LOSSES[name](z, labels, torch.ones(1, 7, dtype=torch.bool))
+    assert full.item() == pytest.approx(alone.item(), abs=1e-12)
+    full.backward()
+    assert (z.grad[0, ~keep] == 0).all()
+
+
+@pytest.mark.parametrize("name", ["triplet", "lifted", "facility"])
+def test_metric_losses_single_group_clip_gives_zero(name: str) -> None:
+    z, lab, mask = _batch([[1.0, 0.0], [0.0, 1.0], [0.6, 0.8]], [5, 5, 5])
+    assert LOSSES[name](z, lab, mask).item() == pytest.approx(0.0, abs=1e-12)
+
+
+def test_metric_loss_bad_arguments_raise() -> None:
+    z, lab, mask = _batch(LINE, [0, 0, 1, 1])
+    with pytest.raises(InputError, match="margin=-1"):
+        triplet_loss(z, lab, mask, margin=-1.0)
+    with pytest.raises(InputError, match="mining='hardest'"):
+        triplet_loss(z, lab, mask, mining="hardest")
+    with pytest.raises(InputError, match="margin=-0.5"):
+        lifted_structured_loss(z, lab, mask, margin=-0.5)
+    with pytest.raises(InputError, match="gamma=-1"):
+        facility_location_loss(z, lab, mask, gamma=-1.0)
+
+
+@pytest.mark.parametrize("name", ["triplet", "lifted", "facility"])
+def test_minimising_metric_losses_separates_two_groups(name: str) -> None:
+    torch.manual_seed(0)
+    labels = torch.tensor([[0] * 8 + [1] * 8])
+    mask = torch.ones_like(labels, dtype=torch.bool)
+    raw = torch.randn(1, 16, 3, requires_grad=True)
+    opt = torch.optim.Adam([raw], lr=0.05)
+
+    def gap(z: torch.Tensor) -> float:
+        """Smallest between-group distance minus the largest within-group distance (> 0: separable)."""
+        d = torch.cdist(z[0], z[0])
+        same = labels[0][:, None] == labels[0][None, :]
+        return float(d[~same].min() - d[same].max())
+
+    first = LOSSES[name](F.normalize(raw, dim=2), labels, mask).item()
+    gap0 = gap(F.normalize(raw.detach(), dim=2))
+    for _ in range(60):
+        loss = LOSSES[name](F.normalize(raw, dim=2), labels, mask)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    last = LOSSES[name](F.normalize(raw, dim=2), labels, mask).item()
+    assert gap0 < 0  # random start: groups overlap
+    assert last < 0.5 * first
+    assert gap(F.normalize(raw.detach(), dim=2)) > 0  # every pair of one group closer than any pair across

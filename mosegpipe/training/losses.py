@@ -8,6 +8,11 @@ and returns a scalar: the mean over the batch's clips of a per-clip loss compute
 points only (mask True and label >= 0). Clips without real points are left out of the mean; a batch
 without any real point gives 0 (still attached to the graph). Labels need not be contiguous.
 Tensors of the wrong shape are a bug in the caller (ValueError); bad settings are a ConfigError.
+
+`LOSSES` names them for `--loss`: the paper's MaxInterMinIntra ("mimi"), the affinity losses "l2"
+and "ce", and the metric-learning baselines of the paper's Table 2: "triplet" (FaceNet, semi-hard
+negatives), "lifted" (lifted structured embedding) and "facility" (the clustering-quality /
+facility-location loss).
 """
 
 from __future__ import annotations
@@ -179,8 +184,243 @@ def ce_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor, scale: float = 1.0
     return _mean_over_clips(per_clip, num_pairs > 0, z)
 
 
+# ---------------------------------------------------------------------------------------------
+# Metric-learning baselines of the paper's Table 2: triplet, lifted structure, facility location.
+# Each works on one clip at a time (its real points only) with the distances between them.
+
+
+def _per_clip(z: Tensor, labels: Tensor, mask: Tensor) -> list[tuple[Tensor, Tensor]]:
+    """The real points of every clip that has some: [(points (n, E), dense groups (n,) int64)].
+
+    Padded points and label -1 are dropped by indexing, so they can reach neither the loss nor the
+    gradient (NaN padding included).
+    """
+    valid = _valid_points(_channels_first(z), labels, mask)
+    clips = []
+    for b in range(z.shape[0]):
+        keep = valid[b]
+        if bool(keep.any()):
+            _, group = torch.unique(labels[b][keep], return_inverse=True)
+            clips.append((z[b][keep], group))
+    return clips
+
+
+def _squared_distances(x: Tensor) -> Tensor:
+    """(n, E) points -> (n, n) squared Euclidean distances from differences (exact 0 on the diagonal,
+    smooth everywhere, unlike the |a|^2 + |b|^2 - 2ab form that needs a clamp)."""
+    return ((x.unsqueeze(1) - x.unsqueeze(0)) ** 2).sum(-1)
+
+
+def _distances(x: Tensor) -> Tensor:
+    """(n, n) Euclidean distances with a finite gradient where two points coincide (the sqrt's
+    derivative is infinite at 0; the double `where` keeps the NaN out of the backward pass)."""
+    d2 = _squared_distances(x)
+    positive = d2 > 0
+    return torch.where(positive, torch.sqrt(torch.where(positive, d2, torch.ones_like(d2))), torch.zeros_like(d2))
+
+
+def _mean_of_terms(terms: list[Tensor], z: Tensor) -> Tensor:
+    if not terms:
+        return z.sum() * 0.0
+    return torch.stack(terms).mean()
+
+
+# Anchors per chunk of the batch-all triplet tensor (chunk x n x n): ~4e6 elements at n = 1000.
+_TRIPLET_CHUNK_ELEMENTS = 4_000_000
+
+
+def triplet_loss(z: Tensor, labels: Tensor, mask: Tensor, margin: float = 0.2, mining: str = "semihard") -> Tensor:
+    """Triplet loss (Schroff, Kalenichenko, Philbin, FaceNet, CVPR 2015) with mining inside each clip.
+
+    With d the squared Euclidean distance (FaceNet's), every ordered anchor-positive pair (a, p),
+    a != p of one group, is scored against negatives n (another group):
+        hinge(a, p, n) = max(d(a, p) - d(a, n) + margin, 0).
+    mining="semihard" (FaceNet's semi-hard negatives, one per pair): n is the negative of a with the
+    smallest d(a, n) > d(a, p); when a has none that far, its farthest negative (the easiest one, so
+    that hard negatives never collapse the embedding early, as FaceNet warns). The clip's loss is the
+    mean hinge over its anchor-positive pairs. mining="all": the mean hinge over every valid triplet
+    (a, p, n) of the clip. A clip with a single group or without any positive pair has no triplet
+    and contributes 0 (it still counts in the mean over clips). The mining is a selection, not
+    differentiated; the gradient flows through the selected distances.
+
+    Args:
+        z: (B, N, E) embeddings (unit norm; margin 0.2 is FaceNet's for unit embeddings).
+        labels: (B, N) int64 groups, -1 on padding.
+        mask: (B, N) bool, True on real points.
+        margin: alpha of FaceNet, in squared-distance units (on the unit sphere d lies in [0, 4]), >= 0.
+        mining: "semihard" or "all".
+
+    Returns:
+        Scalar tensor, mean over clips with real points.
+    """
+    if not margin >= 0.0:
+        raise ConfigError(f"triplet_loss margin={margin}: must be >= 0")
+    if mining not in ("semihard", "all"):
+        raise ConfigError(f"triplet_loss mining={mining!r}: choose from semihard, all")
+    terms = []
+    for x, group in _per_clip(z, labels, mask):
+        n = x.shape[0]
+        d = _squared_distances(x)
+        same = group.unsqueeze(1) == group.unsqueeze(0)
+        pos = same & ~torch.eye(n, dtype=torch.bool, device=x.device)
+        neg = ~same
+        if not bool(pos.any()) or not bool(neg.any()):
+            terms.append(x.sum() * 0.0)
+            continue
+        if mining == "all":
+            total = x.new_zeros(())
+            count = 0
+            chunk = max(1, _TRIPLET_CHUNK_ELEMENTS // (n * n))
+            for lo in range(0, n, chunk):
+                hi = min(n, lo + chunk)
+                # (a, p, n) for anchors lo..hi: d(a, p) - d(a, n) + margin where p is a positive
+                # and n a negative of a.
+                h = F.relu(d[lo:hi].unsqueeze(2) - d[lo:hi].unsqueeze(1) + margin)
+                valid = pos[lo:hi].unsqueeze(2) & neg[lo:hi].unsqueeze(1)
+                total = total + torch.where(valid, h, torch.zeros_like(h)).sum()
+                count += int(valid.sum())
+            terms.append(total / count)
+            continue
+        # Semi-hard negative per pair: sort each anchor's negative distances (non-negatives at +inf)
+        # and find the first one beyond d(a, p).
+        with torch.no_grad():
+            neg_d = torch.where(neg, d, torch.full_like(d, float("inf")))
+            sorted_d, order = torch.sort(neg_d, dim=1)
+            num_neg = neg.sum(1)  # (n,) >= 1 for every anchor: the clip has two groups
+            first = torch.searchsorted(sorted_d, d.contiguous(), right=True)  # (n, n) first d(a, n) > d(a, p)
+            farthest = (num_neg - 1).unsqueeze(1).expand_as(first)
+            slot = torch.where(first < num_neg.unsqueeze(1), first, farthest)
+            chosen = torch.gather(order, 1, slot)  # (n, n) index of the negative of pair (a, p)
+        d_an = torch.gather(d, 1, chosen)
+        h = F.relu(d - d_an + margin)
+        terms.append(torch.where(pos, h, torch.zeros_like(h)).sum() / pos.sum())
+    return _mean_of_terms(terms, z)
+
+
+def lifted_structured_loss(z: Tensor, labels: Tensor, mask: Tensor, margin: float = 1.0) -> Tensor:
+    """Lifted structured embedding loss (Oh Song, Xiang, Jegelka, Savarese, CVPR 2016), eq. 4.
+
+    With D the Euclidean distance, over the clip's positive pairs P (unordered, i != j, one group)
+        J_ij = log( sum_{k: neg of i} exp(margin - D_ik) + sum_{l: neg of j} exp(margin - D_jl) ) + D_ij
+        loss = 1 / (2 |P|) * sum_{(i,j) in P} max(J_ij, 0)^2,
+    the paper's smooth upper bound of the hardest-negative hinge, over every negative of both ends
+    of each pair (computed with log-sum-exp). A clip with a single group or without positive pairs
+    contributes 0 (and still counts in the mean over clips).
+
+    Args:
+        z: (B, N, E) embeddings.
+        labels: (B, N) int64 groups, -1 on padding.
+        mask: (B, N) bool, True on real points.
+        margin: alpha of the paper (they use 1), distance units, >= 0.
+
+    Returns:
+        Scalar tensor, mean over clips with real points.
+    """
+    if not margin >= 0.0:
+        raise ConfigError(f"lifted_structured_loss margin={margin}: must be >= 0")
+    terms = []
+    for x, group in _per_clip(z, labels, mask):
+        same = group.unsqueeze(1) == group.unsqueeze(0)
+        pos = torch.triu(same, diagonal=1)
+        if bool(same.all()) or not bool(pos.any()):
+            terms.append(x.sum() * 0.0)
+            continue
+        d = _distances(x)
+        # log sum_{k neg of i} exp(margin - D_ik): every point has a negative in a clip of >= 2 groups.
+        lse = torch.logsumexp(torch.where(same, torch.full_like(d, float("-inf")), margin - d), dim=1)  # (n,)
+        j = torch.logaddexp(lse.unsqueeze(1), lse.unsqueeze(0)) + d
+        h = F.relu(j) ** 2
+        terms.append(torch.where(pos, h, torch.zeros_like(h)).sum() / (2.0 * pos.sum()))
+    return _mean_of_terms(terms, z)
+
+
+def _nmi_rows(assign: Tensor, group: Tensor, num_assign: int, num_groups: int) -> Tensor:
+    """NMI (arithmetic normalisation, 2 I / (H(a) + H(g))) of each row of assign (c, n) against group (n,).
+
+    Two one-cluster labellings have NMI 1 (both entropies 0).
+    """
+    c, n = assign.shape
+    codes = (torch.arange(c, device=assign.device).unsqueeze(1) * num_assign + assign) * num_groups + group
+    joint = torch.bincount(codes.reshape(-1), minlength=c * num_assign * num_groups)
+    joint = joint.reshape(c, num_assign, num_groups).to(torch.float64) / n
+    pa, pg = joint.sum(2), joint.sum(1)
+
+    def entropy(p: Tensor) -> Tensor:
+        return -(torch.where(p > 0, p * torch.log(p.clamp_min(1e-300)), torch.zeros_like(p))).sum(-1)
+
+    ha, hg = entropy(pa), entropy(pg)
+    outer = pa.unsqueeze(2) * pg.unsqueeze(1)
+    ratio = torch.where(joint > 0, joint / outer.clamp_min(1e-300), torch.ones_like(joint))
+    mutual = (joint * torch.log(ratio)).sum((1, 2))
+    denom = ha + hg
+    return torch.where(denom > 0, 2.0 * mutual / denom.clamp_min(1e-300), torch.ones_like(denom))
+
+
+def facility_location_loss(z: Tensor, labels: Tensor, mask: Tensor, gamma: float = 1.0) -> Tensor:
+    """Clustering-quality loss of Oh Song, Jegelka, Rathod, Murphy, "Deep metric learning via facility
+    location" (CVPR 2017), eq. 6, per clip, with the facility-location score divided by n.
+
+    With D the Euclidean distance, a set S of medoids scores F(S) = -(1/n) sum_i min_{j in S} D_ij,
+    and g(S) assigns every point to its nearest medoid. The ground truth scores
+    F~ = -(1/n) sum_k min_{j in C_k} sum_{i in C_k} D_ij (each true group C_k with its best own medoid).
+    The loss is the structured hinge
+        loss = max( max_{|S| = K} [ F(S) + gamma * (1 - NMI(g(S), y)) ] - F~, 0 ),
+    K the number of true groups. As in the paper, the inner maximisation (loss-augmented inference)
+    is greedy: medoids are added one at a time, each time the point that maximises the bracket (the
+    paper proves a (1 - 1/e) bound for the F part); the chosen S and medoids of F~ are selections,
+    and the gradient flows through the distances they select (the paper's subgradient). The
+    differences to the paper: the score is averaged over the points (the paper sums; dividing by n
+    makes gamma mean the same for clips of any size), NMI is the arithmetic-normalised one, and the
+    greedy step does not re-run the paper's optional local refinement of S. A single-group clip
+    scores 0: its best S has NMI 1 and reaches F~.
+
+    Args:
+        z: (B, N, E) embeddings.
+        labels: (B, N) int64 groups, -1 on padding.
+        mask: (B, N) bool, True on real points.
+        gamma: weight of the structured margin 1 - NMI (distance units), >= 0.
+
+    Returns:
+        Scalar tensor, mean over clips with real points.
+    """
+    if not gamma >= 0.0:
+        raise ConfigError(f"facility_location_loss gamma={gamma}: must be >= 0")
+    terms = []
+    for x, group in _per_clip(z, labels, mask):
+        n = x.shape[0]
+        num_groups = int(group.max()) + 1
+        d = _distances(x)
+        with torch.no_grad():
+            dd = d.detach()
+            chosen: list[int] = []
+            nearest = torch.full((n,), float("inf"), dtype=dd.dtype, device=dd.device)
+            assign = torch.zeros(n, dtype=torch.int64, device=dd.device)
+            for step in range(num_groups):
+                cand_nearest = torch.minimum(nearest.unsqueeze(0), dd)  # (n candidates, n points)
+                cand_assign = torch.where(dd < nearest.unsqueeze(0), step, assign.unsqueeze(0))
+                nmi = _nmi_rows(cand_assign, group, step + 1, num_groups).to(dd.dtype)
+                score = -cand_nearest.mean(1) + gamma * (1.0 - nmi)
+                if chosen:
+                    score[chosen] = float("-inf")
+                best = int(torch.argmax(score))
+                chosen.append(best)
+                nearest, assign = cand_nearest[best], cand_assign[best]
+            delta = 1.0 - float(_nmi_rows(assign.unsqueeze(0), group, num_groups, num_groups)[0])
+            onehot = F.one_hot(group, num_groups).to(dd.dtype)  # (n, K)
+            cost = dd @ onehot  # (n candidates, K): sum of distances from group k's points to j
+            cost = torch.where(onehot.bool(), cost, torch.full_like(cost, float("inf")))
+            medoid = cost.argmin(0)  # (K,) best own medoid of every group
+        augmented = -d[:, chosen].min(1).values.mean() + gamma * delta
+        truth = -(d[medoid] @ onehot.to(d.dtype)).diagonal().sum() / n
+        terms.append(F.relu(augmented - truth))
+    return _mean_of_terms(terms, z)
+
+
 LOSSES: dict[str, Callable[..., Tensor]] = {
     "mimi": mimi_loss,
     "l2": l2_affinity_loss,
     "ce": ce_affinity_loss,
+    "triplet": triplet_loss,
+    "lifted": lifted_structured_loss,
+    "facility": facility_location_loss,
 }
