@@ -5,26 +5,104 @@ Only this layer prints, and only here does a MosegError become one line on stder
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import os
+import re
+import signal
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import replace
+from enum import Enum, StrEnum
 from pathlib import Path
 from typing import Annotated, Any, TypeVar, cast, get_args
 
 import typer
+from typer.core import TyperGroup
 
 from mosegpipe import __version__
 from mosegpipe.errors import InputError, MosegError, check_choice
 from mosegpipe.types import KMethodName
 
+try:  # Typer >= 0.26 bundles its own copy of Click; its exceptions are the ones raised
+    from typer import _click
+except ImportError:  # pragma: no cover - older Typer uses the click package
+    import click as _click  # type: ignore[no-redef]
+
+EXIT_CODES = {0: "success", 1: "bad input, a failed or interrupted run (one 'moseg: error:' line)", 2: "usage error"}
+"""Exit codes of every moseg command (README, docs/OUTPUTS.md)."""
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _usage_message(exc: Any, args: list[str]) -> str:
+    """One line for a usage error; a bad option value is named with the value given (`--frames 0: ...`)."""
+    param = getattr(exc, "param", None)
+    if isinstance(exc, _click.exceptions.BadParameter) and param is not None and getattr(param, "opts", None):
+        for i, arg in enumerate(args):
+            for opt in param.opts:
+                if arg == opt and i + 1 < len(args):
+                    return f"{opt} {args[i + 1]}: {_one_line(exc.message).rstrip('.')}"
+                if arg.startswith(f"{opt}="):
+                    return f"{opt} {arg[len(opt) + 1 :]}: {_one_line(exc.message).rstrip('.')}"
+    return _one_line(exc.format_message()).rstrip(".")
+
+
+class _MosegGroup(TyperGroup):
+    """The moseg command group: usage errors are one line on stderr, not Click's framed box.
+
+    Click's own exit code 2 is kept for usage errors (a bad option value, a missing argument, an
+    unknown option); everything a command reports itself exits with 1 (see EXIT_CODES).
+    """
+
+    def main(
+        self,
+        args: Any = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        windows_expand_args: bool = True,
+        **extra: Any,
+    ) -> Any:
+        try:
+            rv = super().main(
+                args=args,
+                prog_name=prog_name,
+                complete_var=complete_var,
+                standalone_mode=False,
+                windows_expand_args=windows_expand_args,
+                **extra,
+            )
+            code = rv if isinstance(rv, int) else 0
+        except _click.exceptions.NoArgsIsHelpError as exc:
+            typer.echo(exc.ctx.get_help() if exc.ctx is not None else "")
+            code = exc.exit_code
+        except _click.exceptions.UsageError as exc:
+            where = exc.ctx.command_path if exc.ctx is not None else "moseg"
+            message = _usage_message(exc, sys.argv[1:] if args is None else list(args))
+            typer.echo(f"moseg: error: {message} (see '{where} --help')", err=True)
+            code = exc.exit_code
+        except _click.exceptions.ClickException as exc:
+            typer.echo(f"moseg: error: {_one_line(exc.format_message())}", err=True)
+            code = exc.exit_code
+        except typer.Abort:
+            typer.echo("moseg: error: interrupted", err=True)
+            code = 1
+        if standalone_mode:
+            sys.exit(code)
+        return code
+
+
 app = typer.Typer(
     name="moseg",
+    cls=_MosegGroup,
     help="Motion segmentation of tracked points with SubspaceNet: clips, image pairs, folders of clips.",
     no_args_is_help=True,
-    add_completion=False,
+    add_completion=True,
     pretty_exceptions_enable=False,
     rich_markup_mode="markdown",  # docstring paragraphs wrap to the terminal instead of keeping source line breaks
 )
@@ -33,25 +111,82 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 def _fail(message: str) -> None:
+    _WARNINGS.drop()
     typer.echo(f"moseg: error: {message}", err=True)
     raise typer.Exit(code=1)
 
 
+def _shown_path(name: object) -> str:
+    """A path as the user knows it: `OUT/file`, not the temporary `.OUT.partial/.file.1a2b3c4d.tmp`."""
+    text = re.sub(r"(^|/)\.([^/]+)\.partial(?=/|$)", r"\1\2", os.fsdecode(name))  # type: ignore[arg-type]
+    return re.sub(r"(^|/)\.([^/]+)\.[0-9a-f]{8}\.tmp(\.[^/.]*)?$", r"\1\2\3", text)
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so that the same clean-up runs (no .partial
+    folder left behind)."""
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
+    raise _Terminated()
+
+
+class _DeferredWarnings(logging.Handler):
+    """Holds the library's warnings until the command ends.
+
+    After a success they are printed (`moseg: warning: ...`, at most `limit`, then a count); after a
+    failure they are dropped, so that stderr holds only the one error line (a blank video in
+    whole-video mode would otherwise print a warning per window before its error).
+    """
+
+    def __init__(self, limit: int = 10) -> None:
+        super().__init__(logging.WARNING)
+        self.limit = limit
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+    def drop(self) -> None:
+        self.records.clear()
+
+    def show(self) -> None:
+        records, self.records = self.records, []
+        for record in records[: self.limit]:
+            typer.echo(f"moseg: warning: {_one_line(record.getMessage())}", err=True)
+        if len(records) > self.limit:
+            typer.echo(f"moseg: warning: ... and {len(records) - self.limit} more warnings (-v shows them)", err=True)
+
+
+_WARNINGS = _DeferredWarnings()
+
+
 def _friendly(fn: F) -> F:
-    """Turns MosegError, OS errors (a full disk, a read-only folder) and Ctrl-C into one line on stderr
-    and exit code 1. Anything else is a bug and keeps its traceback."""
+    """Turns MosegError, OS errors (a full disk, a read-only folder), Ctrl-C and SIGTERM into one
+    line on stderr and exit code 1; the library's warnings are shown after a success only. Anything
+    else is a bug and keeps its traceback."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        _WARNINGS.drop()
+        previous = None
+        with contextlib.suppress(ValueError):  # signals can only be handled in the main thread
+            previous = signal.signal(signal.SIGTERM, _raise_terminated)
         try:
-            return fn(*args, **kwargs)
+            result = fn(*args, **kwargs)
+            _WARNINGS.show()
+            return result
         except MosegError as exc:
-            _fail(str(exc))
+            _fail(_one_line(str(exc)))
         except OSError as exc:
-            where = f"{exc.filename}: " if exc.filename else ""
+            where = f"{_shown_path(exc.filename)}: " if exc.filename else ""
             _fail(f"{where}{exc.strerror or exc}")
-        except KeyboardInterrupt:
-            _fail("interrupted")
+        except KeyboardInterrupt as exc:
+            _fail("terminated (SIGTERM)" if isinstance(exc, _Terminated) else "interrupted")
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
 
     return wrapper  # type: ignore[return-value]
 
@@ -70,10 +205,15 @@ def _quiet_native_logs() -> None:
 def _setup(threads: int, verbose: bool) -> None:
     from mosegpipe.runtime import set_threads
 
-    logging.basicConfig(
-        level=logging.INFO if verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
-    )
-    if not verbose:
+    root = logging.getLogger()
+    if root.handlers and all(h is _WARNINGS for h in root.handlers) and verbose:
+        root.removeHandler(_WARNINGS)  # an earlier command in this process deferred its warnings
+    if verbose:
+        logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    else:
+        if _WARNINGS not in root.handlers:
+            root.addHandler(_WARNINGS)
+        root.setLevel(logging.WARNING)
         _quiet_native_logs()
     set_threads(threads)
 
@@ -104,7 +244,32 @@ Threads = Annotated[
 ]
 Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Log progress.")]
 KOpt = Annotated[int | None, typer.Option("--k", min=1, help="Force this many motions (default: automatic K).")]
-KMethod = Annotated[str, typer.Option("--k-method", help="Automatic K: 'silhouette' (default) or 'residual' (faster).")]
+
+
+class KMethodChoice(StrEnum):
+    """--k-method: the values of mosegpipe.types.KMethodName (a test keeps them equal)."""
+
+    silhouette = "silhouette"
+    residual = "residual"
+
+
+class EngineChoice(StrEnum):
+    """--engine: the values of mosegpipe.batch.ENGINES (a test keeps them equal)."""
+
+    process = "process"
+    ray = "ray"
+    inline = "inline"
+
+
+def _value(choice: Any) -> Any:
+    """The plain value of an Enum choice (what the library and summary.json take)."""
+    return choice.value if isinstance(choice, Enum) else choice
+
+
+KMethod = Annotated[
+    KMethodChoice,
+    typer.Option("--k-method", help="Automatic K: silhouette (default, more often right) or residual (faster)."),
+]
 KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered by automatic K.")]
 ModelOpt = Annotated[Path | None, typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results already in the output folder.")]
@@ -132,7 +297,7 @@ def _pipeline_cfg(frames: int, k: int | None, k_method: str, k_max: int, mask_me
     from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
 
-    method = cast(KMethodName, check_choice("--k-method", k_method, get_args(KMethodName)))
+    method = cast(KMethodName, check_choice("--k-method", _value(k_method), get_args(KMethodName)))
     if mask_method not in MASK_METHODS:
         raise InputError(f"--mask-method {mask_method!r}: choose {', '.join(map(repr, MASK_METHODS))}")
     return PipelineConfig(
@@ -141,6 +306,29 @@ def _pipeline_cfg(frames: int, k: int | None, k_method: str, k_max: int, mask_me
         cluster=replace(ClusterConfig(), method=method, k_max=k_max),
         mask=MaskConfig(method=mask_method),
     )
+
+
+def _progress_columns() -> tuple[Any, ...]:
+    """Description, bar, n/N done, elapsed and remaining time (rich.progress)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    return (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+    )
+
+
+def _check_model_path(model: Path | None) -> None:
+    if model is not None and not model.is_file():
+        raise InputError(f"{model}: checkpoint file not found (--model)")
+
+
+def _print_total(started: float) -> None:
+    typer.echo(f"total {time.perf_counter() - started:.1f} s")
 
 
 def _plural(n: int, word: str, plural: str = "") -> str:
@@ -191,7 +379,7 @@ def run(
         int | None, typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")
     ] = None,
     k: KOpt = None,
-    k_method: KMethod = "silhouette",
+    k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
     mask_method: MaskMethod = "watershed",
     model: ModelOpt = None,
@@ -205,15 +393,18 @@ def run(
     Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ and recording.rrd into the
     output folder; see docs/OUTPUTS.md. Exit code 1 with one 'moseg: error:' line on failure.
     """
+    started = time.perf_counter()
+    # Paths and option combinations first: torch and scikit-learn take seconds to import.
+    if not clip.exists():
+        raise InputError(f"{clip}: no such file or folder")
+    if max_frames is not None and not whole:
+        raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
+    _check_model_path(model)
     _setup(threads, verbose)
     from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
     from mosegpipe.pipeline import load_model, segment_clip
 
     cfg = _pipeline_cfg(frames, k, k_method, k_max, mask_method)
-    if not clip.exists():
-        raise InputError(f"{clip}: no such file or folder")
-    if max_frames is not None and not whole:
-        raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
     out = out or _default_out(clip, "_moseg")
     check_output_dir(out, overwrite)
     net = load_model(frames, model)
@@ -227,10 +418,12 @@ def run(
         typer.echo(
             f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.mp4" + (", recording.rrd)" if not no_rrd else ")")
         )
+        _print_total(started)
         return
     result = segment_clip(clip, cfg, net)
     summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
     _print_summary(summary, out)
+    _print_total(started)
 
 
 @app.command()
@@ -243,7 +436,7 @@ def pair(
         typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg')."),
     ] = None,
     k: KOpt = None,
-    k_method: KMethod = "silhouette",
+    k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
     mask_method: MaskMethod = "watershed",
     model: ModelOpt = None,
@@ -253,19 +446,22 @@ def pair(
     verbose: Verbose = False,
 ) -> None:
     """Segment the motions between two images from SIFT matches; outliers get their own label."""
+    started = time.perf_counter()
+    for p in (img1, img2):
+        if not p.is_file():
+            raise InputError(f"{p}: no such image file")
+    _check_model_path(model)
     _setup(threads, verbose)
     from mosegpipe.outputs import check_output_dir, write_pair_outputs
     from mosegpipe.pipeline import load_model, segment_pair
 
     cfg = _pipeline_cfg(2, k, k_method, k_max, mask_method)
-    for p in (img1, img2):
-        if not p.is_file():
-            raise InputError(f"{p}: no such image file")
     out = out or _default_out(img1, "_pair_moseg")
     check_output_dir(out, overwrite)
     result = segment_pair(img1, img2, cfg, load_model(2, model))
     summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
     _print_summary(summary, out)
+    _print_total(started)
 
 
 @app.command()
@@ -277,7 +473,7 @@ def batch(
     ],
     frames: Annotated[int, typer.Option("--frames", "-f", min=2)] = 5,
     k: KOpt = None,
-    k_method: KMethod = "silhouette",
+    k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
     model: ModelOpt = None,
     overwrite: Annotated[
@@ -294,12 +490,12 @@ def batch(
         ),
     ] = None,
     engine: Annotated[
-        str,
+        EngineChoice,
         typer.Option(
             "--engine",
-            help="'process' (worker processes on this machine), 'ray' (Ray tasks: pip install 'mosegpipe[ray]') or 'inline' (this process, one clip after another).",
+            help="process (worker processes on this machine), ray (Ray tasks: pip install 'mosegpipe[ray]') or inline (this process, one clip after another).",
         ),
-    ] = "process",
+    ] = EngineChoice.process,
     address: Annotated[
         str | None,
         typer.Option(
@@ -328,6 +524,10 @@ def batch(
     Exit code: 0 when every clip was segmented or skipped, 1 when any clip failed (after all the
     others were processed and the summary written).
     """
+    started = time.perf_counter()
+    if not folder.exists():
+        raise InputError(f"{folder}: no such file or folder")
+    _check_model_path(model)
     _setup(threads, verbose)
     from rich.markup import escape
     from rich.progress import Progress
@@ -336,6 +536,7 @@ def batch(
     from mosegpipe.pipeline import load_model
 
     cfg = _pipeline_cfg(frames, k, k_method, k_max)
+    engine = _value(engine)
     if engine not in ENGINES:
         raise InputError(f"--engine {engine!r}: choose {', '.join(map(repr, ENGINES))}")
     if address is not None and engine != "ray":
@@ -346,11 +547,11 @@ def batch(
     if not items:
         raise InputError(f"{folder}: no video files or frame folders found")
     net = load_model(frames, model)
-    with Progress(transient=True) as bar:
+    with Progress(*_progress_columns(), transient=True) as bar:
         task = bar.add_task("segmenting", total=len(items))
 
         def step(item: Any, row: dict[str, Any]) -> None:
-            bar.advance(task)
+            bar.update(task, advance=1, description=f"{escape(item.name)} {row['status']}")
             if row["status"] == "failed":
                 bar.console.print(f"[red]failed[/red] {escape(item.name)}: {escape(row['error'])}")
 
@@ -376,6 +577,7 @@ def batch(
         f"{counts['ok']} segmented, {counts['skipped']} skipped (done earlier), {counts['failed']} failed; "
         f"wrote {out}/batch_summary.csv and batch_summary.json"
     )
+    _print_total(started)
     if counts["failed"]:
         _fail(f"{counts['failed']} of {len(rows)} clips failed (reasons in {out}/batch_summary.csv)")
 
@@ -517,7 +719,7 @@ def eval_(
         str, typer.Option("--baselines", help="Comma-separated baselines ('' for none).")
     ] = "kmeans-raw,spectral-raw,ssc",
     folds: Annotated[str | None, typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
-    k_method: KMethod = "silhouette",
+    k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1)] = 1,
@@ -528,6 +730,7 @@ def eval_(
     from mosegpipe.evaluation.protocols import EvalRequest, get_protocol
 
     proto = get_protocol(protocol)
+    k_method = _value(k_method)
     check_choice("--k-method", k_method, get_args(KMethodName))
     request = EvalRequest(
         out_dir=out,

@@ -106,15 +106,25 @@ class ClusterConfig:
 
 def _check_embeddings(emb: npt.ArrayLike) -> npt.NDArray[np.float64]:
     """Validate (N, E) embeddings; return them as float64 (residual ratios need the precision)."""
-    arr = np.asarray(emb)
+    try:
+        arr = np.asarray(emb)
+    except (TypeError, ValueError) as exc:  # ragged lists
+        raise InputError(f"embeddings: not an array of numbers ({exc})") from exc
     if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
         raise InputError(f"embeddings must have shape (N, E) with N, E >= 1, got {arr.shape}")
-    if not np.issubdtype(arr.dtype, np.number):
-        raise InputError(f"embeddings must be numeric, got dtype {arr.dtype}")
+    if arr.dtype.kind not in "iuf":
+        raise InputError(f"embeddings must be real numbers, got dtype {arr.dtype}")
     arr = arr.astype(np.float64, copy=False)
     if not np.all(np.isfinite(arr)):
         raise InputError(f"embeddings of shape {arr.shape} contain NaN or inf")
     return arr
+
+
+def _check_k(k: object, what: str) -> int:
+    """`k` as an int, or an InputError naming it (1.5, "3", True and None are not a number of clusters)."""
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+        raise InputError(f"{what}={k!r}: the number of clusters must be an integer")
+    return int(k)
 
 
 def relabel_by_size(labels: npt.ArrayLike) -> npt.NDArray[np.int64]:
@@ -167,6 +177,7 @@ def kmeans(
     """
     x = _check_embeddings(emb)
     n = x.shape[0]
+    k = _check_k(k, "k")
     if k < 1:
         raise InputError(f"k={k} must be at least 1")
     if k > n:
@@ -253,6 +264,7 @@ def _cluster_auto_k(emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None) -> Cl
     x = _check_embeddings(emb)
     n = x.shape[0]
     if k is not None:
+        k = _check_k(k, "--k")
         if k < 1:
             raise InputError(f"--k {k} must be at least 1")
         if k > n:

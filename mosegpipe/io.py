@@ -9,8 +9,10 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
+import logging
 import os
 import secrets
+import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from io import StringIO as _StringIO
 from pathlib import Path
@@ -39,10 +41,98 @@ H264_PRESET = "veryfast"
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
+logger = logging.getLogger(__name__)
+
 
 # ---------------------------------------------------------------------------------------------
 # Reading
 # ---------------------------------------------------------------------------------------------
+
+
+def as_path(path: object, what: str = "path") -> Path:
+    """`path` as a Path, or an InputError naming what was given instead (None, a number, an array).
+
+    Args:
+        path: a str or os.PathLike.
+        what: how the argument is named in the message.
+
+    Raises:
+        InputError: `path` is not a str or os.PathLike, or is empty.
+    """
+    if not isinstance(path, (str, os.PathLike)) or isinstance(path, bytes):
+        raise InputError(f"{what}: expected a file path (str or os.PathLike), got {type(path).__name__}")
+    p = Path(path)
+    if not str(path):
+        raise InputError(f"{what}: the path is empty")
+    return p
+
+
+def check_images(images: object, what: str = "image", stack: bool = False) -> npt.NDArray[np.uint8]:
+    """An RGB image (or a stack of them) handed in as an array, checked before OpenCV sees it.
+
+    Args:
+        images: (H, W, 3) uint8 RGB, or (T, H, W, 3) with `stack`.
+        what: how the argument is named in the message.
+        stack: expect a stack of T >= 1 frames.
+
+    Returns:
+        The array, unchanged.
+
+    Raises:
+        InputError: not a uint8 array of that shape, or an empty image (H or W of 0).
+    """
+    shape = "(T, H, W, 3)" if stack else "(H, W, 3)"
+    if not isinstance(images, np.ndarray):
+        raise InputError(f"{what}: expected a {shape} uint8 array, got {type(images).__name__}")
+    ndim = 4 if stack else 3
+    if images.ndim != ndim or images.shape[-1] != 3 or images.dtype != np.uint8:
+        raise InputError(f"{what}: expected a {shape} uint8 RGB array, got {images.dtype} {images.shape}")
+    if images.size == 0:
+        raise InputError(f"{what}: empty image (shape {images.shape})")
+    return images
+
+
+class _NativeStderr:
+    """Keeps what OpenCV's own container parsers print to file descriptor 2 off the terminal.
+
+    OpenCV's AVI parser writes lines such as "Unexpected element. Expected: LIST. Got: ..." (often
+    with raw, non-UTF-8 bytes from the file) straight to fd 2, before the failure they lead to is
+    raised as one InputError. While a capture is entered, fd 2 points at a temporary file; what
+    landed there is logged at DEBUG level (`moseg -v` shows it). Entered only around the OpenCV
+    calls themselves (open, grab, read), so other output is redirected for microseconds at most.
+    """
+
+    def __init__(self) -> None:
+        self._file: Any = None
+        self._saved: int | None = None
+
+    def __enter__(self) -> _NativeStderr:
+        try:
+            if self._file is None:
+                self._file = tempfile.TemporaryFile()
+            self._saved = os.dup(2)
+            os.dup2(self._file.fileno(), 2)
+        except (OSError, ValueError):  # no fd 2 (a service, a closed stderr): nothing to keep quiet
+            self._saved = None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._saved is None:
+            return
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._saved = None
+        if self._file.tell():
+            self._file.seek(0)
+            text = self._file.read(2000).decode("utf-8", "replace")
+            logger.debug("OpenCV printed: %s", " ".join(text.split()))
+            self._file.seek(0)
+            self._file.truncate()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
 
 
 def read_image(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
@@ -58,9 +148,9 @@ def read_image(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
         (H, W, 3) uint8 RGB image.
 
     Raises:
-        InputError: the file is missing or cannot be decoded as an image.
+        InputError: the file is missing or cannot be decoded as an image, or `path` is not a path.
     """
-    p = Path(path)
+    p = as_path(path, "image")
     if not p.is_file():
         raise InputError(f"{p}: no such image file")
     # np.fromfile + imdecode instead of imread: imread silently fails on some non-ASCII paths.
@@ -82,6 +172,9 @@ def _list_images(folder: Path) -> list[Path]:
 
 
 def _check_start_chunk(path: Path, start: int, chunk: int | None, max_frames: int | None) -> None:
+    for name, value in (("start", start), ("chunk", chunk), ("max_frames", max_frames)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
+            raise InputError(f"{path}: {name}={value!r} must be an integer")
     if start < 0:
         raise InputError(f"{path}: start={start} must be >= 0")
     if chunk is not None and chunk < 1:
@@ -118,20 +211,25 @@ def _iter_single_frames(path: Path, start: int, max_frames: int | None) -> Itera
             raise InputError(f"{path}: start={start} but a single image has only 1 frame")
         yield 0, read_image(path)
         return
-    cap = cv2.VideoCapture(str(path))
+    quiet = _NativeStderr()
+    with quiet:
+        cap = cv2.VideoCapture(str(path))
     try:
         if not cap.isOpened():
             raise InputError(f"{path}: not a readable video (OpenCV could not open it)")
         # grab() through the skipped frames: seeking with CAP_PROP_POS_FRAMES is keyframe-inexact
         # for some codecs, and frame indices must match the source exactly.
         for skipped in range(start):
-            if not cap.grab():
+            with quiet:
+                grabbed = cap.grab()
+            if not grabbed:
                 if skipped == 0:
                     raise InputError(f"{path}: no frames could be decoded (corrupt or truncated video?)")
                 raise InputError(f"{path}: start={start} but the video has only {skipped} frames")
         index = start
         while stop is None or index < stop:
-            ok, bgr = cap.read()
+            with quiet:
+                ok, bgr = cap.read()
             if not ok or bgr is None:
                 break
             if bgr.ndim == 2:
@@ -144,6 +242,7 @@ def _iter_single_frames(path: Path, start: int, max_frames: int | None) -> Itera
             raise InputError(f"{path}: start={start} is at or past the last decodable frame")
     finally:
         cap.release()
+        quiet.close()
 
 
 def iter_video(
@@ -170,7 +269,7 @@ def iter_video(
         InputError: missing path, unreadable or corrupt video, empty folder, images of different
             sizes, or `start` past the end. Raised lazily, on iteration.
     """
-    p = Path(path)
+    p = as_path(path, "video")
     _check_start_chunk(p, start, chunk, max_frames)
     frames = _iter_single_frames(p, start, max_frames)
     if chunk is None:
@@ -192,7 +291,9 @@ def iter_video(
 def _video_fps(path: Path) -> float:
     if path.is_dir() or path.suffix.lower() in IMAGE_SUFFIXES:
         return 0.0
-    cap = cv2.VideoCapture(str(path))
+    with _NativeStderr() as quiet:
+        cap = cv2.VideoCapture(str(path))
+    quiet.close()
     try:
         fps = float(cap.get(cv2.CAP_PROP_FPS)) if cap.isOpened() else 0.0
     finally:
@@ -219,7 +320,7 @@ def read_video(path: str | os.PathLike[str], max_frames: int | None = None, star
         InputError: missing path, unreadable or corrupt video, folder without images, images of
             different sizes, or `start` past the end.
     """
-    p = Path(path)
+    p = as_path(path, "video")
     images = [frame for _, frame in iter_video(p, start=start, max_frames=max_frames)]
     return Frames(images=np.stack(images), fps=_video_fps(p), source=str(p), start=start)
 
@@ -238,7 +339,7 @@ def video_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     Raises:
         InputError: as for :func:`read_video`.
     """
-    p = Path(path)
+    p = as_path(path, "video")
     # Decoding the first frame validates the input and gives the true size (container headers
     # can be missing or wrong).
     _, first = next(iter_video(p, max_frames=1))
@@ -247,7 +348,9 @@ def video_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         return {"kind": "folder", "num_frames": len(_list_images(p)), "fps": 0.0, "size_hw": size_hw}
     if p.suffix.lower() in IMAGE_SUFFIXES:
         return {"kind": "image", "num_frames": 1, "fps": 0.0, "size_hw": size_hw}
-    cap = cv2.VideoCapture(str(p))
+    with _NativeStderr() as quiet:
+        cap = cv2.VideoCapture(str(p))
+    quiet.close()
     try:
         count = float(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = float(cap.get(cv2.CAP_PROP_FPS))

@@ -60,7 +60,21 @@ INPUT_NORMS = ("shared", "channel", "motion")
 _CN_EPS = 1e-5
 # Floor of the input scale, in input units (pixels): only reached when all points coincide.
 _INPUT_EPS = 1e-6
+# Largest coordinate `embed` accepts: squares summed over points stay finite in float64 (1e300 would
+# overflow to inf, and the normalised input silently become all zeros).
+_MAX_COORD = 1e150
 _WEIGHTS_RE = re.compile(r"^subspacenet_f(\d+)\.pt$")
+
+# Bounds of a model configuration, checked before anything is built: a checkpoint is user input,
+# and an unchecked width of 2**20 asks for terabytes. Generous next to the paper's model (30 blocks
+# x 64 wide, 250 k parameters) and anything trained here.
+MODEL_LIMITS: dict[str, int] = {
+    "in_dim": 2000,  # 1000 frames
+    "width": 4096,
+    "num_blocks": 1000,
+    "embed_dim": 1024,
+    "num_parameters": 50_000_000,  # 200 MB of float32 weights
+}
 
 
 @dataclass(frozen=True)
@@ -90,14 +104,26 @@ class ModelConfig:
     input_norm: str = "shared"
 
     def __post_init__(self) -> None:
-        for name in ("in_dim", "width", "embed_dim"):
+        for name in ("in_dim", "width", "num_blocks", "embed_dim"):
             value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ConfigError(f"ModelConfig.{name}={value!r}: must be a positive int")
-        if not isinstance(self.num_blocks, int) or self.num_blocks < 0:
-            raise ConfigError(f"ModelConfig.num_blocks={self.num_blocks!r}: must be an int >= 0")
-        if self.input_norm not in INPUT_NORMS:
+            lowest = 0 if name == "num_blocks" else 1
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise ConfigError(f"ModelConfig.{name}={value!r}: must be an int")
+            if not lowest <= value <= MODEL_LIMITS[name]:
+                raise ConfigError(f"ModelConfig.{name}={value}: must lie in {lowest}..{MODEL_LIMITS[name]}")
+        if not isinstance(self.input_norm, str) or self.input_norm not in INPUT_NORMS:
             raise ConfigError(f"ModelConfig.input_norm={self.input_norm!r}: expected one of {INPUT_NORMS}")
+        if self.num_parameters > MODEL_LIMITS["num_parameters"]:
+            raise ConfigError(
+                f"ModelConfig width={self.width}, num_blocks={self.num_blocks}: {self.num_parameters} parameters, "
+                f"more than the {MODEL_LIMITS['num_parameters']} allowed"
+            )
+
+    @property
+    def num_parameters(self) -> int:
+        """Scalar parameters of the model this configuration builds (weights and biases)."""
+        c = self.width
+        return (self.in_dim + 1) * c + self.num_blocks * 2 * (c + 1) * c + (c + 1) * self.embed_dim
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all fields (stored in checkpoints)."""
@@ -110,6 +136,8 @@ class ModelConfig:
         Raises:
             InputError: unknown field names or invalid values.
         """
+        if not isinstance(data, dict) or not all(isinstance(key, str) for key in data):
+            raise InputError(f"ModelConfig: expected a dict of field names, got {type(data).__name__}")
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
@@ -269,11 +297,20 @@ class SubspaceNet(nn.Module):
             (N, E) float32 unit-norm embeddings.
 
         Raises:
-            InputError: the matrix is not 2-D, has D != cfg.in_dim columns, or holds NaN/inf.
+            InputError: the matrix is not 2-D, has D != cfg.in_dim columns, is not real numbers
+                (complex, str, object), holds NaN/inf, or holds values too large to normalise.
         """
         if isinstance(traj, Trajectories):
             traj = resample_frames(traj, self.num_frames).data
-        arr = np.asarray(traj)
+        try:
+            arr = np.asarray(traj)
+        except (TypeError, ValueError) as exc:  # ragged lists
+            raise InputError(f"trajectory matrix: not an array of numbers ({exc})") from exc
+        if arr.dtype.kind not in "iuf":
+            raise InputError(
+                f"trajectory matrix dtype {arr.dtype}: expected real numbers (float or int; complex, str and "
+                "object arrays are not coordinates)"
+            )
         if arr.ndim != 2 or arr.shape[1] != self.cfg.in_dim:
             raise InputError(
                 f"trajectory matrix shape {arr.shape}: this model expects (N, {self.cfg.in_dim}) "
@@ -281,6 +318,11 @@ class SubspaceNet(nn.Module):
             )
         if not np.all(np.isfinite(arr)):
             raise InputError("trajectory matrix holds NaN or inf values")
+        if arr.size and float(np.abs(arr).max()) > _MAX_COORD:
+            raise InputError(
+                f"trajectory matrix values up to {float(np.abs(arr).max()):.3g}: too large to normalise "
+                f"(more than {_MAX_COORD:.0e}; coordinates are expected in pixels)"
+            )
         if arr.shape[0] == 0:
             return np.zeros((0, self.cfg.embed_dim), dtype=np.float32)
         device = next(self.parameters()).device
@@ -288,11 +330,19 @@ class SubspaceNet(nn.Module):
         self.eval()
         try:
             with torch.inference_mode():
-                x = torch.from_numpy(np.ascontiguousarray(arr, dtype=np.float32)).to(device)
+                # Float64 into the (float64) input normalisation: float32 coordinates are exact in
+                # it, and float64 ones keep their precision and range instead of overflowing to inf.
+                x = torch.from_numpy(np.ascontiguousarray(arr, dtype=np.float64)).to(device)
                 z = self._embed_points(x.unsqueeze(0), None)[0]
         finally:
             self.train(was_training)
-        return z.cpu().numpy().astype(np.float32, copy=False)
+        out = z.cpu().numpy().astype(np.float32, copy=False)
+        if not np.all(np.isfinite(out)):
+            raise InputError(
+                f"trajectory matrix values up to {float(np.abs(arr).max()):.3g}: too large to normalise "
+                "(coordinates are expected in pixels)"
+            )
+        return out
 
     def checkpoint(self, recipe: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None) -> dict[str, Any]:
         """A self-describing, `torch.load(weights_only=True)`-loadable checkpoint dict.
@@ -377,6 +427,10 @@ class SubspaceNet(nn.Module):
             cfg = ModelConfig.from_dict(ckpt["model_config"])
         except (InputError, TypeError) as e:
             raise CheckpointError(f"{src}: invalid model_config: {e}") from e
+        _check_state_dict(ckpt["state_dict"], cfg, src)
+        for key in ("recipe", "metrics"):
+            if not isinstance(ckpt.get(key) or {}, dict):
+                raise CheckpointError(f"{src}: checkpoint field {key!r} must be a dict, got {type(ckpt[key]).__name__}")
         model = cls(cfg)
         try:
             model.load_state_dict(ckpt["state_dict"], strict=True)
@@ -409,6 +463,36 @@ class SubspaceNet(nn.Module):
                 f"{path}: model expects in_dim={model.cfg.in_dim}, not {2 * frames} for {frames} frames"
             )
         return model
+
+
+def _check_state_dict(state: dict[str, Any], cfg: ModelConfig, src: str) -> None:
+    """Every weight of `state` has the name, shape and a finite floating value that `cfg` needs.
+
+    The expected names and shapes come from the model built on PyTorch's "meta" device, which
+    allocates nothing, so a checkpoint is fully checked before any real memory is spent on it.
+
+    Raises:
+        CheckpointError: a missing, unexpected, misshapen, non-float or non-finite weight (named).
+    """
+    with torch.device("meta"):
+        expected = {k: tuple(v.shape) for k, v in SubspaceNet(cfg).state_dict().items()}
+    missing = [k for k in expected if k not in state]
+    unexpected = [k for k in state if k not in expected]
+    if missing or unexpected:
+        raise CheckpointError(
+            f"{src}: weights do not fit {cfg}: missing {missing[:5]}, unexpected {[str(k) for k in unexpected[:5]]}"
+        )
+    for name, shape in expected.items():
+        value = state[name]
+        if not isinstance(value, Tensor) or not value.dtype.is_floating_point:
+            what = value.dtype if isinstance(value, Tensor) else type(value).__name__
+            raise CheckpointError(f"{src}: weight {name!r} must be a floating-point tensor, got {what}")
+        if tuple(value.shape) != shape:
+            raise CheckpointError(
+                f"{src}: weights do not fit {cfg}: {name!r} has shape {tuple(value.shape)}, not {shape}"
+            )
+        if not bool(torch.isfinite(value).all()):
+            raise CheckpointError(f"{src}: weight {name!r} holds NaN or inf values")
 
 
 def weights_dir() -> Path:

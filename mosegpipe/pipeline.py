@@ -30,7 +30,7 @@ from scipy.optimize import linear_sum_assignment
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import CheckpointError, InputError, TooFewTracksError
-from mosegpipe.io import iter_video, read_image, read_video, video_info
+from mosegpipe.io import check_images, iter_video, read_image, read_video, video_info
 from mosegpipe.masks import MAX_LABEL, MaskConfig, labels_to_mask, labels_to_masks
 from mosegpipe.match import MatchConfig, match_sift
 from mosegpipe.model import SubspaceNet, available_default_frames
@@ -213,6 +213,7 @@ def segment_frames(
         CheckpointError: no model given and no shipped weights.
     """
     timings: dict[str, float] = {}
+    check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
     model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     tracks = track_klt(frames, cfg.track)
@@ -320,10 +321,10 @@ def segment_pair(
         TooFewTracksError: fewer than cfg.min_tracks SIFT matches.
     """
     timings: dict[str, float] = {}
-    images = []
+    images: list[npt.NDArray[np.uint8]] = []
     for img in (img1, img2):
         if isinstance(img, np.ndarray):
-            images.append(img)
+            images.append(check_images(img, f"image {len(images) + 1}"))
             continue
         with decode_errors(img):
             images.append(read_image(img))

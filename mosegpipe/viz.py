@@ -251,10 +251,11 @@ class _Sink:
     readable .rrd (one footer per drain), so it is drained once.
     """
 
-    def __init__(self, tmp: Path, app_id: str, blueprint: rrb.Blueprint) -> None:
+    def __init__(self, tmp: Path, app_id: str, blueprint: rrb.Blueprint, final: Path) -> None:
         import rerun as rr
 
         self.tmp = tmp
+        self.final = final
         self.rec = rr.RecordingStream(app_id)
         self._memory = self.rec.memory_recording()
         self.rec.send_blueprint(blueprint, make_active=False, make_default=True)
@@ -267,8 +268,11 @@ class _Sink:
         finally:
             self.rec.disconnect()
         if write:
-            with open(self.tmp, "wb") as fh:
-                fh.write(data)
+            try:
+                with open(self.tmp, "wb") as fh:
+                    fh.write(data)
+            except OSError as exc:  # a write error names no file: say which one
+                raise OSError(exc.errno, exc.strerror or str(exc), str(self.final)) from exc
 
 
 # Flushing a memory sink only encodes what was logged; it takes milliseconds per frame.
@@ -371,7 +375,7 @@ def write_recording(
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        sink = _Sink(tmp, app_id, blueprint)
+        sink = _Sink(tmp, app_id, blueprint, final)
         rec, written = sink.rec, False
         try:
             rec.log("/", _annotation_context(k), static=True)
@@ -465,7 +469,7 @@ def write_pair_recording(
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        sink = _Sink(tmp, app_id, blueprint)
+        sink = _Sink(tmp, app_id, blueprint, final)
         rec, written = sink.rec, False
         try:
             rec.log("/", _annotation_context(num_classes, unknown="unknown / outlier"), static=True)
@@ -514,7 +518,7 @@ class VideoRecorder:
         tmp = self._target.__enter__()
         blueprint = rrb.Blueprint(rrb.Spatial2DView(origin="video", name="video"), collapse_panels=False)
         try:
-            self._sink: _Sink | None = _Sink(tmp, app_id, blueprint)
+            self._sink: _Sink | None = _Sink(tmp, app_id, blueprint, self.path)
         except BaseException as exc:
             self._target.__exit__(type(exc), exc, exc.__traceback__)
             raise

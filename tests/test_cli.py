@@ -205,10 +205,6 @@ BAD_INPUTS: dict[str, BadCase] = {
         ["run", clip, "--k", "100000", "--model", m[5]],
         "--k 100000 is larger than the number of tracks",
     ),
-    "unknown --k-method": lambda tmp, m, clip: (
-        ["run", clip, "--k-method", "elbow", "--model", m[5]],
-        "--k-method 'elbow': choose 'residual' or 'silhouette'",
-    ),
     "unknown eval protocol": lambda tmp, m, clip: (
         ["eval", "kitti", "-o", tmp / "out"],
         "unknown protocol 'kitti'; choose from kt3d-test",
@@ -336,3 +332,20 @@ def test_view_starts_the_viewer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     assert moseg("view", rec)[0] == 0
     assert moseg("view", "--web", rec)[0] == 0
     assert calls == [["/opt/rerun", "/opt/rerun", str(rec)], ["/opt/rerun", "/opt/rerun", "--web-viewer", str(rec)]]
+
+
+def test_choices_are_enums_listed_in_help() -> None:
+    """Typer Enums (usage errors are one line now, test_bad_inputs.py): the same values as the library's."""
+    from typing import get_args
+
+    from mosegpipe.batch import ENGINES
+    from mosegpipe.types import KMethodName
+
+    assert sorted(c.value for c in cli.KMethodChoice) == sorted(get_args(KMethodName))
+    assert [c.value for c in cli.EngineChoice] == list(ENGINES)
+    code, out, _ = moseg("run", "--help")
+    assert code == 0 and "silhouette|residual" in out
+    code, out, _ = moseg("batch", "--help")
+    assert code == 0 and "process|ray|inline" in out
+    code, out, _ = moseg("--help")
+    assert code == 0 and "--install-completion" in out

@@ -1,0 +1,337 @@
+"""The bad-input matrix of issue 12: faults, bad options and API misuse, each answered by one line.
+
+Every case here failed before its fix (a box of usage text, a traceback, a hang, stray decoder bytes
+on stderr or a `.partial` folder left behind). The promise under test (README): one line
+`moseg: error: ...` on stderr, exit code 1 (2 for usage errors), nothing half-written left behind.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from mosegpipe import viz
+from mosegpipe.cli.main import app
+from mosegpipe.cluster import cluster_auto_k, kmeans
+from mosegpipe.errors import CheckpointError, InputError
+from mosegpipe.io import read_image, read_video, video_info
+from mosegpipe.model import SubspaceNet
+from mosegpipe.pipeline import segment_frames, segment_pair
+from mosegpipe.types import Frames
+
+from helpers import motion_checkpoint, render_scene, tiny_model, write_avi
+
+runner = CliRunner(env={"COLUMNS": "200"})
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def clip_avi(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_avi(tmp_path_factory.mktemp("clip") / "scene.avi", render_scene(6).frames)
+
+
+@pytest.fixture(scope="module")
+def model5(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return motion_checkpoint(tmp_path_factory.mktemp("models") / "motion5.pt", 5)
+
+
+def moseg(*args: object) -> tuple[int, str, str]:
+    result = runner.invoke(app, [str(a) for a in args])
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+def one_error_line(stderr: str) -> str:
+    lines = stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("moseg: error: "), stderr
+    return lines[0]
+
+
+def nothing_left(folder: Path) -> None:
+    assert sorted(p.name for p in folder.iterdir()) == [], list(folder.iterdir())
+
+
+def run_script(code: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Runs Python code in a fresh process (fd-level output, signals and hangs cannot touch pytest)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO / "tests")}
+    return subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=timeout, env=env
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# 5. Usage errors: one line naming the option and the value, exit code 2
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["run", "x.avi", "--frames", "0"], "--frames 0: "),
+        (["run", "x.avi", "--k", "0"], "--k 0: "),
+        (["run", "x.avi", "--k=0"], "--k 0: "),
+        (["run", "x.avi", "--k-max", "0"], "--k-max 0: "),
+        (["run", "x.avi", "--threads", "0"], "--threads 0: "),
+        (["run", "x.avi", "--k-method", "elbow"], "--k-method elbow: "),
+        (["batch", "d", "--out", "o", "--engine", "slurm"], "--engine slurm: "),
+        (["train", "--steps", "0"], "--steps 0: "),
+        (["run"], "Missing argument"),
+        (["run", "x.avi", "--bogus"], "No such option: --bogus"),
+        (["frobnicate"], "No such command 'frobnicate'"),
+    ],
+)
+def test_usage_errors_are_one_line(args: list[str], expected: str) -> None:
+    code, out, err = moseg(*args)
+    line = one_error_line(err)
+    assert code == 2 and expected in line and "--help" in line and out == ""
+
+
+# ---------------------------------------------------------------------------------------------
+# 1. Disk full while the recording is written
+# ---------------------------------------------------------------------------------------------
+
+
+class _FullDisk:
+    """A file whose writes fail with ENOSPC, as on a full disk."""
+
+    def __init__(self, path: object, mode: str = "r") -> None:
+        self.path = path
+
+    def __enter__(self) -> _FullDisk:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def write(self, data: bytes) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+@pytest.mark.parametrize("whole", [False, True])
+def test_disk_full_while_writing_the_recording(
+    tmp_path: Path, clip_avi: Path, model5: Path, monkeypatch: pytest.MonkeyPatch, whole: bool
+) -> None:
+    monkeypatch.setattr(viz, "open", _FullDisk, raising=False)  # the recording's writer, nothing else
+    parent = tmp_path / "parent"
+    parent.mkdir()
+    extra = ["--whole", "--frames", "3"] if whole else []
+    code, _, err = moseg("run", clip_avi, "--out", parent / "out", "--model", model5, *extra)
+    line = one_error_line(err)
+    assert code == 1 and "No space left on device" in line and "out/recording.rrd" in line
+    assert ".partial" not in line and ".tmp" not in line
+    nothing_left(parent)
+
+
+def test_disk_full_on_a_real_small_file_system(tmp_path: Path, clip_avi: Path, model5: Path) -> None:
+    """A 200 kB tmpfs as --out's parent: masks and overlay.mp4 fit (70 kB), the recording (330 kB) does
+    not. Before the fix Rerun's flush hung for ever (or raised a traceback)."""
+    mount = tmp_path / "tiny"
+    mount.mkdir()
+    if (
+        shutil.which("mount") is None
+        or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=200k", "tmpfs", str(mount)], capture_output=True
+        ).returncode
+    ):
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "mosegpipe.cli.main", "run", str(clip_avi), "--out", str(mount / "out")]
+            + ["--model", str(model5), "--whole", "--frames", "3"],
+            capture_output=True,
+            text=True,
+            timeout=90,
+            env={**os.environ, "OMP_NUM_THREADS": "1"},
+        )
+        assert proc.returncode == 1, proc.stderr
+        assert "No space left on device" in one_error_line(proc.stderr)
+        nothing_left(mount)
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)
+
+
+# ---------------------------------------------------------------------------------------------
+# 2. Checkpoint configurations are bounded and checked before anything is built
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("width", 2**20, "width=1048576: must lie in 1..4096"),
+        ("num_blocks", 10**7, "num_blocks=10000000: must lie in 0..1000"),
+        ("in_dim", 0, "in_dim=0"),
+        ("embed_dim", 1.5, "embed_dim=1.5: must be an int"),
+        ("width", True, "width=True: must be an int"),
+        ("input_norm", ["shared"], "input_norm="),
+    ],
+)
+def test_checkpoint_config_is_validated_first(field: str, value: object, message: str) -> None:
+    ckpt = tiny_model(5).checkpoint()
+    ckpt["model_config"][field] = value
+    with pytest.raises(CheckpointError, match=message.replace("[", r"\[").replace(".", r"\.")):
+        SubspaceNet.from_checkpoint(ckpt)
+
+
+def test_checkpoint_too_many_parameters_and_bad_weights() -> None:
+    ckpt = tiny_model(5).checkpoint()
+    ckpt["model_config"].update(width=4096, num_blocks=1000)
+    with pytest.raises(CheckpointError, match="parameters, more than"):
+        SubspaceNet.from_checkpoint(ckpt)
+    ckpt = tiny_model(5).checkpoint()
+    ckpt["state_dict"]["head.bias"] = torch.full_like(ckpt["state_dict"]["head.bias"], float("nan"))
+    with pytest.raises(CheckpointError, match="'head.bias' holds NaN"):
+        SubspaceNet.from_checkpoint(ckpt)
+    ckpt = tiny_model(5).checkpoint()
+    ckpt["state_dict"]["head.bias"] = torch.zeros(5, dtype=torch.int64)
+    with pytest.raises(CheckpointError, match="'head.bias' must be a floating-point tensor"):
+        SubspaceNet.from_checkpoint(ckpt)
+    ckpt = tiny_model(5).checkpoint()
+    ckpt["recipe"] = ["not", "a", "dict"]
+    with pytest.raises(CheckpointError, match="'recipe' must be a dict"):
+        SubspaceNet.from_checkpoint(ckpt)
+
+
+def test_cli_names_the_bad_checkpoint_field(tmp_path: Path, clip_avi: Path) -> None:
+    ckpt = tiny_model(5).checkpoint()
+    ckpt["model_config"]["width"] = 2**20
+    torch.save(ckpt, tmp_path / "huge.pt")
+    code, _, err = moseg("run", clip_avi, "--out", tmp_path / "out", "--model", tmp_path / "huge.pt")
+    assert code == 1 and "huge.pt: invalid model_config: ModelConfig.width=1048576" in one_error_line(err)
+
+
+# ---------------------------------------------------------------------------------------------
+# 6. SIGTERM is handled as Ctrl-C: no hidden .partial folder left
+# ---------------------------------------------------------------------------------------------
+
+
+def test_sigterm_leaves_nothing_behind(tmp_path: Path, clip_avi: Path, model5: Path) -> None:
+    out = tmp_path / "parent" / "out"
+    proc = run_script(
+        f"""
+        import os, signal, sys
+        import mosegpipe.outputs as outputs
+        from mosegpipe.cli.main import app
+
+        real = outputs.write_npz
+        def write_npz(*args, **kwargs):  # the folder is half built: SIGTERM arrives now
+            real(*args, **kwargs)
+            os.kill(os.getpid(), signal.SIGTERM)
+        outputs.write_npz = write_npz
+        sys.argv = ["moseg", "run", {str(clip_avi)!r}, "--out", {str(out)!r}, "--model", {str(model5)!r}]
+        app()
+        """
+    )
+    assert proc.returncode == 1, proc.stderr
+    assert one_error_line(proc.stderr) == "moseg: error: terminated (SIGTERM)"
+    nothing_left(out.parent)
+
+
+# ---------------------------------------------------------------------------------------------
+# 7. Stray decoder output: stderr holds only the error line
+# ---------------------------------------------------------------------------------------------
+
+
+def test_avi_cut_inside_its_header(tmp_path: Path, clip_avi: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    cut = tmp_path / "cut.avi"
+    cut.write_bytes(clip_avi.read_bytes()[:12])  # OpenCV's AVI parser prints "Unexpected element ..."
+    capfd.readouterr()
+    code, _, err = moseg("run", cut, "--out", tmp_path / "out")
+    assert code == 1 and "cut.avi: not a readable video" in one_error_line(err)
+    assert capfd.readouterr().err == ""  # nothing written to file descriptor 2 directly
+    with pytest.raises(InputError):
+        video_info(cut)
+    assert capfd.readouterr().err == ""
+
+
+def test_blank_video_in_whole_mode_prints_no_warnings(tmp_path: Path, model5: Path) -> None:
+    blank = write_avi(tmp_path / "blank.avi", np.full((9, 64, 80, 3), 128, np.uint8))
+    proc = run_script(
+        f"""
+        import sys
+        from mosegpipe.cli.main import app
+        sys.argv = ["moseg", "run", {str(blank)!r}, "--whole", "--frames", "3", "--model", {str(model5)!r},
+                    "--out", {str(tmp_path / "out")!r}]
+        app()
+        """
+    )
+    assert proc.returncode == 1
+    assert "no window had at least" in one_error_line(proc.stderr)
+
+
+# ---------------------------------------------------------------------------------------------
+# 8. API misuse raises the library's errors
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def net5() -> SubspaceNet:
+    return tiny_model(5)
+
+
+def _traj(scale: float = 1.0) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    return rng.uniform(0, 300, size=(40, 10)) * scale
+
+
+def test_embed_float64_beyond_float32_range(net5: SubspaceNet) -> None:
+    """Coordinates in the 1e40s are far from pixels, but the embedding is scale-invariant: no NaN."""
+    z_big = net5.embed(_traj(1e40))
+    z = net5.embed(_traj())
+    assert np.all(np.isfinite(z_big)) and np.allclose(z_big, z, atol=1e-4)
+    with pytest.raises(InputError, match="too large to normalise"):
+        net5.embed(_traj(1e300))
+
+
+@pytest.mark.parametrize("dtype", [complex, str, object, bool])
+def test_embed_rejects_what_is_not_coordinates(net5: SubspaceNet, dtype: type) -> None:
+    with pytest.raises(InputError, match="expected real numbers"):
+        net5.embed(_traj().astype(dtype))
+
+
+@pytest.mark.parametrize("k", [1.5, "3", True])
+def test_non_integer_k(k: object) -> None:
+    emb = np.random.default_rng(0).normal(size=(20, 3))
+    with pytest.raises(InputError, match="must be an integer"):
+        cluster_auto_k(emb, k=k)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="must be an integer"):
+        kmeans(emb, k)  # type: ignore[arg-type]
+
+
+def test_complex_embeddings_are_not_truncated() -> None:
+    with pytest.raises(InputError, match="real numbers"):
+        cluster_auto_k(np.ones((10, 3), dtype=complex))
+
+
+def test_empty_images() -> None:
+    image = np.zeros((50, 60, 3), np.uint8)
+    with pytest.raises(InputError, match="image 1: empty image"):
+        segment_pair(np.zeros((0, 0, 3), np.uint8), image, model=tiny_model(2))
+    with pytest.raises(InputError, match="image 2: expected a"):
+        segment_pair(image, np.zeros((50, 60), np.float32), model=tiny_model(2))
+    with pytest.raises(InputError, match="empty image"):
+        segment_frames(Frames(images=np.zeros((5, 0, 0, 3), np.uint8), fps=0.0, source="", start=0))
+
+
+@pytest.mark.parametrize("path", [None, 3, b"clip.avi", ""])
+def test_paths_that_are_not_paths(path: object) -> None:
+    with pytest.raises(InputError, match="video: "):
+        read_video(path)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="image: "):
+        read_image(path)  # type: ignore[arg-type]
+
+
+def test_non_integer_frame_counts(clip_avi: Path) -> None:
+    with pytest.raises(InputError, match="max_frames=2.5 must be an integer"):
+        read_video(clip_avi, max_frames=2.5)  # type: ignore[arg-type]
