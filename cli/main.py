@@ -755,5 +755,61 @@ def eval_(
     typer.echo(f"wrote {out}/results.md, results.csv, results.json")
 
 
+def _study_help() -> str:
+    """The study names from the registry, each with the part of the paper it reproduces."""
+    from mosegpipe.evaluation.studies import STUDIES
+
+    return "; ".join(f"{s.name} ({s.paper})" for s in STUDIES.values()) + "."
+
+
+@app.command()
+@_friendly
+def study(
+    name: Annotated[str, typer.Argument(help=_study_help())],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Results folder (table.md, results.json, plot.png; parts/ to resume).")
+    ],
+    budget: Annotated[
+        str, typer.Option("--budget", help="'cpu' (fits a small CPU machine) or 'full' (the paper's scale).")
+    ] = "cpu",
+    model: Annotated[
+        Path | None, typer.Option("--model", help="A 5-frame checkpoint for the KT3DMoSeg clips (default: shipped).")
+    ] = None,
+    pair_model: Annotated[
+        Path | None,
+        typer.Option("--pair-model", help="A two-view checkpoint for the AdelaideRMF pairs (default: shipped)."),
+    ] = None,
+    clips: Annotated[
+        str | None,
+        typer.Option("--clips", help="tsne: comma-separated KT3DMoSeg sequences / AdelaideRMF pairs."),
+    ] = None,
+    k_max: KMax = 8,
+    data_root: DataRoot = None,
+    threads: Annotated[int, typer.Option("--threads", min=1)] = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Run a study of the paper: prints and writes a table, results.json and a plot; a re-run skips finished parts."""
+    _setup(threads, verbose)
+    from mosegpipe.evaluation.studies import StudyRequest, get_study
+
+    chosen = get_study(name)
+    _check_model_path(model)
+    if pair_model is not None and not pair_model.is_file():
+        raise InputError(f"{pair_model}: checkpoint file not found (--pair-model)")
+    request = StudyRequest(
+        out_dir=out,
+        data_root=_data_root(data_root) if chosen.needs_data else data_root,
+        budget=budget,
+        model=model,
+        pair_model=pair_model,
+        clips=tuple(c.strip() for c in clips.split(",") if c.strip()) if clips else None,
+        k_max=k_max,
+        progress=typer.echo if verbose else None,
+    )
+    result = chosen.run(chosen, request)
+    typer.echo(result.table)
+    typer.echo(f"wrote {', '.join(str(p) for p in result.files)}")
+
+
 if __name__ == "__main__":
     app()

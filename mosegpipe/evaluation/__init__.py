@@ -8,6 +8,7 @@ Modules:
     e2e: end-to-end protocols (our own tracks or matches against ground truth; mask J / boundary F).
     protocols: the `Protocol` registry behind `moseg eval NAME` (a new protocol is one entry).
     report: summaries, Markdown tables and the results files.
+    studies: the `Study` registry behind `moseg study NAME` (tables, results.json and a plot per study).
 
 Nothing in the inference pipeline imports this package.
 """
