@@ -351,6 +351,8 @@ def _print_summary(summary: dict[str, Any], out: Path) -> None:
     scores = ", ".join(f"K={k}: {v:.3g}" for k, v in summary["k_scores"].items())
     if scores:
         typer.echo(f"scores per K: {scores}")
+    if summary.get("k_note"):
+        typer.echo(f"note: {summary['k_note']}")
     typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in summary["timings_s"].items()))
     files = "summary.json, labels.npz, masks/, overlay/" + (
         ", recording.rrd" if (out / "recording.rrd").exists() else ""
@@ -461,6 +463,92 @@ def pair(
     result = segment_pair(img1, img2, cfg, load_model(2, model))
     summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
     _print_summary(summary, out)
+    _print_total(started)
+
+
+def read_tracks_file(path: Path) -> tuple[Any, Any]:
+    """(N, T, 2) positions and (N, T) visibility from a .npz of point tracks.
+
+    Accepted layouts (arrays by name): `xy` (N, T, 2) with optional `visible` (N, T) (ours);
+    `tracks` (T, N, 2) or (1, T, N, 2) with optional `visibility` (T, N) or (1, T, N) (CoTracker's
+    time-first output); `tracks` (N, T, 2) with `occluded` (N, T) (TAPIR: visible = not occluded).
+
+    Raises:
+        InputError: not a readable .npz, or none of the layouts.
+    """
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputError(f"{path}: not a readable .npz file (numpy.savez, no pickled objects)") from exc
+    if "xy" in arrays:
+        return arrays["xy"], arrays.get("visible")
+    if "tracks" in arrays and "occluded" in arrays:
+        return arrays["tracks"], ~np.asarray(arrays["occluded"]).astype(bool)
+    if "tracks" in arrays:
+        tracks, vis = arrays["tracks"], arrays.get("visibility")
+        if tracks.ndim == 4 and tracks.shape[0] == 1:
+            tracks, vis = tracks[0], None if vis is None else vis[0]
+        if tracks.ndim != 3:
+            raise InputError(f"{path}: 'tracks' has shape {tracks.shape}; expected (T, N, 2) or (1, T, N, 2)")
+        return np.swapaxes(tracks, 0, 1), None if vis is None else np.swapaxes(np.asarray(vis), 0, 1)
+    raise InputError(
+        f"{path}: holds {sorted(arrays)}; expected 'xy' (N, T, 2) [+ 'visible'], 'tracks' (T, N, 2) "
+        "[+ 'visibility'] (CoTracker) or 'tracks' (N, T, 2) + 'occluded' (TAPIR)"
+    )
+
+
+@app.command()
+@_friendly
+def tracks(
+    file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: README).")],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder (default: beside FILE, named after it + '_moseg')."),
+    ] = None,
+    start: Annotated[int, typer.Option("--start", min=0, help="First frame of the window segmented.")] = 0,
+    frames: Annotated[
+        int | None,
+        typer.Option("--frames", "-f", min=2, help="Window length (default: from --start to the last frame)."),
+    ] = None,
+    k: KOpt = None,
+    k_method: KMethod = KMethodChoice.silhouette,
+    k_max: KMax = 8,
+    model: ModelOpt = None,
+    overwrite: Overwrite = False,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment point tracks made elsewhere (CoTracker, TAPIR, ...) with our embedding and clustering.
+
+    Tracks visible in every frame of the window are segmented; summary.json and labels.npz (label
+    of every track, -1 = not visible throughout) go into the output folder.
+    """
+    started = time.perf_counter()
+    if not file.is_file():
+        raise InputError(f"{file}: no such file")
+    _check_model_path(model)
+    _setup(threads, verbose)
+    from mosegpipe.outputs import check_output_dir, write_tracks_outputs
+    from mosegpipe.pipeline import load_model, segment_tracks
+
+    xy, visible = read_tracks_file(file)
+    window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
+    cfg = _pipeline_cfg(max(2, window), k, k_method, k_max)
+    out = out or _default_out(file, "_moseg")
+    check_output_dir(out, overwrite)
+    net = load_model(max(2, window), model)
+    result = segment_tracks(xy, visible, cfg, net, start=start, frames=frames)
+    summary = write_tracks_outputs(result, out, cfg, source=str(file), overwrite=overwrite)
+    typer.echo(
+        f"{_plural(summary['num_tracks_segmented'], 'track')} of {summary['num_tracks']} over {summary['frames']} "
+        f"frames -> K = {summary['k']} ({summary['k_method']}) · tracks per motion {summary['tracks_per_motion']}"
+    )
+    if summary["k_note"]:
+        typer.echo(f"note: {summary['k_note']}")
+    typer.echo(f"wrote {out}/ (summary.json, labels.npz)")
     _print_total(started)
 
 
@@ -601,10 +689,27 @@ def _has_display() -> bool:
 def view(
     recording: Annotated[Path, typer.Argument(help="A .rrd recording written by moseg.")],
     web: Annotated[
-        bool, typer.Option("--web", help="Serve the viewer to a web browser instead of opening a window.")
+        bool,
+        typer.Option("--web", help="Serve the viewer to a web browser instead of opening a window (works headless)."),
     ] = False,
+    bind: Annotated[
+        str,
+        typer.Option(
+            "--bind",
+            help="With --web: the address to listen on. 127.0.0.1 (default) serves this machine only; "
+            "0.0.0.0 serves every network it is on (anyone who can reach the port sees the recording).",
+        ),
+    ] = "127.0.0.1",
+    web_port: Annotated[
+        int, typer.Option("--web-port", min=0, max=65535, help="With --web: the HTTP port (0 = any free port).")
+    ] = 9090,
 ) -> None:
-    """Open a recording in the Rerun viewer (the 'rerun' program that ships with rerun-sdk)."""
+    """Open a recording in the Rerun viewer (the 'rerun' program that ships with rerun-sdk).
+
+    Headless (no display, over SSH): `moseg view --web REC` serves the viewer on
+    http://127.0.0.1:9090 of this machine; forward the port (`ssh -L 9090:localhost:9090 HOST`)
+    or pass `--bind 0.0.0.0` to serve it to the network.
+    """
     if not recording.is_file():
         raise InputError(f"{recording}: no such recording")
     exe = _find_viewer()
@@ -615,7 +720,10 @@ def view(
         )
     if not web and not _has_display():
         raise InputError(f"no display to open a window on (DISPLAY is unset); try 'moseg view --web {recording}'")
-    args = [exe, "--web-viewer", str(recording)] if web else [exe, str(recording)]
+    if not web and (bind != "127.0.0.1" or web_port != 9090):
+        raise InputError("--bind and --web-port only apply with --web")
+    web_args = ["--web-viewer", "--bind", bind, "--web-viewer-port", str(web_port)]
+    args = [exe, *web_args, str(recording)] if web else [exe, str(recording)]
     sys.stdout.flush()
     os.execv(exe, args)
 

@@ -82,6 +82,16 @@ class ClusterConfig:
     # elbow of loosely clustered multi-motion embeddings (zero-shot AdelaideRMF: K = 1 on 14 of 19
     # pairs). Calibrated on synthetic one-body clips: docs/RESULTS.md.
     one_motion_spread: float = 0.1
+    # K = 1 without clustering when one affine motion explains the tracks to within this many
+    # pixels (99th percentile of the per-track RMS residual, see single_motion_residual_px): the
+    # residual flow is tracking noise. Calibrated on rendered synthetic clips (mosegpipe.synth.render,
+    # 6 seeds, pixel noise 0/5/10 grey levels, static camera): with nothing moving the percentile
+    # was at most 1.62 px, with 1-2 moving objects at least 3.05 px. None = never.
+    static_residual_px: float | None = 2.0
+    # The K choice is reported as ambiguous (summary.json k_note, a warning) when the runner-up
+    # scores within this of the winner (tree.avi, where nothing moves, had 0.003 between K = 3 and 2
+    # before the no-motion rule; a clean rendered three-motion clip 0.020). Reporting only: no K changes.
+    ambiguity_margin: float = 0.01
 
     def __post_init__(self) -> None:
         if self.method not in _METHODS:
@@ -102,6 +112,10 @@ class ClusterConfig:
             raise InputError(f"min_spread={self.min_spread} must lie in [0, 1)")
         if not 0.0 <= self.one_motion_spread <= 1.0:
             raise InputError(f"one_motion_spread={self.one_motion_spread} must lie in [0, 1]")
+        if self.static_residual_px is not None and not self.static_residual_px >= 0:
+            raise InputError(f"static_residual_px={self.static_residual_px} must be >= 0 (or None)")
+        if not self.ambiguity_margin >= 0:
+            raise InputError(f"ambiguity_margin={self.ambiguity_margin} must be >= 0")
 
 
 def _check_embeddings(emb: npt.ArrayLike) -> npt.NDArray[np.float64]:
@@ -191,6 +205,39 @@ def kmeans(
     return relabel_by_size(model.labels_), float(model.inertia_)
 
 
+def single_motion_residual_px(points: npt.ArrayLike) -> float:
+    """How far the tracks are from moving as one: the residual flow after the best single affine motion.
+
+    For every frame t >= 2, one affine map from the frame-1 positions to the frame-t positions is
+    fitted to all points (least squares); each point's residual is its RMS distance to the map's
+    prediction over the frames. Camera pans and zooms of a distant scene fit one affine map;
+    independently moving objects leave residuals of about their motion relative to the rest.
+
+    Args:
+        points: (N, 2F) trajectory matrix, columns x_1, y_1, ..., x_F, y_F, pixels.
+
+    Returns:
+        The 99th percentile of the per-point residuals, pixels (inf for fewer than 10 points or
+        fewer than 2 frames: no evidence).
+
+    Raises:
+        InputError: not an (N, 2F) matrix of finite real numbers.
+    """
+    arr = np.asarray(points)
+    if arr.ndim != 2 or arr.shape[1] % 2 or arr.dtype.kind not in "iuf" or not np.all(np.isfinite(arr)):
+        raise InputError(f"points must be a finite (N, 2F) trajectory matrix, got {arr.dtype} {arr.shape}")
+    n, frames = arr.shape[0], arr.shape[1] // 2
+    if n < 10 or frames < 2:
+        return float("inf")
+    xy = arr.reshape(n, frames, 2).astype(np.float64)
+    design = np.c_[xy[:, 0], np.ones(n)]  # (N, 3): x_1, y_1, 1
+    squared = np.zeros(n)
+    for t in range(1, frames):
+        affine, *_ = np.linalg.lstsq(design, xy[:, t], rcond=None)
+        squared += np.sum((design @ affine - xy[:, t]) ** 2, axis=1)
+    return float(np.percentile(np.sqrt(squared / (frames - 1)), 99))
+
+
 def _elbow_scores(residuals: npt.NDArray[np.float64], candidates: range) -> dict[int, float]:
     """Elbow score per candidate K from residuals[K] = r(K), K = 0..K_max+1 (index 0 unused)."""
     r = np.minimum.accumulate(residuals[1:])  # r(K) is non-increasing for exact K-means
@@ -211,6 +258,7 @@ def cluster_auto_k(
     emb: npt.ArrayLike,
     cfg: ClusterConfig = ClusterConfig(),
     k: int | None = None,
+    points: npt.ArrayLike | None = None,
 ) -> Clustering:
     """Cluster embeddings with K-means, choosing K automatically unless ``k`` is given.
 
@@ -237,6 +285,14 @@ def cluster_auto_k(
        for K in [max(2, k_min), min(k_max, N - 1)]. K = 1 (under the same spread gate) gets the
        score min_silhouette, so it wins exactly when no K >= 2 exceeds it.
 
+    0. No-motion rule (only with ``points``, k_min == 1 and cfg.static_residual_px set): when
+       one affine motion explains the trajectories to within static_residual_px
+       (single_motion_residual_px), the answer is K = 1 without a sweep (empty scores, a note):
+       nothing moves more than the tracking noise, whatever the embedding looks like.
+
+    After a sweep, the choice is reported as ambiguous (Clustering.note, a logged warning) when
+    the runner-up's score is within cfg.ambiguity_margin of the winner's.
+
     With k_min >= 2, K = 1 is never a candidate and the best K >= k_min wins. Ties go to the
     smaller K. When no candidate exists (N <= 2 or k_min > N - 1) the answer is
     K = min(k_min, N) with empty scores. For tiny N the choice means little: r(N) = 0 trivially,
@@ -246,6 +302,7 @@ def cluster_auto_k(
         emb: (N, E) float embeddings, one row per point (L2-normalised rows expected).
         cfg: sweep range, criterion and K-means settings.
         k: force this many clusters (1 <= k <= N) instead of choosing.
+        points: optional (N, 2F) trajectory matrix (pixels) of the same points, for the no-motion rule.
 
     Returns:
         Clustering with labels (N,) int64 ordered by decreasing cluster size (0 = largest, ties
@@ -256,13 +313,17 @@ def cluster_auto_k(
         InputError: bad embeddings, or k outside 1..N.
     """
     with limited_threads(cfg.num_threads):
-        return _cluster_auto_k(emb, cfg, k)
+        return _cluster_auto_k(emb, cfg, k, points)
 
 
-def _cluster_auto_k(emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None) -> Clustering:
+def _cluster_auto_k(
+    emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None, points: npt.ArrayLike | None = None
+) -> Clustering:
     """cluster_auto_k inside one thread limit."""
     x = _check_embeddings(emb)
     n = x.shape[0]
+    if points is not None and np.shape(points)[0] != n:
+        raise InputError(f"points: {np.shape(points)[0]} rows for {n} embeddings")
     if k is not None:
         k = _check_k(k, "--k")
         if k < 1:
@@ -274,6 +335,16 @@ def _cluster_auto_k(emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None) -> Cl
 
     def fit(kk: int) -> tuple[npt.NDArray[np.int64], float]:
         return kmeans(x, kk, seed=cfg.seed, n_init=cfg.n_init, num_threads=cfg.num_threads)
+
+    if points is not None and cfg.k_min == 1 and cfg.static_residual_px is not None:
+        residual = single_motion_residual_px(points)
+        if residual <= cfg.static_residual_px:
+            note = (
+                f"K = 1: one motion explains every track to within {residual:.2f} px "
+                f"(99th percentile; tracking noise is up to {cfg.static_residual_px:g} px): nothing moves"
+            )
+            logger.info(note)
+            return Clustering(np.zeros(n, dtype=np.int64), 1, {}, cfg.method, note)
 
     total = float(np.sum(x * x))
     spread = float(np.sum((x - x.mean(axis=0)) ** 2))
@@ -313,4 +384,12 @@ def _cluster_auto_k(emb: npt.ArrayLike, cfg: ClusterConfig, k: int | None) -> Cl
         fits[1] = np.zeros(n, dtype=np.int64)
     best = max(scores, key=lambda kk: (scores[kk], -kk))
     logger.debug("%s scores %s: K=%d", cfg.method, scores, best)
-    return Clustering(labels=fits[best], k=best, scores=scores, method=cfg.method)
+    note = ""
+    runner_up = max((kk for kk in scores if kk != best), key=lambda kk: (scores[kk], -kk), default=None)
+    if runner_up is not None and scores[best] - scores[runner_up] <= cfg.ambiguity_margin:
+        note = (
+            f"the K choice is ambiguous: K = {best} scored {scores[best]:.3f}, K = {runner_up} {scores[runner_up]:.3f} "
+            f"({cfg.method}, within {cfg.ambiguity_margin:g}); pass --k to decide"
+        )
+        logger.warning(note)
+    return Clustering(labels=fits[best], k=best, scores=scores, method=cfg.method, note=note)

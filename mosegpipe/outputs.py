@@ -30,6 +30,7 @@ from mosegpipe.pipeline import (
     ClipResult,
     PairResult,
     PipelineConfig,
+    TracksResult,
     WindowResult,
     check_video_settings,
     decode_errors,
@@ -140,6 +141,7 @@ def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
         "k": c.k,
         "k_method": c.method,
         "k_scores": {str(k): float(v) for k, v in c.scores.items()},
+        "k_note": c.note,
         "num_tracks_detected": result.tracks.num_tracks,
         "num_tracks_segmented": result.trajectories.num_points,
         "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
@@ -219,6 +221,7 @@ def pair_summary(result: PairResult, cfg: PipelineConfig, sources: tuple[str, st
         "num_outliers": int((result.labels < 0).sum()),
         "k_method": c.method,
         "k_scores": {str(k): float(v) for k, v in c.scores.items()},
+        "k_note": c.note,
         "num_matches": result.matches.num_matches,
         "matches_per_motion": np.bincount(motions, minlength=num_motions).tolist(),
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
@@ -434,5 +437,49 @@ def write_video_outputs(
             ),
         )
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
+        write_json(tmp / "summary.json", summary)
+    return summary
+
+
+def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> dict[str, Any]:
+    """The JSON summary of external tracks segmented by `pipeline.segment_tracks` (schema: docs/OUTPUTS.md)."""
+    c = result.clustering
+    return {
+        "schema": SUMMARY_SCHEMA,
+        "kind": "tracks",
+        "source": source,
+        "version": __version__,
+        "start": result.start,
+        "frames": result.trajectories.data.shape[1] // 2,
+        "num_tracks": result.tracks.num_tracks,
+        "num_tracks_segmented": result.trajectories.num_points,
+        "k": c.k,
+        "k_method": c.method,
+        "k_scores": {str(k): float(v) for k, v in c.scores.items()},
+        "k_note": c.note,
+        "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
+        "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
+        "model": result.model_info,
+        "config": asdict(cfg),
+    }
+
+
+def write_tracks_outputs(
+    result: TracksResult, out_dir: str | Path, cfg: PipelineConfig, source: str = "", overwrite: bool = False
+) -> dict[str, Any]:
+    """Writes summary.json and labels.npz (labels (N,) of every given track, -1 = not segmented;
+    track_ids (M,) and embeddings (M, E) of the segmented ones) atomically.
+
+    Raises:
+        OutputExistsError, InputError: see check_output_dir.
+    """
+    summary = tracks_summary(result, cfg, source)
+    with _OutputDir(Path(out_dir), overwrite) as tmp:
+        write_npz(
+            tmp / "labels.npz",
+            labels=result.labels,
+            track_ids=result.trajectories.track_ids,
+            embeddings=result.embeddings,
+        )
         write_json(tmp / "summary.json", summary)
     return summary

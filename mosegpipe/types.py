@@ -117,12 +117,15 @@ class Clustering:
         k: number of clusters chosen (or forced).
         scores: criterion value per candidate K (method-specific; empty when K was forced).
         method: "residual", "silhouette" or "fixed".
+        note: why K is what it is when the scores alone do not say, or a warning that the choice
+            is ambiguous ("" when neither); summary.json's `k_note`.
     """
 
     labels: npt.NDArray[np.int64]
     k: int
     scores: dict[int, float] = field(default_factory=dict)
     method: str = "fixed"
+    note: str = ""
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -22,14 +23,14 @@ from typer.testing import CliRunner
 
 from mosegpipe import viz
 from mosegpipe.cli.main import app
-from mosegpipe.cluster import cluster_auto_k, kmeans
+from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, single_motion_residual_px
 from mosegpipe.errors import CheckpointError, InputError
 from mosegpipe.io import read_image, read_video, video_info
 from mosegpipe.model import SubspaceNet
-from mosegpipe.pipeline import segment_frames, segment_pair
+from mosegpipe.pipeline import segment_frames, segment_pair, segment_tracks
 from mosegpipe.types import Frames
 
-from helpers import motion_checkpoint, render_scene, tiny_model, write_avi
+from helpers import best_permutation_accuracy, motion_checkpoint, render_scene, tiny_model, write_avi
 
 runner = CliRunner(env={"COLUMNS": "200"})
 REPO = Path(__file__).resolve().parents[1]
@@ -335,3 +336,93 @@ def test_paths_that_are_not_paths(path: object) -> None:
 def test_non_integer_frame_counts(clip_avi: Path) -> None:
     with pytest.raises(InputError, match="max_frames=2.5 must be an integer"):
         read_video(clip_avi, max_frames=2.5)  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------------------------------
+# 9. No motion, no motions; ambiguous K choices are said so
+# ---------------------------------------------------------------------------------------------
+
+
+def test_identical_images_are_one_motion(tmp_path: Path) -> None:
+    """Two identical images gave K = 8 (the embedding of zero motion is noise); now K = 1 with a note."""
+    rng = np.random.default_rng(0)
+    image = cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (5, 5), 0)
+    result = segment_pair(image, image.copy())
+    assert result.clustering.k == 1 and "nothing moves" in result.clustering.note
+    assert result.clustering.scores == {}
+
+
+def test_no_motion_rule_needs_the_residual_below_the_noise() -> None:
+    rng = np.random.default_rng(0)
+    xy1 = rng.uniform(0, 300, size=(200, 2))
+    static = np.concatenate([xy1, xy1 + rng.normal(0, 0.2, size=xy1.shape)], axis=1)  # noise only
+    assert single_motion_residual_px(static) < 1.0
+    moving = static.copy()
+    moving[:20, 2:] += 6.0  # 10 % of the points move 6 px against the rest
+    assert single_motion_residual_px(moving) > 3.0
+    emb = rng.normal(size=(200, 5))
+    emb[:100] += 4.0  # two clear groups in the embedding
+    assert cluster_auto_k(emb, points=static).k == 1
+    assert cluster_auto_k(emb, points=moving).k == 2
+    assert cluster_auto_k(emb).k == 2  # without points the embedding decides, as before
+
+
+def test_ambiguous_k_choice_is_reported(caplog: pytest.LogCaptureFixture) -> None:
+    rng = np.random.default_rng(1)
+    emb = rng.normal(size=(300, 5))  # one wide blob: every K scores about the same
+    cfg = ClusterConfig(one_motion_spread=0.0, ambiguity_margin=1.0)
+    result = cluster_auto_k(emb, cfg)
+    assert "the K choice is ambiguous" in result.note and "pass --k" in result.note
+    assert any("ambiguous" in r.getMessage() for r in caplog.records)
+    clear = rng.normal(size=(300, 5)) * 0.05
+    clear[:150] += 3.0
+    assert cluster_auto_k(clear).note == ""
+
+
+# ---------------------------------------------------------------------------------------------
+# 16. External tracks: segment_tracks / moseg tracks
+# ---------------------------------------------------------------------------------------------
+
+
+def _two_motions(n: int = 200, frames: int = 8) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    velocity = np.where(np.arange(n)[:, None] < n // 2, [[2.0, 0.0]], [[0.0, -3.0]])
+    return rng.uniform(0, 300, (n, 1, 2)) + np.arange(frames)[None, :, None] * velocity[:, None, :]
+
+
+def test_segment_tracks_of_another_tracker() -> None:
+    xy = _two_motions()
+    visible = np.ones(xy.shape[:2], dtype=bool)
+    visible[:10, 3] = False  # occluded once: not segmented, label -1
+    xy[:10, 3] = np.nan  # what a tracker may hold where a point is hidden
+    result = segment_tracks(xy, visible)
+    assert result.clustering.k == 2 and np.all(result.labels[:10] == -1)
+    assert best_permutation_accuracy(result.labels[10:], (np.arange(10, 200) >= 100).astype(np.int64)) == 1.0
+    for bad, message in [
+        (xy[..., 0], "must be an \\(N, T, 2\\) array"),
+        (xy.astype(complex), "must be an \\(N, T, 2\\) array"),
+    ]:
+        with pytest.raises(InputError, match=message):
+            segment_tracks(bad)
+    with pytest.raises(InputError, match="NaN or inf where the tracks are visible"):
+        segment_tracks(xy)
+    with pytest.raises(InputError, match="visible must be an \\(200, 8\\) bool array"):
+        segment_tracks(xy, visible[:, :3])
+    with pytest.raises(InputError, match="the window must hold 2 or more"):
+        segment_tracks(xy, visible, start=7)
+
+
+def test_moseg_tracks_reads_our_and_cotracker_layouts(tmp_path: Path) -> None:
+    xy = _two_motions().astype(np.float32)
+    np.savez(tmp_path / "ours.npz", xy=xy)
+    np.savez(tmp_path / "cotracker.npz", tracks=np.swapaxes(xy, 0, 1)[None], visibility=np.ones((1, 8, 200), bool))
+    for name in ("ours", "cotracker"):
+        code, out, err = moseg("tracks", tmp_path / f"{name}.npz", "--frames", "5", "--out", tmp_path / name)
+        assert code == 0 and "K = 2" in out and err == "", err
+        labels = np.load(tmp_path / name / "labels.npz")["labels"]
+        assert labels.shape == (200,) and set(labels.tolist()) == {0, 1}
+    np.savez(tmp_path / "other.npz", points=xy)
+    code, _, err = moseg("tracks", tmp_path / "other.npz", "--out", tmp_path / "x")
+    assert code == 1 and "holds ['points']; expected 'xy'" in one_error_line(err)
+    nothing_left_but = sorted(p.name for p in tmp_path.iterdir())
+    assert "x" not in nothing_left_but and ".x.partial" not in nothing_left_but

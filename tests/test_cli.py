@@ -331,7 +331,13 @@ def test_view_starts_the_viewer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     monkeypatch.setattr(cli.os, "execv", fake_execv)
     assert moseg("view", rec)[0] == 0
     assert moseg("view", "--web", rec)[0] == 0
-    assert calls == [["/opt/rerun", "/opt/rerun", str(rec)], ["/opt/rerun", "/opt/rerun", "--web-viewer", str(rec)]]
+    assert moseg("view", "--web", "--bind", "0.0.0.0", "--web-port", "8000", rec)[0] == 0
+    web = ["/opt/rerun", "/opt/rerun", "--web-viewer", "--bind"]
+    assert calls == [
+        ["/opt/rerun", "/opt/rerun", str(rec)],
+        [*web, "127.0.0.1", "--web-viewer-port", "9090", str(rec)],  # this machine only, by default
+        [*web, "0.0.0.0", "--web-viewer-port", "8000", str(rec)],
+    ]
 
 
 def test_choices_are_enums_listed_in_help() -> None:

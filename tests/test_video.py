@@ -172,3 +172,24 @@ def test_failures_leave_nothing(tmp_path: Path, frames_dir: Path, scene: Rendere
     with pytest.raises(InputError, match="000007.png: image is 160x120 but earlier images in .* are 320x240"):
         write_video_outputs(odd, tmp_path / "d", PipelineConfig(frames=5, k=3), model)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["blank", "odd"]
+
+
+def test_match_labels_after_a_cut_gives_the_dominant_motion_label_0() -> None:
+    book = LabelBook(next_label=2)
+    prev = {1: 0, 2: 0, 3: 1}
+    ids = np.arange(1, 31)  # tracks 1, 2 survive the cut; 3..30 are new
+    clusters = np.array([1, 1] + [0] * 18 + [1] * 10)  # cluster 0 (18 tracks) dominates the new shot
+    labels = match_labels(prev, ids, clusters, 2, book)
+    # Only 2 of cluster 1's 12 tracks carried a label: too few to continue motion 0 with it.
+    assert labels.tolist() == [2, 2] + [0] * 18 + [2] * 10
+
+
+def test_match_labels_small_clusters_join_or_stay_unlabelled() -> None:
+    book = LabelBook(next_label=2)
+    ids = np.arange(100)
+    prev = {int(i): 0 for i in range(80)} | {int(i): 1 for i in range(80, 97)}
+    clusters = np.array([0] * 80 + [1] * 13 + [2] * 4 + [3] * 3)  # 2: a fragment of motion 1; 3: new tracks
+    labels = match_labels(prev, ids, clusters, 4, book)
+    assert labels[:80].tolist() == [0] * 80 and set(labels[80:97].tolist()) == {1}
+    assert labels[97:].tolist() == [-1] * 3  # 3 % of the tracks: not trusted as a new motion
+    assert book.next_label == 2

@@ -590,3 +590,137 @@ def rendered_rows(
             row.update(J_oracle=best_scores.j, F_oracle=best_scores.f)
         rows.append({**row, "seconds": seconds})
     return rows
+
+
+def long_rendered_clip(seed: int, size_hw: tuple[int, int] = (480, 640), frames: int = 120, cut: bool = True) -> Any:
+    """A long rendered clip with objects entering and leaving and (with `cut`) one camera cut half-way.
+
+    The two shots are independent renders (seeds `seed` and `seed + 1001`): after the cut the wall,
+    the camera and the objects are new. The background is group 0 in both shots (one motion: the
+    camera's); the second shot's objects get ids after the first shot's, so an identity carried
+    across the cut is an error, as on real footage of other objects.
+
+    Returns:
+        mosegpipe.synth.render.RenderedClip of `frames` frames.
+    """
+    from mosegpipe.synth.render import CAMERA_MOTIONS, RenderConfig, RenderedClip, render_clip
+
+    def shot(s: int, n: int) -> RenderedClip:
+        return render_clip(
+            RenderConfig(
+                size_hw=size_hw,
+                frames=n,
+                num_objects=1 + s % 3,
+                seed=s,
+                camera_motion=CAMERA_MOTIONS[s % len(CAMERA_MOTIONS)],
+                object_speed_px=(2.0, 6.0),  # fast enough to enter or leave within a shot
+            )
+        )
+
+    if not cut:
+        return shot(seed, frames)
+    a, b = shot(seed, frames // 2), shot(seed + 1001, frames - frames // 2)
+    b_masks = np.where(b.masks > 0, b.masks + len(a.object_ids), 0).astype(np.uint8)
+    return RenderedClip(
+        frames=np.concatenate([a.frames, b.frames]),
+        masks=np.concatenate([a.masks, b_masks]),
+        object_ids=a.object_ids + tuple(i + len(a.object_ids) for i in b.object_ids),
+        camera_motion=f"{a.camera_motion}|{b.camera_motion}",
+        intrinsics=a.intrinsics,
+    )
+
+
+def labels_per_object(pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, min_px: int = 200) -> dict[int, int]:
+    """How many different predicted labels each ground-truth object was given over a video.
+
+    A label counts for an object when it is the most frequent known label on the object's pixels in
+    at least one frame where the object shows `min_px` pixels or more; 1 = one identity throughout.
+
+    Args:
+        pred_masks: (T, H, W) predicted labels, 255 = unknown.
+        gt_masks: (T, H, W) ground-truth ids, 0 = background (not counted).
+        min_px: frames where the object is smaller than this are skipped.
+
+    Returns:
+        {object id: number of labels} for every object visible with min_px pixels in some frame.
+    """
+    p, g = np.asarray(pred_masks), np.asarray(gt_masks)
+    seen: dict[int, set[int]] = {}
+    for t in range(g.shape[0]):
+        ids, counts = np.unique(g[t], return_counts=True)
+        for gid, n in zip(ids, counts):
+            if gid == 0 or n < min_px:
+                continue
+            vals = p[t][(g[t] == gid) & (p[t] != 255)]
+            if vals.size:
+                seen.setdefault(int(gid), set()).add(int(np.bincount(vals).argmax()))
+    return {gid: len(labs) for gid, labs in seen.items()}
+
+
+def long_rendered_rows(
+    model: SubspaceNet | None,
+    cfg: PipelineConfig = PipelineConfig(),
+    seeds: Iterable[int] = range(4),
+    size_hw: tuple[int, int] = (480, 640),
+    frames: int = 120,
+    tolerance: float = BOUNDARY_TOLERANCE,
+) -> list[dict[str, Any]]:
+    """Whole-video mode on long rendered clips with a camera cut, scored with video-level J and F.
+
+    Video-level means one assignment of predicted labels to ground-truth objects for the whole
+    video (`mask_scores` over all T frames at once, as the DAVIS video metrics do): an object whose
+    label switches part-way scores only the frames with the label it kept most.
+
+    Args:
+        model: the cfg.frames-frame model (None = the shipped default).
+        cfg: pipeline settings; cfg.frames is the window length.
+        seeds: one clip per seed, see `long_rendered_clip`.
+        size_hw: (H, W) of the frames, pixels.
+        frames: T, frames per clip.
+        tolerance: boundary tolerance of F, see `boundary_f`.
+
+    Returns:
+        One row per seed: seed, camera (both shots), objects (ground-truth objects visible),
+        num_motions (labels handed out), J and F (video level, objects only), labels_per_object
+        (mean over objects of `labels_per_object`), max_labels_per_object, seconds and fps
+        (segment_video with its masks; rendering and scoring excluded).
+    """
+    import tempfile
+
+    from mosegpipe.pipeline import segment_video
+
+    rows = []
+    for seed in seeds:
+        clip = long_rendered_clip(seed, size_hw, frames)
+        with tempfile.TemporaryDirectory(prefix="moseg_long_") as tmp:
+            for t, image in enumerate(clip.frames):
+                cv2.imwrite(f"{tmp}/{t:06d}.png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+            pred = np.full(clip.masks.shape, 255, dtype=np.uint8)
+            t0 = time.perf_counter()
+            num_motions = 0
+            try:
+                for window in segment_video(tmp, cfg, model):
+                    num_motions = window.num_motions
+                    for fr in window.frames:
+                        assert fr.mask is not None
+                        pred[fr.index] = fr.mask
+            except MosegError as exc:
+                log.warning("seed %d: %s; not scored", seed, exc)
+            seconds = time.perf_counter() - t0
+        scores = mask_scores(pred, clip.masks, background=0, unknown=255, tolerance=tolerance)
+        per = labels_per_object(pred, clip.masks)
+        rows.append(
+            {
+                "seed": seed,
+                "camera": clip.camera_motion,
+                "objects": len(per),
+                "num_motions": num_motions,
+                "J": scores.j,
+                "F": scores.f,
+                "labels_per_object": float(np.mean(list(per.values()))) if per else float("nan"),
+                "max_labels_per_object": max(per.values(), default=0),
+                "seconds": seconds,
+                "fps": frames / seconds if seconds > 0 else 0.0,
+            }
+        )
+    return rows

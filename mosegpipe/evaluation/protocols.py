@@ -386,6 +386,19 @@ def _rendered(
     return rendered_rows(model, cfg, frames=cfg.frames)
 
 
+def _rendered_long(
+    data_root: Path | None,
+    model: SubspaceNet | None,
+    cfg: PipelineConfig,
+    names: Sequence[str] | None = None,
+    baselines: Sequence[str] | None = None,
+) -> list[dict[str, Any]]:
+    """`long_rendered_rows` with its defaults (4 clips of 120 frames at 640x480, one camera cut each)."""
+    from mosegpipe.evaluation.e2e import long_rendered_rows
+
+    return long_rendered_rows(model, cfg)
+
+
 def _kt3d_source(variant: str) -> str:
     return "kt3d" if variant == "augment" else "kt3d-first"
 
@@ -493,6 +506,15 @@ _PROTOCOLS: Sequence[Protocol] = (
         run=run_end_to_end,
         kind="end-to-end",
         end_to_end=_rendered,
+    ),
+    Protocol(
+        "rendered-long",
+        "end to end, whole-video mode: long rendered clips with a camera cut, video-level J / F and labels per object",
+        default_frames=5,
+        data=None,
+        run=run_end_to_end,
+        kind="end-to-end",
+        end_to_end=_rendered_long,
     ),
 )
 
