@@ -9,6 +9,11 @@
     of a rendered 640x480 video (~900 tracks) and of vtest.avi resized to 640x480 (~400 tracks):
     frames per second, vtest.avi with and without the Rerun recording.
 (c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
+(d) start-up: `moseg run` on 5 frames from the shell, against `python -c "import torch"`.
+
+(b) also times a bare OpenCV KLT loop on the same frames (same corners, no checks) right before each
+run and prints the pipeline's frames/s as a multiple of it: on these shared machines absolute
+times vary from run to run, the ratio much less.
 
 Everything runs on one thread (mosegpipe.runtime.set_threads(1)), as `moseg` does by default.
 Without --model the shipped 5-frame weights are used, or, when there are none, an untrained
@@ -135,24 +140,76 @@ def clip_table(clips: dict[str, Path], model: SubspaceNet, repeats: int, work: P
     return "\n".join(lines)
 
 
+def bare_klt_fps(video: Path) -> float:
+    """Frames/s of a bare OpenCV KLT loop on the decoded frames of `video`: the same corner settings
+    (TrackConfig defaults), forward LK only, no checks, no re-seeding. The reference of (b)."""
+    from mosegpipe.io import iter_video
+    from mosegpipe.track import TrackConfig
+
+    c = TrackConfig()
+    grays = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for _, f in iter_video(video)]
+    t0 = time.perf_counter()
+    pts = cv2.goodFeaturesToTrack(grays[0], c.max_corners, c.quality_level, c.min_distance_px, blockSize=c.block_size)
+    win = (c.win_size_px, c.win_size_px)
+    for a, b in zip(grays, grays[1:]):
+        pts, _, _ = cv2.calcOpticalFlowPyrLK(a, b, pts, None, winSize=win, maxLevel=c.max_level)
+    return (len(grays) - 1) / (time.perf_counter() - t0)
+
+
 def video_table(runs: list[tuple[str, Path, bool]], model: SubspaceNet, work: Path) -> str:
-    """Whole-video mode on each (name, video, with recording) run."""
+    """Whole-video mode on each (name, video, with recording) run, against bare KLT on the same frames
+    measured just before it (timings on shared machines drift: the ratio is the figure to compare)."""
     from mosegpipe.outputs import write_video_outputs
 
     cfg = PipelineConfig(frames=5)
     lines = [
-        "| input | recording | frames | windows | mean tracks / window | motion labels | wall s | frames/s |",
-        "|---|---|---|---|---|---|---|---|",
+        "| input | recording | frames | windows | mean tracks / window | motion labels | wall s | frames/s "
+        "| bare KLT frames/s | x bare KLT |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for i, (name, video, rrd) in enumerate(runs):
+        ref = bare_klt_fps(video)
         t0 = time.perf_counter()
         s = write_video_outputs(video, work / f"video_{i}", cfg, model, overwrite=True, rrd=rrd)
         seconds = time.perf_counter() - t0
         tracks = np.mean([w["num_tracks"] for w in s["windows"]])
+        fps = s["frames"] / seconds
         lines.append(
             f"| {name} | {'yes' if rrd else 'no'} | {s['frames']} | {s['num_windows']} | {tracks:.0f} | "
-            f"{s['num_motions']} | {seconds:.2f} | {s['frames'] / seconds:.1f} |"
+            f"{s['num_motions']} | {seconds:.2f} | {fps:.1f} | {ref:.0f} | {fps / ref:.3f} |"
         )
+    return "\n".join(lines)
+
+
+def startup_table(clip: Path, work: Path, repeats: int = 3) -> str:
+    """Wall time of `moseg run CLIP --frames 5` from the shell (a fresh process each time), against
+    `python -c "import torch"` in the same run. Median of `repeats`."""
+    import shutil
+    import subprocess
+
+    def wall(cmd: list[str]) -> float:
+        times = []
+        for _ in range(repeats):
+            shutil.rmtree(work / "startup", ignore_errors=True)
+            t0 = time.perf_counter()
+            subprocess.run(cmd, check=True, capture_output=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+            times.append(time.perf_counter() - t0)
+        return statistics.median(times)
+
+    moseg = str(Path(sys.executable).with_name("moseg"))
+    rows = [
+        ("python -c pass", wall([sys.executable, "-c", "pass"])),
+        ('python -c "import torch"', wall([sys.executable, "-c", "import torch"])),
+        ("moseg --help", wall([moseg, "--help"])),
+        (
+            "moseg run CLIP --frames 5 --no-rrd",
+            wall([moseg, "run", str(clip), "--frames", "5", "--no-rrd", "--out", str(work / "startup")]),
+        ),
+        ("moseg run CLIP --frames 5", wall([moseg, "run", str(clip), "--frames", "5", "--out", str(work / "startup")])),
+    ]
+    torch_s = rows[1][1]
+    lines = ["| command | wall s (median) | x `import torch` |", "|---|---|---|"]
+    lines += [f"| `{name}` | {sec:.2f} | {sec / torch_s:.2f} |" for name, sec in rows]
     return "\n".join(lines)
 
 
@@ -204,6 +261,8 @@ def main(argv: list[str] | None = None) -> None:
                 clips["vtest.avi"] = write_video(resized_frames(vtest, 5), work / "vtest5.avi")
             print("## (a) `moseg run` on 5 frames at 640x480 (stage times in ms)\n")
             print(clip_table(clips, model, args.repeats, work) + "\n")
+            print("## (d) start-up: `moseg run` on 5 frames from the shell (rendered clip, 640x480)\n")
+            print(startup_table(clips["rendered"], work, args.repeats) + "\n")
         if "video" not in args.skip:
             from mosegpipe.synth.render import RenderConfig, render_clip
 
