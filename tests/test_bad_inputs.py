@@ -12,6 +12,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import textwrap
 from pathlib import Path
 
@@ -66,8 +67,15 @@ def nothing_left(folder: Path) -> None:
 def run_script(code: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     """Runs Python code in a fresh process (fd-level output, signals and hangs cannot touch pytest)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO / "tests")}
+    # Outside the checkout, so that the installed package is imported, not the source folder (whose cli/
+    # lives beside it, not inside it).
     return subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=timeout, env=env
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+        cwd=tempfile.gettempdir(),
     )
 
 
@@ -154,6 +162,7 @@ def test_disk_full_on_a_real_small_file_system(tmp_path: Path, clip_avi: Path, m
             text=True,
             timeout=90,
             env={**os.environ, "OMP_NUM_THREADS": "1"},
+            cwd=tmp_path,
         )
         assert proc.returncode == 1, proc.stderr
         assert "No space left on device" in one_error_line(proc.stderr)
