@@ -8,7 +8,7 @@ benchmark images go through our own KLT tracker / SIFT matcher, and our points t
 ground truth by motion agreement (`mosegpipe.evaluation.label_transfer`); points that cannot be
 labelled reliably keep label -1: they enter the context normalisation but not the loss.
 
-Tracking every window is slow next to training (about 0.15 s per 5-frame KT3DMoSeg window), so the
+Tracking every window is slow next to training (about 0.3 s per 5-frame KT3DMoSeg window), so the
 labelled points are cached on disk, one file per sequence / pair, under a folder named by a hash of
 everything they depend on (front-end settings, transfer settings, frame count, format version).
 """
