@@ -335,30 +335,27 @@ def _clip_name(clip: LabeledClip) -> str:
     return clip.name
 
 
-def _kt3d_video(
-    data_root: Path | None,
-    model: SubspaceNet | None,
-    cfg: PipelineConfig,
-    names: Sequence[str] | None = None,
-    baselines: Sequence[str] | None = None,
-) -> list[dict[str, Any]]:
-    from mosegpipe.evaluation.e2e import kt3d_video_rows
+def _benchmark_rows(function: str) -> EndToEnd:
+    """An end-to-end adapter: `evaluation.e2e.<function>` on the benchmark folder (imported when it runs)."""
 
-    assert data_root is not None
-    return kt3d_video_rows(data_root, model, cfg, names=names, baselines=baselines)
+    def rows(
+        data_root: Path | None,
+        model: SubspaceNet | None,
+        cfg: PipelineConfig,
+        names: Sequence[str] | None = None,
+        baselines: Sequence[str] | None = None,
+    ) -> list[dict[str, Any]]:
+        from mosegpipe.evaluation import e2e
+
+        assert data_root is not None
+        row_fn: Callable[..., list[dict[str, Any]]] = getattr(e2e, function)
+        return row_fn(data_root, model, cfg, names=names, baselines=baselines)
+
+    return rows
 
 
-def _adelaide_pairs(
-    data_root: Path | None,
-    model: SubspaceNet | None,
-    cfg: PipelineConfig,
-    names: Sequence[str] | None = None,
-    baselines: Sequence[str] | None = None,
-) -> list[dict[str, Any]]:
-    from mosegpipe.evaluation.e2e import adelaide_pair_rows
-
-    assert data_root is not None
-    return adelaide_pair_rows(data_root, model, cfg, names=names, baselines=baselines)
+_kt3d_video = _benchmark_rows("kt3d_video_rows")
+_adelaide_pairs = _benchmark_rows("adelaide_pair_rows")
 
 
 def _kt3d_names(data_root: Path) -> list[str]:
