@@ -160,3 +160,33 @@ def test_bad_object_spec_raises() -> None:
         ObjectSpec("cone")
     with pytest.raises(InputError):
         ObjectSpec("box", size_m=(1.0, 1.0, 0.0))
+
+
+def _two_photos() -> list[np.ndarray]:
+    """A red-ish and a blue-ish photograph with texture (seeded noise on a colour)."""
+    rng = np.random.default_rng(0)
+    red = np.clip(rng.normal(0, 20, (120, 160, 3)) + [200, 40, 40], 0, 255).astype(np.uint8)
+    blue = np.clip(rng.normal(0, 20, (90, 200, 3)) + [40, 40, 200], 0, 255).astype(np.uint8)
+    return [red, blue]
+
+
+def test_photo_textures_come_from_the_photographs_and_are_seeded() -> None:
+    photos = _two_photos()
+    cfg = RenderConfig(seed=4, num_objects=2, texture="photo")
+    clip = render_clip(cfg, photos)
+    again = render_clip(cfg, photos)
+    np.testing.assert_array_equal(clip.frames, again.frames)
+    # Every surface is a crop of one photo (with a gain and offset per channel): one colour channel
+    # dominates everywhere, never green, which neither photograph has.
+    mean_rgb = clip.frames.reshape(-1, 3).astype(np.float64)
+    dominant = mean_rgb.argmax(axis=1)
+    assert (dominant != 1).mean() > 0.95
+    blobs = render_clip(RenderConfig(seed=4, num_objects=2, texture="blobs"))
+    assert not np.array_equal(blobs.frames, clip.frames)
+
+
+def test_photo_texture_needs_rgb_photographs() -> None:
+    with pytest.raises(InputError, match="needs photographs"):
+        render_clip(RenderConfig(texture="photo"))
+    with pytest.raises(InputError, match="RGB uint8"):
+        render_clip(RenderConfig(texture="photo"), [np.zeros((10, 10), np.uint8)])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -190,3 +191,64 @@ def test_adelaide_own_clips_outliers_first(data_root: Path, tmp_path: Path) -> N
     assert clip.name == "breadcube" and clip.traj.shape[1] == 4
     known = clip.labels[clip.labels >= 0]
     assert known.size > 0.5 * clip.num_points and set(np.unique(known)) <= {0, 1, 2, 3}
+
+
+# ---------------------------------------------------------------- rendered clips through our tracker
+
+
+def test_rendered_labels_follow_the_masks_and_drop_boundaries() -> None:
+    from mosegpipe.synth.render import ObjectSpec, RenderConfig, render_clip
+    from mosegpipe.training.own_tracks import label_rendered_tracks
+
+    plane = ObjectSpec("plane", centre_m=(0.0, 0.0, 4.0), size_m=(2.0, 2.0, 0.0), velocity_m=(0.05, 0.0, 0.0))
+    clip = render_clip(RenderConfig(objects=(plane,), frames=3))
+    ys, xs = np.nonzero(clip.masks[0] == 1)
+    cx, cy = xs.mean(), ys.mean()
+    left = xs.min()
+    step = clip.label_at(0, [[cx, cy]])[0]
+    assert step == 1
+    # The object's image speed: where its left edge went between frames 0 and 2.
+    dx = (np.nonzero(clip.masks[2] == 1)[1].min() - left) / 2
+    t = np.arange(3)[None, :, None]
+    xy = np.stack(
+        [
+            np.array([[cx, cy]]) + t[0] * [dx, 0.0],  # on the object, moving with it
+            np.array([[5.0, 5.0]]) + t[0] * 0.0,  # on the still wall
+            np.array([[left + 1.0, cy]]) + t[0] * [dx, 0.0],  # on the object but at its border
+            np.array([[left + 5.0, cy]]) + t[0] * [0.0, 0.0],  # on the object, stays put: the wall by frame 2
+        ]
+    )
+    assert label_rendered_tracks(clip, xy, boundary_px=3).tolist() == [1, 0, -1, -1]
+
+
+def test_rendered_own_clips_label_track_and_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from PIL import Image
+
+    from mosegpipe.training import own_tracks
+
+    root = tmp_path / "data"
+    (root / "videos").mkdir(parents=True)
+    rng = np.random.default_rng(1)
+    for i in range(2):
+        photo = cv2.resize(
+            rng.integers(0, 256, (30, 40, 3), dtype=np.uint8), (320, 240), interpolation=cv2.INTER_NEAREST
+        )
+        Image.fromarray(photo).save(root / "videos" / f"p{i}.png")
+    assert [n for n, _ in own_tracks.texture_photos(root)] == ["videos/p0.png", "videos/p1.png"]
+    cfg = own_tracks.RenderedTracksConfig(num_clips=3, sizes_hw=((120, 160),), objects=(1, 2))
+    cache = tmp_path / "cache"
+    clips = own_tracks.rendered_own_clips(root, frames=4, cfg=cfg, cache_dir=cache)
+    assert clips and all(c.traj.shape[1] == 8 and c.dataset == "rendered-own" for c in clips)
+    for c in clips:
+        known = c.labels[c.labels >= 0]
+        assert known.size >= own_tracks.MIN_LABELLED and np.unique(known).size >= 2 and 0 in known
+
+    def no_rendering(*args: object, **kwargs: object) -> None:
+        raise AssertionError("tracked again although the clips are cached")
+
+    monkeypatch.setattr(own_tracks, "track_klt", no_rendering)
+    again = own_tracks.rendered_own_clips(root, frames=4, cfg=cfg, cache_dir=cache)
+    assert [c.name for c in again] == [c.name for c in clips]
+    (root / "videos" / "p1.png").unlink()  # other textures: another cache entry
+    with pytest.raises(AssertionError, match="tracked again"):
+        own_tracks.rendered_own_clips(root, frames=4, cfg=cfg, cache_dir=cache)

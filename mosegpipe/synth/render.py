@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,9 +44,9 @@ logger = logging.getLogger(__name__)
 CAMERA_MOTIONS = VIDEO_MOTIONS  # the names RenderConfig.camera_motion accepts (see synth.camera)
 """Camera motions render_clip knows."""
 
-TEXTURES: tuple[str, ...] = ("blobs", "checker", "mixed")
-"""Texture kinds: quantised smooth noise (blobs), random-colour grids (checker), or either per
-surface (mixed)."""
+TEXTURES: tuple[str, ...] = ("blobs", "checker", "mixed", "photo")
+"""Texture kinds: quantised smooth noise (blobs), random-colour grids (checker), either per
+surface (mixed), or random crops of real photographs (photo: render_clip's `photos`)."""
 
 SHAPES: tuple[str, ...] = ("plane", "box")
 """Object shapes."""
@@ -95,8 +96,9 @@ class RenderConfig:
         seed: seed of every random choice (layout, motion, textures, noise).
         camera_motion: "static", "pan" (slow yaw), "forward" (along the optical axis) or
             "handheld" (small rotation and translation jitter).
-        texture: "blobs", "checker" or "mixed" (either, per surface). Both have strong corners
-            so that KLT can track them.
+        texture: "blobs", "checker" or "mixed" (either, per surface), which have strong corners
+            so that KLT can track them; or "photo": crops of the photographs given to render_clip,
+            with their real mix of textured and flat areas.
         shapes: object shapes to sample from, see SHAPES.
         object_speed_px: range of each sampled object's image speed, pixels per frame.
         ground: also draw a ground plane (part of the background group) below the wall.
@@ -196,8 +198,33 @@ class RenderedClip:
         return Frames(images=self.frames, fps=fps, source="render")
 
 
-def _texture(rng: np.random.Generator, kind: str, size_wh: tuple[int, int]) -> npt.NDArray[np.uint8]:
-    """A random RGB texture (h, w, 3) uint8 with many corners, cells of 6-20 texels."""
+def _photo_texture(
+    rng: np.random.Generator, photos: Sequence[npt.NDArray[np.uint8]], size_wh: tuple[int, int]
+) -> npt.NDArray[np.uint8]:
+    """A random crop of a random photograph resized to (h, w, 3): 25-100 % of the largest crop of
+    that aspect, randomly mirrored, with a random gain and offset per channel."""
+    w, h = size_wh
+    photo = photos[int(rng.integers(len(photos)))]
+    ph, pw = photo.shape[:2]
+    scale = min(pw / w, ph / h) * float(rng.uniform(0.25, 1.0))
+    cw, ch = max(int(w * scale), 8), max(int(h * scale), 8)
+    cw, ch = min(cw, pw), min(ch, ph)
+    x0, y0 = int(rng.integers(pw - cw + 1)), int(rng.integers(ph - ch + 1))
+    crop = photo[y0 : y0 + ch, x0 : x0 + cw]
+    if rng.random() < 0.5:
+        crop = crop[:, ::-1]
+    interp = cv2.INTER_AREA if cw > w else cv2.INTER_LINEAR
+    tex = cv2.resize(np.ascontiguousarray(crop), (w, h), interpolation=interp).astype(np.float32)
+    tex = tex * rng.uniform(0.7, 1.3, 3).astype(np.float32) + rng.uniform(-20, 20, 3).astype(np.float32)
+    return np.clip(np.rint(tex), 0, 255).astype(np.uint8)
+
+
+def _texture(
+    rng: np.random.Generator, kind: str, size_wh: tuple[int, int], photos: Sequence[npt.NDArray[np.uint8]] = ()
+) -> npt.NDArray[np.uint8]:
+    """A random RGB texture (h, w, 3) uint8: many corners, cells of 6-20 texels; or a photo crop."""
+    if kind == "photo":
+        return _photo_texture(rng, photos, size_wh)
     w, h = size_wh
     if kind == "mixed":
         kind = "blobs" if rng.random() < 0.5 else "checker"
@@ -246,7 +273,11 @@ def _rect(w: float, h: float) -> npt.NDArray[np.float64]:
 
 
 def _box_quads(
-    rng: np.random.Generator, size: npt.NDArray[np.float64], tex_kind: str, texels_per_m: float
+    rng: np.random.Generator,
+    size: npt.NDArray[np.float64],
+    tex_kind: str,
+    texels_per_m: float,
+    photos: Sequence[npt.NDArray[np.uint8]] = (),
 ) -> list[_Quad]:
     """The six faces of a box of size (w, h, d) centred at the origin, outward normals."""
     quads = []
@@ -263,7 +294,7 @@ def _box_quads(
             normal[axis] = sign
             tw = int(np.clip(size[u] * texels_per_m, 16, 1024))
             th = int(np.clip(size[v] * texels_per_m, 16, 1024))
-            quads.append(_Quad(corners, normal, _texture(rng, tex_kind, (tw, th))))
+            quads.append(_Quad(corners, normal, _texture(rng, tex_kind, (tw, th), photos)))
     return quads
 
 
@@ -343,16 +374,21 @@ def _warp_quad(
     mask[y0:y1, x0:x1][sel] = label
 
 
-def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
+def render_clip(cfg: RenderConfig = RenderConfig(), photos: Sequence[npt.NDArray[np.uint8]] = ()) -> RenderedClip:
     """Render a clip of textured planes and boxes with its ground-truth motion masks.
 
     Args:
-        cfg: what to draw; the same cfg always gives the same clip.
+        cfg: what to draw; the same cfg (and photos) always give the same clip.
+        photos: RGB uint8 (H, W, 3) photographs that texture="photo" crops its textures from.
 
     Returns:
         RenderedClip with frames (T, H, W, 3) uint8 RGB and masks (T, H, W) uint8 (see the
         module docstring for the id convention).
     """
+    if cfg.texture == "photo" and not photos:
+        raise InputError('RenderConfig.texture="photo" needs photographs (render_clip\'s photos)')
+    if any(p.ndim != 3 or p.shape[2] != 3 or p.dtype != np.uint8 for p in photos):
+        raise InputError("render_clip: photos must be RGB uint8 arrays (H, W, 3)")
     rng = np.random.default_rng(cfg.seed)
     h, w = cfg.size_hw
     frames = cfg.frames
@@ -371,7 +407,7 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
     wall = _Quad(
         _rect(wall_w, wall_h) + [0, 0, _WALL_DEPTH_M],
         np.array([0.0, 0.0, -1.0]),
-        _texture(rng, cfg.texture, (wall_texels, round(wall_texels * h / w))),
+        _texture(rng, cfg.texture, (wall_texels, round(wall_texels * h / w)), photos),
     )
     background = [_Body(0, [wall], still_rot, still_pos, cull=False)]
     if cfg.ground:
@@ -385,7 +421,7 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
                 [-half, _CAMERA_HEIGHT_M, near],
             ]
         )
-        tex = _texture(rng, cfg.texture, (wall_texels, wall_texels // 2))
+        tex = _texture(rng, cfg.texture, (wall_texels, wall_texels // 2), photos)
         background.append(_Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)], still_rot, still_pos, cull=False))
 
     bodies: list[_Body] = []
@@ -397,9 +433,11 @@ def render_clip(cfg: RenderConfig = RenderConfig()) -> RenderedClip:
         if spec.shape == "plane":
             tw = int(np.clip(size[0] * texels_per_m, 16, 1024))
             th = int(np.clip(size[1] * texels_per_m, 16, 1024))
-            quads = [_Quad(_rect(size[0], size[1]), np.array([0.0, 0.0, -1.0]), _texture(rng, cfg.texture, (tw, th)))]
+            quads = [
+                _Quad(_rect(size[0], size[1]), np.array([0.0, 0.0, -1.0]), _texture(rng, cfg.texture, (tw, th), photos))
+            ]
         else:
-            quads = _box_quads(rng, size, cfg.texture, texels_per_m)
+            quads = _box_quads(rng, size, cfg.texture, texels_per_m, photos)
         orient = rotation_matrix(spec.rotation)
         rot = np.stack([rotation_matrix(np.asarray(spec.spin) * k) @ orient for k in range(frames)])
         pos = np.asarray(spec.centre_m) + t * np.asarray(spec.velocity_m)

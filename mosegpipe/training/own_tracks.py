@@ -21,6 +21,7 @@ import json
 import logging
 import os
 from collections.abc import Callable, Collection
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -197,5 +198,159 @@ def adelaide_own_clips(
             LabeledClip(
                 name=name, traj=arrays["traj"], labels=arrays["labels"], dataset="adelaide-own", meta={"sequence": name}
             )
+        )
+    return clips
+
+
+@dataclass(frozen=True)
+class RenderedTracksConfig:
+    """What `rendered_own_clips` renders and how it labels our tracks of it.
+
+    Attributes:
+        num_clips: clips rendered (seeds 0..num_clips-1 mixed with `seed`).
+        sizes_hw: frame sizes drawn from, (H, W): a wide KITTI-like one and two common video ones.
+        objects: (min, max) moving objects per clip.
+        camera_motions: camera motions drawn from (synth.camera.VIDEO_MOTIONS).
+        object_speed_px: range of the objects' image speed, pixels per frame.
+        ground_prob: chance of a ground plane below the wall.
+        noise_std: range of the Gaussian pixel noise, grey levels.
+        boundary_px: a track closer than this to a change of mask label (in its first or last
+            frame) stays unlabelled: KLT windows straddling two surfaces follow either.
+        seed: mixed into every clip's seed.
+    """
+
+    num_clips: int = 400
+    sizes_hw: tuple[tuple[int, int], ...] = ((375, 1242), (480, 640), (360, 640))
+    objects: tuple[int, int] = (1, 4)
+    camera_motions: tuple[str, ...] = ("static", "pan", "forward", "handheld")
+    object_speed_px: tuple[float, float] = (0.5, 6.0)
+    ground_prob: float = 0.5
+    noise_std: tuple[float, float] = (0.0, 3.0)
+    boundary_px: int = 3
+    seed: int = 0
+
+
+def texture_photos(data_root: str | Path, exclude: Collection[str] = ()) -> list[tuple[str, npt.NDArray[np.uint8]]]:
+    """Real photographs to texture rendered clips with: the AdelaideRMF images and the OpenCV samples.
+
+    KT3DMoSeg frames are deliberately not among them, so that no KT3DMoSeg leave-one-out fold sees
+    its test sequence through a texture; AdelaideRMF pairs named in `exclude` are left out too.
+
+    Returns:
+        (name, RGB uint8 image) pairs in a fixed order.
+    """
+    from mosegpipe.data.adelaidermf import list_adelaide, read_adelaide_pair
+    from mosegpipe.io import read_image, read_video
+
+    root = Path(data_root)
+    photos: list[tuple[str, npt.NDArray[np.uint8]]] = []
+    if (root / "adelaidermf").is_dir():
+        for name in list_adelaide(root):
+            if name in exclude:
+                continue
+            pair = read_adelaide_pair(root, name)
+            photos += [(f"adelaidermf/{name}/1", pair.img1), (f"adelaidermf/{name}/2", pair.img2)]
+    videos = root / "videos"
+    for png in sorted(videos.glob("*.png")) if videos.is_dir() else []:
+        photos.append((f"videos/{png.name}", read_image(png)))
+    for clip, every in (("vtest.avi", 100), ("tree.avi", 34)):
+        if (videos / clip).is_file():
+            frames = read_video(videos / clip).images
+            photos += [(f"videos/{clip}/{t}", frames[t]) for t in range(0, len(frames), every)]
+    return [
+        (n, np.ascontiguousarray(np.broadcast_to(im[..., None], (*im.shape, 3)) if im.ndim == 2 else im[..., :3]))
+        for n, im in photos
+    ]
+
+
+def label_rendered_tracks(clip: Any, xy: npt.NDArray[np.floating], boundary_px: int) -> npt.NDArray[np.int64]:
+    """Labels of tracked points from a rendered clip's masks: the surface under the point in every
+    frame when it is the same one (and no other lies within `boundary_px` in the first and last
+    frame), else -1.
+
+    Args:
+        clip: a synth.render.RenderedClip.
+        xy: (N, F, 2) our track positions in frames 0..F-1 of the clip.
+        boundary_px: see RenderedTracksConfig.
+
+    Returns:
+        (N,) int64 mask ids (0 = background, i = object i) or -1.
+    """
+    n, f = xy.shape[:2]
+    per_frame = np.stack([clip.label_at(t, xy[:, t]) for t in range(f)], axis=1)
+    labels = per_frame[:, 0].copy()
+    ok = (per_frame == labels[:, None]).all(axis=1)
+    b = boundary_px
+    for t in (0, f - 1):
+        for dx, dy in ((b, 0), (-b, 0), (0, b), (0, -b), (b, b), (-b, -b), (b, -b), (-b, b)):
+            ok &= clip.label_at(t, xy[:, t] + [dx, dy]) == labels
+    labels[~ok] = -1
+    return labels.astype(np.int64)
+
+
+def rendered_own_clips(
+    data_root: str | Path,
+    frames: int = 5,
+    exclude: Collection[str] = (),
+    cfg: RenderedTracksConfig = RenderedTracksConfig(),
+    track: TrackConfig = TrackConfig(),
+    cache_dir: str | Path | None = None,
+) -> list[LabeledClip]:
+    """Our KLT tracks of rendered clips textured with real photographs, labelled from the rendered masks.
+
+    Every clip is a random scene (synth.render) of 1-4 moving planes and boxes in front of a wall,
+    each surface a crop of a photograph (`texture_photos`), under a random camera motion, tracked by
+    the pipeline's own KLT tracker over F frames; labels are exact (the rendered masks) except near
+    surface boundaries (-1, context only).
+
+    Returns:
+        LabeledClips named "rendered/<i>" with traj (N, 2F) float32 pixels and labels (N,) int64
+        (0 = background, 1.. = objects in depth order of the scene, -1 = unlabelled); clips with fewer
+        than MIN_LABELLED labelled points or a single labelled group are left out.
+    """
+    from mosegpipe.synth.render import RenderConfig, render_clip
+
+    photos = texture_photos(data_root, exclude)
+    if not photos:
+        return []
+    names = [n for n, _ in photos]
+    key = cache_key("rendered-own", frames=frames, cfg=cfg, track=track, photos=names)
+    path = Path(cache_dir or default_cache_dir()) / f"rendered-own-f{frames}-{key}.npz"
+    images = [im for _, im in photos]
+
+    def build() -> dict[str, npt.NDArray[Any]]:
+        out: dict[str, npt.NDArray[Any]] = {}
+        for i in range(cfg.num_clips):
+            rng = np.random.default_rng([cfg.seed, i])
+            render_cfg = RenderConfig(
+                size_hw=cfg.sizes_hw[int(rng.integers(len(cfg.sizes_hw)))],
+                frames=frames,
+                num_objects=int(rng.integers(cfg.objects[0], cfg.objects[1] + 1)),
+                seed=int(rng.integers(2**31)),
+                camera_motion=cfg.camera_motions[int(rng.integers(len(cfg.camera_motions)))],
+                texture="photo",
+                object_speed_px=cfg.object_speed_px,
+                ground=bool(rng.random() < cfg.ground_prob),
+                noise_std=float(rng.uniform(*cfg.noise_std)),
+            )
+            clip = render_clip(render_cfg, images)
+            tracks = track_klt(clip.to_frames(), track)
+            traj = build_trajectories(tracks, frames=frames)
+            labels = label_rendered_tracks(clip, tracks.xy[traj.track_ids], cfg.boundary_px)
+            out[f"{i}/traj"] = traj.data
+            out[f"{i}/labels"] = labels
+            if (i + 1) % 50 == 0:
+                log.info("rendered-own: %d / %d clips tracked", i + 1, cfg.num_clips)
+        return out
+
+    arrays = _load_or_build(path, build)
+    clips = []
+    for i in range(cfg.num_clips):
+        labels = arrays[f"{i}/labels"]
+        known = labels[labels >= 0]
+        if known.size < MIN_LABELLED or np.unique(known).size < 2:
+            continue
+        clips.append(
+            LabeledClip(name=f"rendered/{i}", traj=arrays[f"{i}/traj"], labels=labels, dataset="rendered-own", meta={})
         )
     return clips

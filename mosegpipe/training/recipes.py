@@ -202,6 +202,12 @@ def _kt3d_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[La
     return kt3d_own_clips(data_root, frames=frames, exclude=exclude)
 
 
+def _rendered_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.training.own_tracks import rendered_own_clips
+
+    return rendered_own_clips(data_root, frames, exclude=exclude)
+
+
 def _adelaide_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
     from mosegpipe.training.own_tracks import adelaide_own_clips
 
@@ -276,6 +282,13 @@ SOURCES: dict[str, Source] = {
             "kt3d-own",
             "our KLT tracks of every F-frame window of the KT3DMoSeg frames, labels by motion agreement",
             clips=_kt3d_own,
+            augment=TRACK_AUGMENT,
+        ),
+        Source(
+            "rendered-own",
+            "our KLT tracks of rendered clips textured with real photographs (AdelaideRMF images, OpenCV "
+            "samples; never KT3DMoSeg frames), labels from the rendered masks",
+            clips=_rendered_own,
             augment=TRACK_AUGMENT,
         ),
         Source(
