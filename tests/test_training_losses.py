@@ -14,6 +14,7 @@ from mosegpipe.training.losses import (
     ce_affinity_loss,
     facility_location_loss,
     l2_affinity_loss,
+    l2_balanced_affinity_loss,
     lifted_structured_loss,
     mimi_loss,
     triplet_loss,
@@ -86,6 +87,39 @@ def test_l2_matches_naive_formula() -> None:
         labels[~mask] = -1
         loss = l2_affinity_loss(z.transpose(1, 2), labels, mask)  # z is (B, E, N) here; losses take (B, N, E)
         assert loss.item() == pytest.approx(_naive_l2(z, labels, mask).item(), abs=1e-12)
+
+
+def test_l2_balanced_weighs_every_pair_of_groups_alike() -> None:
+    # Groups {a, a', a''} = (1, 0) three times and {b} = (1, 0): the three same-group blocks fit (0 error),
+    # the two cross blocks have affinity 0 but z.z = 1: each block's mean squared error is 1 -> 2 / 2^2.
+    z, lab, mask = _batch([[1, 0], [1, 0], [1, 0], [1, 0]], [0, 0, 0, 1])
+    assert l2_balanced_affinity_loss(z, lab, mask).item() == pytest.approx(0.5, abs=1e-12)
+    # The plain loss sees 6 wrong pairs of 16: the small group barely counts.
+    assert l2_affinity_loss(z, lab, mask).item() == pytest.approx(6 / 16, abs=1e-12)
+    # Equal group sizes: the same as the plain loss.
+    z, lab, mask = _batch(CROSS, [0, 0, 1, 1])
+    assert l2_balanced_affinity_loss(z, lab, mask).item() == pytest.approx(0.5, abs=1e-12)
+
+
+def test_l2_balanced_matches_naive_formula() -> None:
+    gen = torch.Generator().manual_seed(2)
+    for _ in range(5):
+        z = F.normalize(torch.randn(3, 4, 9, generator=gen, dtype=torch.float64), dim=1)
+        labels = torch.randint(0, 3, (3, 9), generator=gen) * 7
+        mask = torch.ones(3, 9, dtype=torch.bool)
+        mask[1, 5:] = False
+        labels[~mask] = -1
+        labels[2, 0] = -1  # unlabelled context point
+        expected = []
+        for b in range(3):
+            keep = mask[b] & (labels[b] >= 0)
+            zb, lb = z[b][:, keep], labels[b][keep]
+            same = (lb[:, None] == lb[None, :]).to(z.dtype)
+            w = 1.0 / same.sum(1)
+            err = (same - zb.T @ zb) ** 2
+            expected.append((w[:, None] * w[None, :] * err).sum() / w.sum() ** 2)
+        loss = l2_balanced_affinity_loss(z.transpose(1, 2), labels, mask)
+        assert loss.item() == pytest.approx(torch.stack(expected).mean().item(), abs=1e-12)
 
 
 def test_ce_hand_computed() -> None:
