@@ -54,6 +54,9 @@ def _usage_message(exc: Any, args: list[str]) -> str:
                     return f"{opt} {args[i + 1]}: {_bad_value(exc)}"
                 if arg.startswith(f"{opt}="):
                     return f"{opt} {arg[len(opt) + 1 :]}: {_bad_value(exc)}"
+        missing = isinstance(exc, _click.exceptions.MissingParameter)
+        if not missing and not any(opt.startswith("-") for opt in param.opts):  # PROTOCOL: 'x' is not one of ...
+            return f"{param.name.upper()}: {_bad_value(exc)}"
     return _one_line(exc.format_message()).replace(": Value error, ", ": ").rstrip(".")
 
 

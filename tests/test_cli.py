@@ -240,10 +240,10 @@ def test_bad_input_gives_one_error_line(case: str, tmp_path: Path, clip_avi: Pat
 @pytest.mark.parametrize(
     ("args", "expected"),
     [
-        (["eval", "kitti", "-o", "out"], "'kitti' is not one of 'kt3d-test', 'kt3d-loo',"),
+        (["eval", "kitti", "-o", "out"], "PROTOCOL: 'kitti' is not one of 'kt3d-test', 'kt3d-loo',"),
         (["train", "--preset", "huge"], "--preset huge: 'huge' is not one of 'clip-f5', 'base-f5',"),
         (["train", "--loss", "hinge"], "--loss hinge: 'hinge' is not one of 'mimi', 'l2', 'ce', 'triplet'"),
-        (["study", "speed", "-o", "out"], "'speed' is not one of 'model-selection', 'tsne'"),
+        (["study", "speed", "-o", "out"], "NAME: 'speed' is not one of 'model-selection', 'tsne'"),
         (["study", "tsne", "-o", "out", "--budget", "huge"], "--budget huge: 'huge' is not one of 'cpu', 'full'"),
         (["eval", "kt3d-loo", "-o", "out", "--variant", "x"], "--variant x: 'x' is not one of 'vanilla', 'augment'"),
         (["run", "x.avi", "--mask-method", "flood"], "--mask-method flood: 'flood' is not one of 'watershed'"),
