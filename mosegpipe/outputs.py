@@ -368,6 +368,7 @@ def write_video_outputs(
     overwrite: bool = False,
     rrd: bool = True,
     max_frames: int | None = None,
+    on_window: Callable[[WindowResult], None] | None = None,
 ) -> dict[str, Any]:
     """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
 
@@ -383,6 +384,8 @@ def write_video_outputs(
         overwrite: replace an existing moseg output folder.
         rrd: also write a Rerun recording (frames downscaled to keep it small).
         max_frames: stop after this many frames (None = whole video).
+        on_window: called in this thread after each window's frames were written, with the window
+            (its `frames` emptied; `num_frames_read` counts the frames done): a progress display.
 
     Returns:
         The summary dict written to summary.json.
@@ -424,6 +427,8 @@ def write_video_outputs(
                                 fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask
                             )
                         yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
+                    if on_window is not None:
+                        on_window(windows[-1])
                     del window, fr  # before the next window is read: hold a few windows' frames at most
 
             write_video(tmp / "overlay.mp4", overlays(), fps)

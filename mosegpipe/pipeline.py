@@ -17,11 +17,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
+import types
 from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 import cv2
 import numpy as np
@@ -47,6 +49,9 @@ class PipelineConfig:
 
     Attributes:
         frames: F, the number of frames segmented (the paper's clips are 5 frames).
+        start: index of the first frame read from a video or frame folder (0-based, in the source);
+            segment_clip reads frames start .. start + F - 1, segment_video starts its first window
+            there. Not used by segment_frames / segment_pair (they are given their images).
         k: force this many motions (None = automatic K).
         min_tracks: fewer surviving tracks / matches than this is an error (too little texture).
         track: KLT settings.
@@ -58,6 +63,7 @@ class PipelineConfig:
     """
 
     frames: int = 5
+    start: int = 0
     k: int | None = None
     min_tracks: int = 10
     track: TrackConfig = field(default_factory=TrackConfig)
@@ -65,6 +71,75 @@ class PipelineConfig:
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     mask: MaskConfig = field(default_factory=MaskConfig)
     outlier_inlier_ratio: float = 0.5
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
+        """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
+
+        A field left out takes its default (a summary written before the field existed); an unknown
+        field, a value of the wrong type or one the config classes refuse is an error.
+
+        Args:
+            data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
+            where: how errors name the dict (`summary.json: config`).
+
+        Raises:
+            InputError: naming the field, e.g. `summary.json: config.track.max_corners: expected an
+                integer, got 'many'`.
+        """
+        config = _dataclass_from_dict(cls, data, where)
+        assert isinstance(config, cls)
+        return config
+
+
+def _dataclass_from_dict(cls: type, data: Any, where: str) -> Any:
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: expected a table of settings, got {type(data).__name__} {data!r}")
+    hints = get_type_hints(cls)
+    names = [f.name for f in fields(cls)]
+    unknown = [key for key in data if key not in names]
+    if unknown:
+        raise InputError(f"{where}.{unknown[0]}: unknown setting (known: {', '.join(names)})")
+    values = {name: _typed_value(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    try:
+        return cls(**values)
+    except (ValueError, InputError) as exc:
+        raise InputError(f"{where}: {' '.join(str(exc).split())}") from exc
+
+
+_TYPE_NAMES = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+def _typed_value(hint: Any, value: Any, where: str) -> Any:
+    """`value` checked against the type hint of a config field (JSON / TOML types: no coercion from strings)."""
+    if is_dataclass(hint):
+        return _dataclass_from_dict(hint, value, where)  # type: ignore[arg-type]
+    origin = get_origin(hint)
+    if origin is Union or origin is types.UnionType:
+        options = get_args(hint)
+        if value is None and type(None) in options:
+            return None
+        for option in options:
+            if option is not type(None):
+                with contextlib.suppress(InputError):
+                    return _typed_value(option, value, where)
+        wanted = " or ".join("null" if o is type(None) else _TYPE_NAMES.get(o, str(o)) for o in options)
+        raise InputError(f"{where}: expected {wanted}, got {value!r}")
+    if origin is Literal:
+        if value not in get_args(hint):
+            raise InputError(f"{where}: {value!r} is not one of {', '.join(map(repr, get_args(hint)))}")
+        return value
+    ok = {
+        bool: isinstance(value, bool),
+        int: isinstance(value, int) and not isinstance(value, bool),
+        float: isinstance(value, (int, float)) and not isinstance(value, bool),
+        str: isinstance(value, str),
+    }
+    if hint not in ok:
+        raise TypeError(f"{where}: config fields of type {hint} are not supported")
+    if not ok[hint]:
+        raise InputError(f"{where}: expected {_TYPE_NAMES[hint]}, got {value!r}")
+    return float(value) if hint is float else value
 
 
 @dataclass(frozen=True)
@@ -130,13 +205,18 @@ def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet
         checkpoint: a checkpoint file to load instead of the shipped weights.
 
     Returns:
-        The model in eval mode.
+        The model in eval mode. A model loaded from `checkpoint` carries the file's resolved path as
+        `checkpoint_path` (recorded by model_info in summary.json, so that a run can be replayed
+        with the same weights; it travels with the model to batch workers).
 
     Raises:
         CheckpointError: the checkpoint is missing, corrupt or not a SubspaceNet, or no weights are shipped.
     """
     if checkpoint is not None:
-        return SubspaceNet.from_checkpoint(checkpoint)
+        model = SubspaceNet.from_checkpoint(checkpoint)
+        # object.__setattr__: nn.Module's own __setattr__ is typed for tensors and modules only.
+        object.__setattr__(model, "checkpoint_path", str(Path(checkpoint).resolve()))
+        return model
     shipped = 2 if frames == 2 else frames if frames in available_default_frames() else 5
     try:
         return SubspaceNet.default(frames=shipped)
@@ -145,12 +225,15 @@ def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet
 
 
 def model_info(model: SubspaceNet) -> dict[str, Any]:
-    """The model's recipe name, input frame count and configuration, as recorded in summary.json."""
+    """The model's recipe name, input frame count, configuration and checkpoint file, as recorded in
+    summary.json ("checkpoint": the file given to load_model, None for the shipped weights or a
+    model built in memory)."""
     recipe = getattr(model, "recipe", None) or {}
     return {
         "recipe": recipe.get("name", "unknown"),
         "model_frames": model.num_frames,
         "model_config": model.cfg.to_dict(),
+        "checkpoint": getattr(model, "checkpoint_path", None),
     }
 
 
@@ -254,29 +337,33 @@ def _container_frames(path: str | Path) -> int | None:
 def segment_clip(
     path: str | Path, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None
 ) -> ClipResult:
-    """Reads the first cfg.frames frames of a video file or frame folder and segments them.
+    """Reads cfg.frames frames from frame cfg.start of a video file or frame folder and segments them.
 
     Args:
         path: a video file OpenCV can read or a folder of images (sorted by name).
-        cfg: pipeline settings; cfg.frames frames are read.
+        cfg: pipeline settings; cfg.frames frames are read, from frame cfg.start.
         model: the model (None = the shipped default for cfg.frames).
 
     Returns:
         ClipResult (timings also hold "read").
 
     Raises:
-        InputError: missing, unreadable, corrupt or truncated input, or fewer than cfg.frames frames.
+        InputError: missing, unreadable, corrupt or truncated input, fewer than cfg.frames frames
+            from cfg.start, or cfg.start past the end.
         TooFewTracksError: see segment_frames.
     """
     t0 = time.perf_counter()
     with decode_errors(path):
-        frames = read_video(path, max_frames=cfg.frames)
+        frames = read_video(path, max_frames=cfg.frames, start=cfg.start)
     if frames.num_frames < cfg.frames:
         claimed = _container_frames(path)
         hint = ""
-        if claimed and claimed > frames.num_frames:
+        if claimed and claimed - cfg.start > frames.num_frames:
             hint = f" of the {claimed} its header lists (truncated or corrupt video?)"
-        raise InputError(f"{path}: only {_frames(frames.num_frames)} could be read{hint}; --frames needs {cfg.frames}")
+        after = f" from frame {cfg.start}" if cfg.start else ""
+        raise InputError(
+            f"{path}: only {_frames(frames.num_frames)} could be read{after}{hint}; --frames needs {cfg.frames}"
+        )
     read_s = time.perf_counter() - t0
     result = segment_frames(frames, cfg, model)
     return replace(result, timings={"read": read_s, **result.timings})
@@ -522,6 +609,8 @@ class WindowResult:
         num_motions: global labels handed out so far.
         num_labels_reused: labels handed out again so far (only after 255 labels).
         num_frames_read: frames read from the source so far.
+        k_note: automatic K's note on this window (Clustering.note: e.g. the K choice was
+            ambiguous); "" when none.
     """
 
     start: int
@@ -534,15 +623,58 @@ class WindowResult:
     num_motions: int
     num_labels_reused: int
     num_frames_read: int
+    k_note: str = ""
 
     @property
     def is_labelled(self) -> bool:
         """Whether the window had enough tracks to be segmented."""
         return self.k > 0
 
-    def record(self) -> dict[str, int]:
+    @property
+    def is_k_ambiguous(self) -> bool:
+        """Whether automatic K found two K scoring within ClusterConfig.ambiguity_margin here."""
+        return self.k_note.startswith(AMBIGUOUS_K_NOTE)
+
+    def record(self) -> dict[str, int | bool]:
         """The window's row in summary.json."""
-        return {"start": self.start, "frames": self.num_frames, "num_tracks": self.num_tracks, "k": self.k}
+        return {
+            "start": self.start,
+            "frames": self.num_frames,
+            "num_tracks": self.num_tracks,
+            "k": self.k,
+            "k_ambiguous": self.is_k_ambiguous,
+        }
+
+
+AMBIGUOUS_K_NOTE = "the K choice is ambiguous"
+"""How cluster_auto_k's note (and warning) for an ambiguous K choice starts."""
+
+
+@contextlib.contextmanager
+def _warnings_held(logger: logging.Logger) -> Iterator[None]:
+    """Keeps `logger`'s WARNING records of this thread from its handlers while the block runs.
+
+    Whole-video mode reports automatic K's ambiguity warnings once for all windows, not once per
+    window (hundreds of lines on a long video); the notes themselves are kept (WindowResult.k_note).
+    Other threads' records pass: a clip segmented beside this video keeps its warning.
+    """
+    thread = threading.get_ident()
+
+    def keep(record: logging.LogRecord) -> bool:
+        return record.thread != thread or record.levelno != logging.WARNING
+
+    logger.addFilter(keep)
+    try:
+        yield
+    finally:
+        logger.removeFilter(keep)
+
+
+def _ranges(spans: list[tuple[int, int]], shown: int = 3) -> str:
+    """`frames 0-4, 8-12, 16-20 and 4 more`: the first `shown` of some (first, last) frame ranges."""
+    listed = ", ".join(f"{first}-{last}" for first, last in spans[:shown])
+    more = f" and {len(spans) - shown} more" if len(spans) > shown else ""
+    return f"frames {listed}{more}"
 
 
 def check_video_settings(cfg: PipelineConfig, max_frames: int | None) -> None:
@@ -555,6 +687,24 @@ def check_video_settings(cfg: PipelineConfig, max_frames: int | None) -> None:
         raise InputError(f"--frames {cfg.frames}: whole-video mode needs windows of at least 2 frames")
     if max_frames is not None and max_frames < 1:
         raise InputError(f"--max-frames {max_frames} must be >= 1")
+
+
+def video_frames_to_read(path: str | Path, cfg: PipelineConfig, max_frames: int | None = None) -> int | None:
+    """How many frames segment_video will read: for a progress bar's total (None when not known).
+
+    A frame folder knows its length; a video file only what its container header claims (which
+    may be wrong for a truncated file: the run then ends early). Unreadable input gives None here:
+    segment_video reports it.
+    """
+    try:
+        with decode_errors(path):
+            claimed = video_info(path)["num_frames"]
+    except InputError:
+        return None
+    if claimed is None:
+        return max_frames
+    available = max(0, int(claimed) - cfg.start)
+    return available if max_frames is None else min(available, max_frames)
 
 
 def segment_video(
@@ -581,6 +731,10 @@ def segment_video(
         InputError: unreadable input, fewer than F frames, F < 2 or max_frames < 1.
         TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
             the video is exhausted).
+
+    Automatic K's warning that its choice is ambiguous is logged once, after the last window
+    ("K was ambiguous in 3 of 40 windows: ..."), not per window; each window keeps its note
+    (WindowResult.k_note, summary.json `windows[].k_ambiguous`).
     """
     check_video_settings(cfg, max_frames)
     f = cfg.frames
@@ -593,6 +747,8 @@ def segment_video(
     num_windows = 0
     num_labelled = 0
     num_frames = 0
+    ambiguous: list[tuple[int, int]] = []  # (first, last) frame of each window whose K was ambiguous
+    cluster_log = logging.getLogger(cluster_auto_k.__module__)
 
     def label_window(window: list[_Frame], new: list[_Frame]) -> WindowResult:
         """Clusters the tracks live through the whole window and labels the frames in `new`."""
@@ -601,14 +757,16 @@ def segment_video(
         traj = build_trajectories(tracks)
         common = row_ids[traj.track_ids]  # tracker ids of the tracks live through the whole window
         k = 0
+        note = ""
         labels_by_id: dict[int, int] = {}
         glob = np.zeros(0, dtype=np.int64)
         labelled_ids = np.zeros(0, dtype=np.int64)
         if common.size >= max(cfg.min_tracks, 2):
             emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
             forced = None if cfg.k is None else min(cfg.k, common.size)
-            clustering = cluster_auto_k(emb, cfg.cluster, k=forced, points=traj.data)
-            k = clustering.k
+            with _warnings_held(cluster_log):
+                clustering = cluster_auto_k(emb, cfg.cluster, k=forced, points=traj.data)
+            k, note = clustering.k, clustering.note
             glob = match_labels(prev, common, clustering.labels, k, book, num_windows)
             labelled_ids = common[glob >= 0]
             glob = glob[glob >= 0]
@@ -617,14 +775,14 @@ def segment_video(
             num_labelled += 1
         else:
             log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
-        log.info("frames %d-%d: %d tracks, K = %d", window[0][0], window[-1][0], common.size, k)
+        log.info("frames %d-%d: %d tracks, K = %d%s", window[0][0], window[-1][0], common.size, k, note and f"; {note}")
         labelled = []
         for t, img, ids, xy in new:
             lab = np.array([labels_by_id.get(int(i), -1) for i in ids], dtype=np.int64)
             fr = VideoFrame(t, img, ids, xy, lab, None)
             labelled.append(replace(fr, mask=frame_mask(fr, cfg.mask)) if masks else fr)
         num_windows += 1
-        return WindowResult(
+        result = WindowResult(
             start=window[0][0],
             num_frames=len(window),
             num_tracks=int(common.size),
@@ -635,10 +793,14 @@ def segment_video(
             num_motions=book.next_label,
             num_labels_reused=book.num_reused,
             num_frames_read=num_frames,
+            k_note=note,
         )
+        if result.is_k_ambiguous:
+            ambiguous.append((window[0][0], window[-1][0]))
+        return result
 
     window: list[_Frame] = []
-    frames_iter = iter_video(path, max_frames=max_frames)
+    frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames)
     while True:
         with decode_errors(path):
             item = next(frames_iter, None)
@@ -661,8 +823,19 @@ def segment_video(
             f"{path}: no window had at least {cfg.min_tracks} tracks through its {f} frames (textureless video?)"
         )
     claimed = info.get("num_frames")
-    if max_frames is None and info["kind"] == "video" and claimed and num_frames < claimed:
-        log.warning("%s: decoding stopped after %d of the %d frames the header lists", path, num_frames, claimed)
+    if max_frames is None and info["kind"] == "video" and claimed and num_frames < claimed - cfg.start:
+        log.warning(
+            "%s: decoding stopped after %d of the %d frames the header lists", path, cfg.start + num_frames, claimed
+        )
+    if ambiguous:
+        log.warning(
+            "K was ambiguous in %d of %d windows: %s (runner-up within %g; summary.json windows[].k_ambiguous); "
+            "pass --k to decide",
+            len(ambiguous),
+            num_windows,
+            _ranges(ambiguous),
+            cfg.cluster.ambiguity_margin,
+        )
 
 
 @dataclass(frozen=True)

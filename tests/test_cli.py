@@ -205,14 +205,6 @@ BAD_INPUTS: dict[str, BadCase] = {
         ["run", clip, "--k", "100000", "--model", m[5]],
         "--k 100000 is larger than the number of tracks",
     ),
-    "unknown eval protocol": lambda tmp, m, clip: (
-        ["eval", "kitti", "-o", tmp / "out"],
-        "unknown protocol 'kitti'; choose from kt3d-test",
-    ),
-    "unknown train preset": lambda tmp, m, clip: (
-        ["train", "--preset", "huge", "-o", tmp / "out" / "m.pt"],
-        "unknown recipe 'huge'",
-    ),
     "corrupt --model": lambda tmp, m, clip: (
         ["run", clip, "--model", _garbage(tmp / "model.pt")],
         "model.pt: cannot read checkpoint",
@@ -243,6 +235,26 @@ def test_bad_input_gives_one_error_line(case: str, tmp_path: Path, clip_avi: Pat
     assert stderr.startswith("moseg: error: ") and stderr.count("\n") == 1, stderr
     assert expected in stderr and "Traceback" not in stderr + stdout
     assert sorted(p.name for p in work.iterdir()) == before  # no output folder, no .partial left
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["eval", "kitti", "-o", "out"], "PROTOCOL: 'kitti' is not one of 'kt3d-test', 'kt3d-loo',"),
+        (["train", "--preset", "huge"], "--preset huge: 'huge' is not one of 'clip-f5', 'base-f5',"),
+        (["train", "--loss", "hinge"], "--loss hinge: 'hinge' is not one of 'mimi', 'l2', 'ce', 'triplet'"),
+        (["study", "speed", "-o", "out"], "NAME: 'speed' is not one of 'model-selection', 'tsne'"),
+        (["study", "tsne", "-o", "out", "--budget", "huge"], "--budget huge: 'huge' is not one of 'cpu', 'full'"),
+        (["eval", "kt3d-loo", "-o", "out", "--variant", "x"], "--variant x: 'x' is not one of 'vanilla', 'augment'"),
+        (["run", "x.avi", "--mask-method", "flood"], "--mask-method flood: 'flood' is not one of 'watershed'"),
+    ],
+)
+def test_unknown_choices_are_usage_errors(args: list[str], expected: str) -> None:
+    """Registry names (protocols, recipes, losses, studies) are Enums now: Click refuses them (exit code 2)
+    before anything runs or is written."""
+    code, stdout, stderr = moseg(*args)
+    assert code == 2 and stdout == "" and stderr.count("\n") == 1, stderr
+    assert stderr.startswith("moseg: error: ") and expected in stderr and "Value error" not in stderr
 
 
 def test_truncated_real_video(tmp_path: Path, data_root: Path, models: dict[int, Path]) -> None:

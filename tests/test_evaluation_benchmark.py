@@ -366,8 +366,8 @@ def test_run_protocol_test_protocol(tmp_path: Path, fake_data: list[Any]) -> Non
 def test_cli_eval_unknown_protocol_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
     result = CliRunner(env={"COLUMNS": "200"}).invoke(app, ["eval", "nope", "--out", "d"])
-    assert result.exit_code == 1
+    assert result.exit_code == 2  # a usage error: PROTOCOL is a choice (an Enum) of the registry's names
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("moseg: error: unknown protocol 'nope'")
+    assert len(lines) == 1 and lines[0].startswith("moseg: error: PROTOCOL: 'nope' is not one of 'kt3d-test'")
     assert "kt3d-loo" in lines[0]
     assert not (tmp_path / "d").exists()

@@ -127,7 +127,7 @@ def test_tsne_panels_resume_and_bad_clip(
 
 def test_cli_study_errors_are_one_line(tmp_path: Path) -> None:
     result = runner.invoke(app, ["study", "nope", "--out", str(tmp_path / "x"), "--data-root", str(tmp_path)])
-    assert result.exit_code == 1
+    assert result.exit_code == 2  # a usage error: NAME is a choice (an Enum) of the registry's names
     assert result.stderr.startswith("moseg: error:") and result.stderr.count("\n") == 1
     assert "model-selection" in result.stderr
     result = runner.invoke(

@@ -380,10 +380,10 @@ def test_cli_train_synthetic_f2(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
 
 def test_cli_train_unknown_preset_one_line() -> None:
     result = runner.invoke(app, ["train", "--preset", "nope", "--threads", "1"])
-    assert result.exit_code == 1
+    assert result.exit_code == 2  # a usage error: --preset is a choice (an Enum) of the recipe names
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1
-    assert lines[0].startswith("moseg: error: unknown recipe 'nope'") and "synthetic-f2" in lines[0]
+    assert lines[0].startswith("moseg: error: --preset nope: 'nope' is not one of") and "synthetic-f2" in lines[0]
 
 
 # ---------------------------------------------------------------------------------------------

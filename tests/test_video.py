@@ -140,9 +140,9 @@ def test_memory_holds_one_window_of_frames(
     alive: list[weakref.ref[np.ndarray]] = []
     most = 0
 
-    def tracked(path: Path, max_frames: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    def tracked(path: Path, start: int = 0, max_frames: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
         nonlocal most
-        for t, frame in iter_video(path, max_frames=max_frames):
+        for t, frame in iter_video(path, start=start, max_frames=max_frames):
             alive.append(weakref.ref(frame))
             most = max(most, sum(r() is not None for r in alive))
             yield t, frame

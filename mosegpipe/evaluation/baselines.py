@@ -8,8 +8,8 @@ All baselines first z-score every column over the points (:func:`zscore_columns`
 affine map of R^D, so points on a common affine motion subspace stay on one, and it puts
 trajectories of any image size on one scale.
 
-- ``kmeans-raw``: K-means on the z-scored matrix; K by the residual elbow of
-  :func:`mosegpipe.cluster.cluster_auto_k`.
+- ``kmeans-raw``: K-means on the z-scored matrix; K by :func:`mosegpipe.cluster.cluster_auto_k`
+  with its default rule (``ClusterConfig().method``: the silhouette).
 - ``spectral-raw``: spectral clustering with a self-tuning Gaussian affinity; K by the eigengap.
 - ``ssc``: Sparse Subspace Clustering (Elhamifar & Vidal, PAMI 2013) with the affine constraint,
   solved by ADMM in O(D N^2) per iteration; spectral clustering of |C| + |C|^T, K by the eigengap.
@@ -124,8 +124,8 @@ def kmeans_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray
 
     Args:
         traj: (N, D) trajectory matrix, pixels.
-        k: number of motions, or None for the residual-elbow choice of
-            :func:`mosegpipe.cluster.cluster_auto_k` (K in 1..8).
+        k: number of motions, or None for the choice of :func:`mosegpipe.cluster.cluster_auto_k`
+            with its default rule (``ClusterConfig().method``: the silhouette; K in 1..8).
         seed: K-means seed.
 
     Returns:
