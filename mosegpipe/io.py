@@ -16,7 +16,7 @@ import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from io import StringIO as _StringIO
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
@@ -563,38 +563,92 @@ def write_jpeg(path: str | os.PathLike[str], rgb: npt.NDArray[np.uint8], quality
         tmp.write_bytes(buf.tobytes())
 
 
+class H264Encoder:
+    """Push-style H.264 encoder (yuv420p, x264 through PyAV, which bundles its codec) into an MP4.
+
+    Frames are encoded as they are added; nothing but the encoder's look-ahead is held. Odd frame
+    sizes are padded by one replicated row / column (yuv420p needs even sizes). The target is a file
+    path or a seekable binary buffer (io.BytesIO: the MP4 muxer seeks back to write its index).
+
+    Args:
+        target: output .mp4 path or seekable binary file object.
+        fps: frames per second to store (> 0).
+        name: what error messages call the output (the final path).
+        b_frames: let x264 use B-frames (smaller files). Off for a recording's video asset: frames
+            then decode in presentation order, which every Rerun decoder plays frame-exact.
+    """
+
+    def __init__(
+        self, target: str | os.PathLike[str] | BinaryIO, fps: float, name: str | os.PathLike[str], b_frames: bool = True
+    ) -> None:
+        import av
+
+        if not fps > 0:
+            raise InputError(f"{name}: fps={fps} must be > 0")
+        self.name = Path(name)
+        self.num_frames = 0
+        self._fps = fps
+        self._b_frames = b_frames
+        self._size_wh: tuple[int, int] | None = None
+        self._stream: Any = None
+        target_arg = str(target) if isinstance(target, (str, os.PathLike)) else target
+        self._container: Any = av.open(target_arg, mode="w", format="mp4")
+
+    def add(self, frame: npt.NDArray[np.uint8]) -> None:
+        """Encode one (H, W, 3) uint8 RGB frame, the same size as the first.
+
+        Raises:
+            InputError: wrong shape or dtype, or a size other than the first frame's.
+        """
+        import av
+
+        frame = _check_video_frame(self.name, frame, self.num_frames, self._size_wh)
+        if self._stream is None:
+            from fractions import Fraction
+
+            self._size_wh = (frame.shape[1], frame.shape[0])
+            stream = self._container.add_stream("libx264", rate=Fraction(self._fps).limit_denominator(1001))
+            width, height = self._size_wh
+            stream.width, stream.height = width + width % 2, height + height % 2  # yuv420p: even sizes
+            stream.pix_fmt = "yuv420p"
+            stream.options = {"crf": str(H264_CRF), "preset": H264_PRESET, **({} if self._b_frames else {"bf": "0"})}
+            self._stream = stream
+        pad_h, pad_w = frame.shape[0] % 2, frame.shape[1] % 2
+        if pad_h or pad_w:
+            frame = cv2.copyMakeBorder(frame, 0, pad_h, 0, pad_w, cv2.BORDER_REPLICATE)
+        for packet in self._stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")):
+            self._container.mux(packet)
+        self.num_frames += 1
+
+    def close(self, flush: bool = True) -> int:
+        """Flush the encoder (unless `flush` is False: a failed write) and close the container.
+
+        Returns:
+            Number of frames encoded.
+        """
+        if self._container is None:
+            return self.num_frames
+        container, self._container = self._container, None
+        try:
+            if flush and self._stream is not None:
+                for packet in self._stream.encode(None):
+                    container.mux(packet)
+        finally:
+            container.close()
+        return self.num_frames
+
+
 def _write_h264(final: Path, tmp: Path, frames_iter: Iterable[npt.NDArray[np.uint8]], fps: float) -> int:
-    """H.264 (yuv420p, x264 via PyAV, which bundles its codec) into an .mp4 at `tmp`; frames counted."""
-    from fractions import Fraction
-
-    import av
-
-    count = 0
-    size_wh: tuple[int, int] | None = None
-    container = av.open(str(tmp), mode="w", format="mp4")
+    """H.264 into an .mp4 at `tmp` (see H264Encoder); frames counted."""
+    encoder = H264Encoder(tmp, fps, final)
+    flush = False
     try:
-        stream: Any = None
         for frame in frames_iter:
-            frame = _check_video_frame(final, frame, count, size_wh)
-            if stream is None:
-                size_wh = (frame.shape[1], frame.shape[0])
-                stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
-                # yuv420p needs even sizes: odd ones are padded by one replicated row / column.
-                stream.width, stream.height = size_wh[0] + size_wh[0] % 2, size_wh[1] + size_wh[1] % 2
-                stream.pix_fmt = "yuv420p"
-                stream.options = {"crf": str(H264_CRF), "preset": H264_PRESET}
-            pad_h, pad_w = frame.shape[0] % 2, frame.shape[1] % 2
-            if pad_h or pad_w:
-                frame = cv2.copyMakeBorder(frame, 0, pad_h, 0, pad_w, cv2.BORDER_REPLICATE)
-            for packet in stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")):
-                container.mux(packet)
-            count += 1
-        if stream is not None:
-            for packet in stream.encode(None):
-                container.mux(packet)
+            encoder.add(frame)
+        flush = True
     finally:
-        container.close()
-    return count
+        encoder.close(flush=flush)
+    return encoder.num_frames
 
 
 def _check_video_frame(

@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -39,6 +39,9 @@ from mosegpipe.pipeline import (
     model_info,
     segment_video,
 )
+
+if TYPE_CHECKING:
+    from mosegpipe.viz import VizConfig
 
 SUMMARY_SCHEMA = "mosegpipe.summary/2"
 """Version 2: mask value = motion label (0 = the dominant motion), 255 = unknown (version 1: label + 1, 0 unknown)."""
@@ -369,12 +372,14 @@ def write_video_outputs(
     rrd: bool = True,
     max_frames: int | None = None,
     on_window: Callable[[WindowResult], None] | None = None,
+    viz: VizConfig | None = None,
 ) -> dict[str, Any]:
     """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
 
     Output folder (built atomically; see docs/OUTPUTS.md): masks/NNNNNN.png for every frame (palette
     PNG, value = global motion label, 255 = unknown), overlay.mp4 (H.264), labels.npz, summary.json
-    and recording.rrd. Only one window's frames are held at a time.
+    and recording.rrd (frames as one H.264 video asset, K per window). Only one window's frames are
+    held at a time.
 
     Args:
         path: video file or frame folder.
@@ -386,6 +391,8 @@ def write_video_outputs(
         max_frames: stop after this many frames (None = whole video).
         on_window: called in this thread after each window's frames were written, with the window
             (its `frames` emptied; `num_frames_read` counts the frames done): a progress display.
+        viz: settings of the recording (None = viz.VIDEO_VIZ: frames of at most 960 px as one H.264
+            video asset).
 
     Returns:
         The summary dict written to summary.json.
@@ -409,15 +416,17 @@ def write_video_outputs(
         with ExitStack() as stack:
             recorder = None
             if rrd:
-                from mosegpipe.viz import VideoRecorder
+                from mosegpipe.viz import VIDEO_VIZ, VideoRecorder
 
-                recorder = stack.enter_context(VideoRecorder(tmp / "recording.rrd"))
+                recorder = stack.enter_context(VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps))
 
             def overlays() -> Iterator[npt.NDArray[np.uint8]]:
                 """Writes each frame's mask (and recording) as the windows arrive; yields its overlay."""
                 for window in _ahead(segment_video(path, cfg, model, max_frames, masks=False), _WINDOWS_AHEAD):
                     # Keep what the summary and labels.npz need, not the images (flat memory).
                     windows.append(replace(window, frames=()))
+                    if recorder is not None:
+                        recorder.log_window(window.start, window.k)
                     for fr in window.frames:
                         keep = fr.labels >= 0
                         mask = frame_mask(fr, cfg.mask)

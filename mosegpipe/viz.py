@@ -9,12 +9,20 @@ Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`
 - ``/``: AnnotationContext (static): class i "motion i" (motion label i; 0 = the dominant motion,
   usually the background) and class 255 "unknown", with the colours of io.default_palette(): the
   same values, names and colours as the mask PNGs and labels.npz.
-- ``video/frame``: the frame (JPEG EncodedImage, or a raw Image when jpeg_quality is 0).
+- ``video/frame``: the frame. Clips: an EncodedImage (JPEG; a raw Image when jpeg_quality is 0).
+  Videos: a VideoFrameReference into ``video/asset``, the frames as one H.264 MP4 (AssetVideo,
+  static); or JPEG images as for clips with VizConfig(video_frames="jpeg").
 - ``video/mask``: SegmentationImage, values as in Segmentation.masks.
 - ``video/tracks``: LineStrips2D, the recent history of each labelled track.
 - ``video/points``: Points2D, the labelled tracks visible in the frame.
-- ``embedding``: Points3D of the embedding (static; PCA to 3-D when E > 3, zero-padded when E < 3).
-- ``k_scores``: BarChart of the criterion per candidate K (static); ``summary``: TextDocument.
+- ``embedding``: Points3D of the embedding (static; PCA to 3-D when E > 3, zero-padded when E < 3),
+  centred and scaled into the cube [-1, 1]^3, drawn as ``embedding/box``.
+- ``k_scores``: the score per candidate K as a labelled stem chart (static, 2-D): ``k_scores/k``
+  the K values ("K=2", ...), ``k_scores/scores`` one point per K labelled with its score (the
+  chosen K in a colour of its own), ``k_scores/stems`` the stems and the zero line.
+- ``summary``: TextDocument (static): K, its margin over the runner-up, the counts.
+- ``windows/k``, ``windows/k_margin`` (videos): Scalars at each window's first frame, the K chosen
+  in the window (0 = left unlabelled) and its score minus the runner-up's (when the scores are given).
 
 Time-varying entities use the sequence timeline "frame" (index of the frame in the source video).
 An image pair (:func:`write_pair_recording`) is static, with ``image1/...`` and ``image2/...``
@@ -23,21 +31,22 @@ in place of ``video/...`` and class 255 also standing for outlier matches.
 
 from __future__ import annotations
 
+import io
 import logging
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Literal
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import atomic_write, default_palette
+from mosegpipe.io import H264Encoder, atomic_write, default_palette
 from mosegpipe.types import Frames, Matches, Tracks
 
 if TYPE_CHECKING:
@@ -55,6 +64,21 @@ MAX_CLASSES = 255
 
 UNKNOWN_CLASS = 255
 """Class id of unknown mask pixels and of unlabelled / outlier points (label -1)."""
+
+EMBEDDING_BOX = 1.0
+"""Half-size of the cube the embedding is scaled into for display: every point lies in [-1, 1]^3."""
+
+# The 3-D view looks at the cube's centre from this point, 5.24 half-sizes away: the cube's bounding
+# sphere (radius sqrt(3)) fits any field of view of 39 degrees or more, whatever the panel's shape.
+_EYE_POSITION = (3.0, -3.5, 2.5)
+
+# Layout shares: the frame takes 3/4 of the width; the side column stacks summary, K chart and
+# embedding. In a 1600x900 window that leaves the summary ~170 px, room for 8 lines; it has 3-5.
+_MAIN_SHARES = [3.0, 1.0]
+_SIDE_SHARES = {"summary": 1.0, "k_scores": 1.0, "embedding": 1.6}
+
+_CHOSEN_COLOR = (255, 190, 0)
+_OTHER_COLOR = (150, 150, 150)
 
 
 def class_ids_of(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.uint16]:
@@ -76,9 +100,14 @@ class VizConfig:
         line_radius_px: half-width of the track history lines, pixels.
         trail_frames: frames of history drawn per track (None = all since the first frame);
             long videos get cluttered otherwise.
-        embedding_radius: radius of the embedding points, in embedding units.
+        embedding_radius: radius of the embedding points, in units of the display cube
+            (half-size EMBEDDING_BOX = 1).
         max_side_px: frames (and masks, points) larger than this on their longer side are
             downscaled before logging (None = never); keeps whole-video recordings small.
+        video_frames: how a VideoRecorder stores the frames: "h264" one H.264 MP4 (AssetVideo, no
+            B-frames) and a VideoFrameReference per frame, "jpeg" an image per frame as for clips
+            (the whole recording of vtest.avi 1.8x larger: benchmarks/output_size.py). Clips
+            always log images.
     """
 
     jpeg_quality: int = 85
@@ -86,8 +115,9 @@ class VizConfig:
     point_radius_px: float = 2.5
     line_radius_px: float = 0.75
     trail_frames: int | None = None
-    embedding_radius: float = 0.01
+    embedding_radius: float = 0.02
     max_side_px: int | None = None
+    video_frames: Literal["h264", "jpeg"] = "h264"
 
     def __post_init__(self) -> None:
         if not 0 <= self.jpeg_quality <= 100:
@@ -96,10 +126,12 @@ class VizConfig:
             raise ValueError(f"trail_frames={self.trail_frames} must be >= 1 or None")
         if self.max_side_px is not None and self.max_side_px < 16:
             raise ValueError(f"max_side_px={self.max_side_px} must be >= 16 or None")
+        if self.video_frames not in ("h264", "jpeg"):
+            raise ValueError(f"video_frames={self.video_frames!r} must be 'h264' or 'jpeg'")
 
 
 VIDEO_VIZ = VizConfig(trail_frames=10, max_side_px=960)
-"""Defaults of :class:`VideoRecorder`: short trails and frames at most 960 px wide."""
+"""Defaults of :class:`VideoRecorder`: short trails, frames at most 960 px wide, H.264 frames."""
 
 
 def class_names(k: int, unknown: str = "unknown") -> dict[int, str]:
@@ -137,31 +169,136 @@ def embedding_to_3d(embeddings: npt.NDArray[np.floating]) -> npt.NDArray[np.floa
     return out.astype(np.float32)
 
 
+def fit_in_box(points: npt.NDArray[np.floating], half_size: float = EMBEDDING_BOX) -> npt.NDArray[np.float32]:
+    """Centre 3-D points on their bounding box and scale them uniformly into [-half_size, half_size]^3.
+
+    The longest side of the bounding box spans the cube; shapes and relative distances are kept.
+    Coincident points (or none) stay at the centre. Non-finite coordinates become 0.
+
+    Args:
+        points: (N, 3) float.
+        half_size: half the side of the cube.
+
+    Returns:
+        (N, 3) float32, every coordinate in [-half_size, half_size].
+    """
+    pts = np.nan_to_num(np.asarray(points, dtype=np.float64).reshape(-1, 3), nan=0.0, posinf=0.0, neginf=0.0)
+    if not len(pts):
+        return pts.astype(np.float32)
+    low, high = pts.min(axis=0), pts.max(axis=0)
+    extent = float((high - low).max()) / 2
+    centred = pts - (low + high) / 2
+    scaled = centred * (half_size / extent) if extent > 0 else np.zeros_like(centred)
+    return np.clip(scaled, -half_size, half_size).astype(np.float32)
+
+
+def k_margin(k_scores: Mapping[int, float], k: int) -> tuple[float, int] | None:
+    """The chosen K's score minus the best other candidate's, and that runner-up K.
+
+    Non-finite scores take no part. Negative when `k` was forced and scored lower.
+
+    Returns:
+        (margin, runner-up K), or None when `k` has no finite score or no rival has one (K forced,
+        K = 1 outright).
+    """
+    finite = {c: float(v) for c, v in k_scores.items() if np.isfinite(v)}
+    others = [c for c in finite if c != k]
+    if k not in finite or not others:
+        return None
+    runner_up = max(others, key=lambda c: (finite[c], -c))
+    return finite[k] - finite[runner_up], runner_up
+
+
+@dataclass(frozen=True)
+class KChart:
+    """Geometry of the K-score stem chart, in the 2-D view's coordinates (x right = K, y down).
+
+    Attributes:
+        ks: (C,) the candidate K values, increasing.
+        scores: (C,) their scores (NaN shown as 0).
+        tips: (C, 2) the end of each stem (K, -score scaled): larger scores sit higher.
+        label_y: y of the K labels, under the lowest stem.
+        x_range, y_range: the bounds that frame the whole chart, labels included.
+    """
+
+    ks: npt.NDArray[np.int64]
+    scores: npt.NDArray[np.float64]
+    tips: npt.NDArray[np.float32]
+    label_y: float
+    x_range: tuple[float, float]
+    y_range: tuple[float, float]
+
+
+def k_chart(k_scores: Mapping[int, float]) -> KChart:
+    """Lay out the score per K as stems from a zero line, one per candidate (see KChart).
+
+    The tallest stem is 0.45 x (candidates + 1) long, so the chart is about twice as wide as tall
+    whatever the range of the scores.
+    """
+    ks = np.array(sorted(k_scores), dtype=np.int64)
+    scores = np.nan_to_num(np.array([k_scores[int(c)] for c in ks], dtype=np.float64), nan=0.0)
+    top = float(np.abs(scores).max()) if len(scores) else 0.0
+    height = 0.45 * (len(ks) + 1)
+    y = -scores / top * height if top > 0 else np.zeros_like(scores)
+    tips = np.stack([ks.astype(np.float64), y], axis=1).astype(np.float32)
+    label_y = float(max(0.0, float(y.max()) if len(y) else 0.0)) + 0.35
+    x_lo, x_hi = (float(ks.min()) - 0.8, float(ks.max()) + 0.8) if len(ks) else (-1.0, 1.0)
+    y_lo = min(0.0, float(y.min()) if len(y) else 0.0) - 0.45
+    return KChart(ks, scores, tips, label_y, (x_lo, x_hi), (y_lo, label_y + 0.45))
+
+
 # ---------------------------------------------------------------------------------------------
 # Building blocks
 # ---------------------------------------------------------------------------------------------
 
 
-def _side_views() -> list[rrb.View]:
+def _panels(timeline: bool) -> list[Any]:
+    """The viewer's blueprint and selection panels folded (open, they took a third of the width);
+    the time panel open where there is a timeline to scrub."""
     import rerun.blueprint as rrb
 
     return [
-        rrb.Spatial3DView(origin="embedding", name="embedding"),
-        rrb.BarChartView(origin="k_scores", name="score per K"),
-        rrb.TextDocumentView(origin="summary", name="summary"),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="expanded" if timeline else "collapsed"),
     ]
 
 
+def _side_column(k_scores: Mapping[int, float]) -> rrb.Vertical:
+    """Summary, K chart (when there are scores) and embedding, stacked."""
+    import rerun.blueprint as rrb
+
+    views: list[rrb.View] = [rrb.TextDocumentView(origin="summary", name="summary")]
+    shares = [_SIDE_SHARES["summary"]]
+    if k_scores:
+        chart = k_chart(k_scores)
+        bounds = rrb.VisualBounds2D(x_range=chart.x_range, y_range=chart.y_range)
+        views.append(rrb.Spatial2DView(origin="k_scores", name="score per K", visual_bounds=bounds))
+        shares.append(_SIDE_SHARES["k_scores"])
+    eye = rrb.EyeControls3D(position=_EYE_POSITION, look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0))
+    views.append(rrb.Spatial3DView(origin="embedding", name="embedding", eye_controls=eye))
+    shares.append(_SIDE_SHARES["embedding"])
+    return rrb.Vertical(*views, row_shares=shares)
+
+
 def _annotation_context(num_classes: int, unknown: str = "unknown") -> rr.AnnotationContext:
+    """The class names and colours, built as an Arrow array of Rerun's own type.
+
+    From ClassDescription objects Rerun casts the array, which imports pyarrow.compute: ~0.1 s of
+    a recording's first-use cost (benchmarks/output_size.py --startup).
+    """
+    import pyarrow as pa
     import rerun as rr
 
     palette = default_palette()
-    return rr.AnnotationContext(
-        [
-            rr.ClassDescription(info=rr.AnnotationInfo(id=i, label=name, color=tuple(int(c) for c in palette[i])))
-            for i, name in class_names(num_classes, unknown).items()
-        ]
-    )
+    rows = []
+    for i, name in class_names(num_classes, unknown).items():
+        r, g, b = (int(c) for c in palette[i])
+        info = {"id": i, "label": name, "color": (r << 24) | (g << 16) | (b << 8) | 0xFF}  # RGBA, packed
+        rows.append(
+            {"class_id": i, "class_description": {"info": info, "keypoint_annotations": [], "keypoint_connections": []}}
+        )
+    return rr.AnnotationContext(pa.array([rows], type=rr.components.AnnotationContext.arrow_type()))
 
 
 def _image_archetype(image: npt.NDArray[np.uint8], cfg: VizConfig) -> rr.Image | rr.EncodedImage:
@@ -179,35 +316,62 @@ def _image_archetype(image: npt.NDArray[np.uint8], cfg: VizConfig) -> rr.Image |
 def _log_image_layers(
     rec: rr.RecordingStream,
     origin: str,
-    image: npt.NDArray[np.uint8],
+    image: npt.NDArray[np.uint8] | None,
     mask: npt.NDArray[np.uint8] | None,
     xy: npt.NDArray[np.float32],
     class_ids: npt.NDArray[np.uint16],
     cfg: VizConfig,
     static: bool = False,
 ) -> None:
-    """Image, segmentation and points under `origin` (frame, mask, points)."""
+    """Image (unless None: a video asset holds it), segmentation and points under `origin`."""
     import rerun as rr
 
-    rec.log(f"{origin}/frame", _image_archetype(image, cfg), static=static)
+    if image is not None:
+        rec.log(f"{origin}/frame", _image_archetype(image, cfg), static=static)
     if mask is not None:
         rec.log(f"{origin}/mask", rr.SegmentationImage(mask, opacity=cfg.mask_opacity, draw_order=1.0), static=static)
     points = rr.Points2D(xy, class_ids=class_ids, radii=cfg.point_radius_px, draw_order=3.0)
     rec.log(f"{origin}/points", points, static=static)
 
 
+def _line_strips(points: npt.NDArray[np.float32], lengths: npt.NDArray[np.int64]) -> Any:
+    """Strips as an Arrow array of Rerun's LineStrip2D type, built from flat points and lengths.
+
+    Rerun's own conversion walks the strips one by one in Python: for ~500 trails a frame that was
+    most of a clip recording's logging time (benchmarks/output_size.py --startup).
+
+    Args:
+        points: (P, 2) float32, the strips' points one strip after the other.
+        lengths: (M,) points per strip (sums to P).
+    """
+    import pyarrow as pa
+    import rerun as rr
+
+    strip_type = rr.components.LineStrip2D.arrow_type()
+    offsets = np.zeros(len(lengths) + 1, dtype=np.int32)
+    np.cumsum(lengths, out=offsets[1:])
+    flat = pa.array(np.ascontiguousarray(points, dtype=np.float32).reshape(-1), type=pa.float32())
+    values = pa.FixedSizeListArray.from_arrays(flat, type=strip_type.value_type)
+    return pa.ListArray.from_arrays(pa.array(offsets, type=pa.int32()), values, type=strip_type)
+
+
 def _log_trails(
     rec: rr.RecordingStream,
-    strips: list[npt.NDArray[np.float32]],
+    points: npt.NDArray[np.float32],
+    lengths: npt.NDArray[np.int64],
     class_ids: npt.NDArray[np.uint16],
     cfg: VizConfig,
 ) -> None:
+    """Track histories as line strips: `points` (P, 2) holds the M trails one after the other,
+    `lengths` (M,) their numbers of points; trails of fewer than 2 points are left out."""
     import rerun as rr
 
-    keep = [i for i, strip in enumerate(strips) if len(strip) >= 2]
-    if keep:
+    lengths = np.asarray(lengths, dtype=np.int64)
+    keep = lengths >= 2
+    if keep.any():
+        points = points[np.repeat(keep, lengths)]
         lines = rr.LineStrips2D(
-            [strips[i] for i in keep], class_ids=class_ids[keep], radii=cfg.line_radius_px, draw_order=2.0
+            _line_strips(points, lengths[keep]), class_ids=class_ids[keep], radii=cfg.line_radius_px, draw_order=2.0
         )
         rec.log("video/tracks", lines)
     else:
@@ -215,28 +379,72 @@ def _log_trails(
         rec.log("video/tracks", rr.Clear(recursive=False))
 
 
+def _log_k_chart(rec: rr.RecordingStream, k_scores: Mapping[int, float], k: int) -> None:
+    """The stem chart of k_chart(): stems and zero line, a labelled point per K, the K labels."""
+    import rerun as rr
+
+    chart = k_chart(k_scores)
+    x_lo, x_hi = float(chart.ks.min()) - 0.5, float(chart.ks.max()) + 0.5
+    strips = [[(x_lo, 0.0), (x_hi, 0.0)]] + [[(float(x), 0.0), (float(x), float(y))] for x, y in chart.tips]
+    rec.log("k_scores/stems", rr.LineStrips2D(strips, colors=_OTHER_COLOR, radii=rr.Radius.ui_points(1.0)), static=True)
+    colors = [_CHOSEN_COLOR if c == k else _OTHER_COLOR for c in chart.ks]
+    rec.log(
+        "k_scores/scores",
+        rr.Points2D(
+            chart.tips,
+            colors=colors,
+            radii=rr.Radius.ui_points([6.0 if c == k else 4.0 for c in chart.ks]),
+            labels=[f"{v:.3g}" for v in chart.scores],
+            show_labels=True,
+        ),
+        static=True,
+    )
+    label_xy = np.stack([chart.ks.astype(np.float32), np.full(len(chart.ks), chart.label_y, np.float32)], axis=1)
+    rec.log(
+        "k_scores/k",
+        rr.Points2D(
+            label_xy,
+            colors=colors,
+            radii=rr.Radius.ui_points(1.0),
+            labels=[f"K={c}" for c in chart.ks],
+            show_labels=True,
+        ),
+        static=True,
+    )
+
+
+def _summary_head(k: int, k_scores: Mapping[int, float]) -> str:
+    """First line of a summary: K, and how far its score stands above the runner-up's."""
+    margin = k_margin(k_scores, k)
+    if margin is None:
+        return f"**K = {k}**\n\n"
+    runner_up = margin[1]
+    return (
+        f"**K = {k}**: score {k_scores[k]:.3g}, runner-up K = {runner_up}: {k_scores[runner_up]:.3g} "
+        f"(margin {margin[0]:+.3g})\n\n"
+    )
+
+
 def _log_embedding_and_scores(
     rec: rr.RecordingStream,
     class_ids: npt.NDArray[np.uint16],
     embeddings: npt.NDArray[np.floating],
-    k_scores: dict[int, float],
+    k_scores: Mapping[int, float],
+    k: int,
     summary: str,
     cfg: VizConfig,
 ) -> None:
-    """Embedding, K scores and a markdown summary: one static row each."""
+    """Embedding (in its cube), K chart and a markdown summary: static rows."""
     import rerun as rr
 
-    rec.log(
-        "embedding",
-        rr.Points3D(embedding_to_3d(embeddings), class_ids=class_ids, radii=cfg.embedding_radius),
-        static=True,
-    )
-    ks = sorted(k_scores)
-    if ks:
-        values = np.nan_to_num(np.array([k_scores[c] for c in ks], dtype=np.float64))
-        rec.log("k_scores", rr.BarChart(values, abscissa=np.array(ks, dtype=np.float64)), static=True)
-        summary += "\n| K | score |\n|---|---|\n" + "".join(f"| {c} | {k_scores[c]:.6g} |\n" for c in ks)
-    rec.log("summary", rr.TextDocument(summary, media_type="text/markdown"), static=True)
+    points = rr.Points3D(fit_in_box(embedding_to_3d(embeddings)), class_ids=class_ids, radii=cfg.embedding_radius)
+    rec.log("embedding", points, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # +Z up, as the eye
+    box = rr.Boxes3D(half_sizes=[(EMBEDDING_BOX,) * 3], colors=_OTHER_COLOR, radii=rr.Radius.ui_points(0.5))
+    rec.log("embedding/box", box, static=True)
+    if k_scores:
+        _log_k_chart(rec, k_scores, k)
+        summary += "\nscore per K: " + ", ".join(f"{c}: {k_scores[c]:.3g}" for c in sorted(k_scores)) + "\n"
+    rec.log("summary", rr.TextDocument(_summary_head(k, k_scores) + summary, media_type="text/markdown"), static=True)
 
 
 class _Sink:
@@ -247,17 +455,23 @@ class _Sink:
     prints its own error lines. Here the stream goes to a memory buffer and Python writes the bytes,
     so a full disk is an ordinary OSError (ENOSPC) raised in the caller's thread. The price is that
     the recording is held in memory until it is written (a 5-frame clip: about 0.5 MB; a whole
-    video: about 0.2 MB per frame at 960 px). Draining the buffer in pieces does not give a
+    video at 768x576: about 0.11 MB per frame with H.264 frames, most of it track trails, 0.19 MB
+    with JPEG frames; benchmarks/output_size.py). Draining the buffer in pieces does not give a
     readable .rrd (one footer per drain), so it is drained once.
     """
 
-    def __init__(self, tmp: Path, app_id: str, blueprint: rrb.Blueprint, final: Path) -> None:
+    def __init__(self, tmp: Path, app_id: str, final: Path, blueprint: rrb.Blueprint | None = None) -> None:
         import rerun as rr
 
         self.tmp = tmp
         self.final = final
         self.rec = rr.RecordingStream(app_id)
         self._memory = self.rec.memory_recording()
+        if blueprint is not None:
+            self.send_blueprint(blueprint)
+
+    def send_blueprint(self, blueprint: rrb.Blueprint) -> None:
+        """The recording's default layout (the viewer uses it until the user changes the layout)."""
         self.rec.send_blueprint(blueprint, make_active=False, make_default=True)
 
     def finish(self, write: bool = True) -> None:
@@ -345,7 +559,8 @@ def write_recording(
         k_scores: criterion value per candidate K (may be empty when K was forced).
         k: number of clusters.
         app_id: Rerun application id (the viewer groups recordings and blueprints by it).
-        cfg: display settings (max_side_px is ignored: clips are logged at full size).
+        cfg: display settings (max_side_px and video_frames are ignored: clips are logged at full
+            size, as images).
 
     Returns:
         The path written.
@@ -365,29 +580,28 @@ def write_recording(
     blueprint = rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial2DView(origin="video", name="frame, tracks and masks"),
-            rrb.Vertical(*_side_views(), row_shares=[3, 2, 1]),
-            column_shares=[2, 1],
+            _side_column(k_scores),
+            column_shares=_MAIN_SHARES,
         ),
-        # The time panel stays open: scrubbing through the frames is the main interaction.
-        collapse_panels=False,
+        *_panels(timeline=True),
     )
-    summary = f"**K = {k}**, {len(track_ids)} tracks, {frames.num_frames} frames of {frames.source or '(in memory)'}\n"
+    summary = f"{len(track_ids)} tracks, {frames.num_frames} frames of {frames.source or '(in memory)'}\n"
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        sink = _Sink(tmp, app_id, blueprint, final)
+        sink = _Sink(tmp, app_id, final, blueprint)
         rec, written = sink.rec, False
         try:
             rec.log("/", _annotation_context(k), static=True)
-            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, summary, cfg)
+            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
             for t in range(frames.num_frames):
                 rec.set_time(TIMELINE, sequence=frames.start + t)
                 seen = visible[:, t]
                 mask = None if masks is None else masks[t]
                 _log_image_layers(rec, "video", frames.images[t], mask, xy[seen, t], class_ids[seen], cfg)
                 first = 0 if cfg.trail_frames is None else max(0, t + 1 - cfg.trail_frames)
-                strips = [xy[n, first : t + 1][visible[n, first : t + 1]] for n in np.flatnonzero(seen)]
-                _log_trails(rec, strips, class_ids[seen], cfg)
+                history = visible[seen, first : t + 1]  # (M, L): each seen track's visible past
+                _log_trails(rec, xy[seen, first : t + 1][history], history.sum(axis=1), class_ids[seen], cfg)
             written = True
         finally:
             sink.finish(write=written)
@@ -459,21 +673,21 @@ def write_pair_recording(
                 rrb.Spatial2DView(origin="image1", name="image 1"),
                 rrb.Spatial2DView(origin="image2", name="image 2"),
             ),
-            rrb.Vertical(*_side_views(), row_shares=[3, 2, 1]),
-            column_shares=[2, 1],
+            _side_column(k_scores),
+            column_shares=_MAIN_SHARES,
         ),
-        collapse_panels=True,  # no timeline to scrub
+        *_panels(timeline=False),  # no timeline to scrub
     )
     outliers = int((labels < 0).sum())
-    summary = f"**K = {k}**, {matches.num_matches} matches ({outliers} outliers)\n"
+    summary = f"{matches.num_matches} matches ({outliers} outliers)\n"
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        sink = _Sink(tmp, app_id, blueprint, final)
+        sink = _Sink(tmp, app_id, final, blueprint)
         rec, written = sink.rec, False
         try:
             rec.log("/", _annotation_context(num_classes, unknown="unknown / outlier"), static=True)
-            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, summary, cfg)
+            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
             for i, xy in enumerate((matches.xy1, matches.xy2)):
                 mask = None if masks is None else masks[i]
                 _log_image_layers(rec, f"image{i + 1}", images[i], mask, xy, class_ids, cfg, static=True)
@@ -494,18 +708,30 @@ class VideoRecorder:
 
     Labels are global motion ids that may grow as the video goes on; the annotation context is
     re-logged (static: the last one wins) whenever a new id appears. Track trails are kept for
-    the last `cfg.trail_frames` frames per track id. The file appears under its final name only
-    after close(); abort() (or leaving a `with` block by an exception) removes it.
+    the last `cfg.trail_frames` frames per track id. With cfg.video_frames "h264" the frames are
+    encoded into one H.264 MP4 in memory as they come (about 8 kB a frame at 768x576) and logged
+    at close() as an AssetVideo with a VideoFrameReference per frame; the masks, points and trails
+    are logged frame by frame either way. The file appears under its final name only after
+    close(); abort() (or leaving a `with` block by an exception) removes it.
+
+    Args:
+        path: output .rrd file.
+        app_id: Rerun application id.
+        cfg: display settings.
+        fps: frame rate stored in the video asset (the frames are shown on the "frame" timeline
+            whatever it is).
 
     Example:
-        >>> with VideoRecorder("out/recording.rrd") as rec:  # doctest: +SKIP
+        >>> with VideoRecorder("out/recording.rrd", fps=25.0) as rec:  # doctest: +SKIP
         ...     for t, frame in iter_video(path):
         ...         rec.log_frame(t, frame, xy, ids, labels, mask)
     """
 
-    def __init__(self, path: str | os.PathLike[str], app_id: str = "mosegpipe", cfg: VizConfig = VIDEO_VIZ) -> None:
-        import rerun.blueprint as rrb
-
+    def __init__(
+        self, path: str | os.PathLike[str], app_id: str = "mosegpipe", cfg: VizConfig = VIDEO_VIZ, fps: float = 10.0
+    ) -> None:
+        if not fps > 0:
+            raise InputError(f"{path}: fps={fps} must be > 0")
         self.path = Path(path)
         self.cfg = cfg
         self._started = time.perf_counter()
@@ -513,15 +739,52 @@ class VideoRecorder:
         self._trails: dict[int, list[npt.NDArray[np.float32]]] = {}
         self._num_classes = 0
         self._num_frames = 0
+        self._has_margins = False
+        self._num_windows = 0
+        self._frame_times: list[int] = []
+        self._encoder: H264Encoder | None = None
+        self._video = io.BytesIO()
+        if cfg.video_frames == "h264":
+            self._encoder = H264Encoder(self._video, fps, self.path, b_frames=False)
         # atomic_write's context is held open across calls; close()/abort() finish it.
         self._target = atomic_write(self.path)
         tmp = self._target.__enter__()
-        blueprint = rrb.Blueprint(rrb.Spatial2DView(origin="video", name="video"), collapse_panels=False)
         try:
-            self._sink: _Sink | None = _Sink(tmp, app_id, blueprint, self.path)
+            # The layout is sent at close(): it shows the margin chart only when there are margins.
+            self._sink: _Sink | None = _Sink(tmp, app_id, self.path)
         except BaseException as exc:
+            self._close_encoder(flush=False)
             self._target.__exit__(type(exc), exc, exc.__traceback__)
             raise
+
+    def log_window(self, start: int, k: int, k_scores: Mapping[int, float] | None = None) -> None:
+        """Log the K chosen in a window (and its score margin), at the window's first frame.
+
+        Args:
+            start: frame index of the window's first frame (the "frame" timeline).
+            k: motions found in the window, 0 = left unlabelled (too few tracks).
+            k_scores: the window's score per candidate K (None or empty: no margin is logged).
+
+        Raises:
+            InputError: the recorder is closed.
+        """
+        import rerun as rr
+
+        if self._sink is None:
+            raise InputError(f"{self.path}: recorder already closed")
+        rec = self._sink.rec
+        if self._num_windows == 0:
+            rec.log("windows/k", rr.SeriesLines(names="K", interpolation_mode="StepAfter"), static=True)
+            rec.log("windows/k", rr.SeriesPoints(names="K", markers="circle", marker_sizes=3.0), static=True)
+            style = rr.SeriesLines(names="score margin over the runner-up", interpolation_mode="StepAfter")
+            rec.log("windows/k_margin", style, static=True)
+        rec.set_time(TIMELINE, sequence=int(start))
+        rec.log("windows/k", rr.Scalars(float(k)))
+        margin = k_margin(k_scores or {}, k) if k > 0 else None
+        if margin is not None:
+            rec.log("windows/k_margin", rr.Scalars(margin[0]))
+            self._has_margins = True
+        self._num_windows += 1
 
     def log_frame(
         self,
@@ -535,8 +798,8 @@ class VideoRecorder:
         """Log one frame.
 
         Args:
-            t: frame index in the source (the "frame" timeline).
-            image: (H, W, 3) uint8 RGB.
+            t: frame index in the source (the "frame" timeline); increasing from call to call.
+            image: (H, W, 3) uint8 RGB; with H.264 frames, the same size in every call.
             xy: (M, 2) float32 pixel positions of the labelled points in this frame.
             ids: (M,) int64 their track ids (stable across frames: trails follow them).
             labels: (M,) int64 their motion ids, 0..254 (-1 = unlabelled, shown as class 255).
@@ -564,17 +827,22 @@ class VideoRecorder:
             rec.log("/", _annotation_context(self._num_classes), static=True)
         rec.set_time(TIMELINE, sequence=int(t))
         class_ids = class_ids_of(labels)
-        _log_image_layers(rec, "video", image, mask, xy, class_ids, self.cfg)
+        if self._encoder is not None:
+            self._encoder.add(image)
+            self._frame_times.append(int(t))
+        _log_image_layers(rec, "video", None if self._encoder is not None else image, mask, xy, class_ids, self.cfg)
         live = set(ids.tolist())
         for stale in [i for i in self._trails if i not in live]:
             del self._trails[stale]  # a lost track never comes back (KLTTracker ids are not reused)
-        strips = []
-        for i, p in zip(ids.tolist(), xy):
+        lengths = np.zeros(len(ids), dtype=np.int64)
+        for n, (i, p) in enumerate(zip(ids.tolist(), xy)):
             trail = self._trails.setdefault(i, [])
             trail.append(p)
             del trail[: -self._trail_len]
-            strips.append(np.array(trail, dtype=np.float32))
-        _log_trails(rec, strips, class_ids, self.cfg)
+            lengths[n] = len(trail)
+        points = [p for i in ids.tolist() for p in self._trails[i]]
+        flat = np.array(points, dtype=np.float32).reshape(-1, 2)
+        _log_trails(rec, flat, lengths, class_ids, self.cfg)
         self._num_frames += 1
 
     def _downscale(
@@ -591,6 +859,50 @@ class VideoRecorder:
         # Pixel centres map as (x + 0.5) * s - 0.5.
         return image, mask, ((xy + 0.5) * scale - 0.5).astype(np.float32)
 
+    def _close_encoder(self, flush: bool) -> None:
+        if self._encoder is not None:
+            encoder, self._encoder = self._encoder, None
+            encoder.close(flush=flush)
+
+    def _log_video_asset(self, rec: rr.RecordingStream) -> None:
+        """The encoded frames as one AssetVideo, and a VideoFrameReference per logged frame."""
+        import rerun as rr
+
+        if self._encoder is None:
+            return
+        self._close_encoder(flush=True)
+        if not self._frame_times:
+            return
+        asset = rr.AssetVideo(contents=self._video.getvalue(), media_type="video/mp4")
+        self._video = io.BytesIO()
+        rec.log("video/asset", asset, static=True)
+        stamps = asset.read_frame_timestamps_nanos()
+        if len(stamps) != len(self._frame_times):
+            raise RuntimeError(f"{self.path}: {len(self._frame_times)} frames encoded, the video holds {len(stamps)}")
+        num = len(stamps)
+        rec.send_columns(
+            "video/frame",
+            indexes=[rr.TimeColumn(TIMELINE, sequence=self._frame_times)],
+            columns=rr.VideoFrameReference.columns(
+                timestamp=stamps,
+                video_reference=["video/asset"] * num,
+                draw_order=np.zeros(num, np.float32),
+            ),
+        )
+
+    def _blueprint(self) -> rrb.Blueprint:
+        """The frame above, K per window (and its margin, when logged) under it."""
+        import rerun.blueprint as rrb
+
+        views: list[rrb.View] = [rrb.Spatial2DView(origin="video", name="video")]
+        if self._num_windows:
+            series = [rrb.TimeSeriesView(origin="windows/k", name="K per window")]
+            if self._has_margins:
+                series.append(rrb.TimeSeriesView(origin="windows/k_margin", name="K score margin"))
+            views.append(rrb.Horizontal(*series))
+            return rrb.Blueprint(rrb.Vertical(*views, row_shares=[5.0, 1.0]), *_panels(timeline=True))
+        return rrb.Blueprint(views[0], *_panels(timeline=True))
+
     def close(self) -> Path:
         """Finish the file and move it to its final name. Safe to call twice.
 
@@ -600,6 +912,13 @@ class VideoRecorder:
         if self._sink is not None:
             sink, self._sink = self._sink, None
             try:
+                try:
+                    self._log_video_asset(sink.rec)
+                    sink.send_blueprint(self._blueprint())
+                except BaseException:
+                    self._close_encoder(flush=False)
+                    sink.finish(write=False)
+                    raise
                 sink.finish()
             except BaseException as exc:
                 self._target.__exit__(type(exc), exc, exc.__traceback__)
@@ -613,6 +932,7 @@ class VideoRecorder:
         if self._sink is not None:
             sink, self._sink = self._sink, None
             try:
+                self._close_encoder(flush=False)
                 sink.finish(write=False)
             finally:
                 err = RuntimeError(f"{self.path}: recording aborted")

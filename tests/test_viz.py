@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import subprocess
+import sys
 from collections import Counter
 from pathlib import Path
 
@@ -10,7 +12,15 @@ from mosegpipe import viz
 from mosegpipe.errors import InputError
 from mosegpipe.masks import MaskConfig, labels_to_masks
 from mosegpipe.types import Frames, Tracks
-from mosegpipe.viz import VizConfig, class_names, embedding_to_3d, write_recording
+from mosegpipe.viz import (
+    VizConfig,
+    class_names,
+    embedding_to_3d,
+    fit_in_box,
+    k_chart,
+    k_margin,
+    write_recording,
+)
 
 T, H, W = 3, 24, 32
 
@@ -62,6 +72,48 @@ def _read(path: Path) -> dict:
     return {"rows": rows, "batches": batches, "blueprints": reader.blueprints(), "recordings": reader.recordings()}
 
 
+def _layout(path: Path) -> dict:
+    """The default blueprint of a recording: views by name, containers, panel states.
+
+    views: name -> {"class", "origin", "props": {property archetype: {field: [instances]}}};
+    containers: id -> {"kind", "contents" (names of views / container ids), "col_shares", "row_shares"};
+    panels: "blueprint_panel" / "selection_panel" / "time_panel" -> state (2 collapsed, 3 expanded).
+    """
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    (store,) = reader.blueprints()
+    rows: dict[str, dict] = {}
+    for chunk in reader.stream(store=store).to_chunks():
+        batch = chunk.to_record_batch()
+        fields = rows.setdefault(chunk.entity_path.strip("/"), {})
+        for name in batch.schema.names:
+            if ":" in name:
+                fields[name.split(":", 1)[1]] = batch.column(name).to_pylist()[-1]  # the instances of the last row
+    names = {key: f["display_name"][0] for key, f in rows.items() if key.count("/") == 1 and "display_name" in f}
+    views = {
+        names[key]: {"class": f["class_identifier"][0], "origin": f["space_origin"][0], "props": {}}
+        for key, f in rows.items()
+        if key in names
+    }
+    for key, f in rows.items():
+        parent, _, prop = key.rpartition("/")
+        if parent in names:
+            views[names[parent]]["props"][prop] = f
+    containers = {
+        key: {
+            "kind": f["container_kind"][0],
+            "contents": [names.get(c, c) for c in f["contents"]],
+            "col_shares": f.get("col_shares"),
+            "row_shares": f.get("row_shares"),
+        }
+        for key, f in rows.items()
+        if key.startswith("container/")
+    }
+    panels = {key: f["state"][0] for key, f in rows.items() if key.endswith("_panel")}
+    return {"views": views, "containers": containers, "panels": panels}
+
+
 def _column(batches: list[dict], suffix: str) -> list:
     return [v for b in batches for name, col in b.items() if name.endswith(suffix) for v in col]
 
@@ -78,7 +130,7 @@ def test_recording_holds_every_entity(tmp_path: Path) -> None:
     rows = got["rows"]
     for entity in ("/video/frame", "/video/mask", "/video/tracks", "/video/points"):
         assert rows[entity] == T, entity
-    for entity in ("/", "/embedding", "/k_scores", "/summary"):
+    for entity in ("/", "/embedding", "/embedding/box", "/k_scores/k", "/k_scores/scores", "/summary"):
         assert rows[entity] == 1, entity
 
     points = got["batches"]["/video/points"]
@@ -94,12 +146,139 @@ def test_recording_holds_every_entity(tmp_path: Path) -> None:
     assert "motion 0" in context and "motion 1" in context and "unknown" in context
 
 
+def test_clip_trails_follow_each_visible_track(tmp_path: Path) -> None:
+    inputs = _inputs()
+    got = _read(write_recording(tmp_path / "clip.rrd", **inputs, cfg=VizConfig(trail_frames=2)))
+    by_frame = {
+        frame: (strips, ids)
+        for b in got["batches"]["/video/tracks"]
+        if "LineStrips2D:strips" in b
+        for frame, strips, ids in zip(b["frame"], b["LineStrips2D:strips"], b["LineStrips2D:class_ids"])
+    }
+    xy = inputs["tracks"].xy
+    assert sorted(by_frame) == [11, 12]  # frame 10 has no history: cleared
+    strips, ids = by_frame[11]
+    np.testing.assert_allclose(np.array(strips), xy[:5, 0:2])  # every track, frames 10-11
+    assert ids == [0, 0, 1, 1, 1]
+    strips, ids = by_frame[12]  # track 2 is lost in frame 12; trails of 2 frames: 11-12
+    np.testing.assert_allclose(np.array(strips), xy[[0, 1, 3, 4], 1:3])
+    assert ids == [0, 0, 1, 1]
+
+
+def test_annotation_context_matches_rerun_class_descriptions() -> None:
+    import rerun as rr
+
+    palette = viz.default_palette()
+    expected = rr.AnnotationContext(
+        [
+            rr.ClassDescription(info=rr.AnnotationInfo(id=i, label=name, color=tuple(int(c) for c in palette[i])))
+            for i, name in class_names(3, "unknown / outlier").items()
+        ]
+    )
+    got = viz._annotation_context(3, "unknown / outlier")
+    assert got.context is not None and expected.context is not None
+    assert got.context.pa_array.to_pylist() == expected.context.pa_array.to_pylist()
+
+
+def test_first_recording_does_not_import_pyarrow_compute(tmp_path: Path) -> None:
+    # pyarrow.compute costs ~0.1 s on first import (benchmarks/output_size.py --startup); nothing
+    # a recording needs should pull it in.
+    code = f"""
+import sys
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from test_viz import _inputs
+from mosegpipe.viz import write_recording
+write_recording({str(tmp_path / "c.rrd")!r}, **_inputs())
+print("pyarrow.compute" in sys.modules)
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"
+
+
+def test_clip_layout(tmp_path: Path) -> None:
+    layout = _layout(write_recording(tmp_path / "clip.rrd", **_inputs()))
+    views = layout["views"]
+    assert {name: (v["class"], v["origin"]) for name, v in views.items()} == {
+        "frame, tracks and masks": ("2D", "video"),
+        "summary": ("TextDocument", "summary"),
+        "score per K": ("2D", "k_scores"),
+        "embedding": ("3D", "embedding"),
+    }
+    (root,) = [c for c in layout["containers"].values() if c["col_shares"]]
+    assert root["contents"][0] == "frame, tracks and masks"
+    assert root["col_shares"][1] / sum(root["col_shares"]) <= 0.25  # side column: a quarter of the width
+    (side,) = [c for c in layout["containers"].values() if c["row_shares"]]
+    assert side["contents"] == ["summary", "score per K", "embedding"]
+    assert side["row_shares"][0] / sum(side["row_shares"]) >= 0.25  # the summary gets room for its lines
+    # The viewer's own side panels start folded; the time panel stays open for scrubbing.
+    assert layout["panels"] == {"blueprint_panel": 2, "selection_panel": 2, "time_panel": 3}
+    eye = views["embedding"]["props"]["EyeControls3D"]
+    assert eye["look_target"] == [[0.0, 0.0, 0.0]] and eye["eye_up"] == [[0.0, 0.0, 1.0]]
+    # The cube [-1, 1]^3 (bounding sphere radius sqrt(3)) fits a 45-degree view from the eye.
+    distance = float(np.linalg.norm(eye["position"][0]))
+    assert np.sqrt(3) / distance < np.sin(np.radians(45 / 2))
+
+
+def test_k_chart_labels_every_k_and_marks_the_chosen_one(tmp_path: Path) -> None:
+    inputs = _inputs() | {"k_scores": {1: 0.05, 2: 0.6, 3: -0.2, 4: float("nan")}}
+    path = write_recording(tmp_path / "clip.rrd", **inputs)
+    got = _read(path)["batches"]
+    assert _column(got["/k_scores/k"], "Points2D:labels")[0] == ["K=1", "K=2", "K=3", "K=4"]
+    assert _column(got["/k_scores/scores"], "Points2D:labels")[0] == ["0.05", "0.6", "-0.2", "0"]
+    tips = np.array(_column(got["/k_scores/scores"], "Points2D:positions")[0])
+    np.testing.assert_allclose(tips[:, 0], [1, 2, 3, 4])  # x is K
+    assert tips[1, 1] < tips[0, 1] < tips[3, 1] == 0 < tips[2, 1]  # y down: higher scores sit higher
+    colors = _column(got["/k_scores/scores"], "Points2D:colors")[0]
+    assert colors[1] != colors[0] and colors[0] == colors[2] == colors[3]  # K = 2 was chosen
+    labels_xy = np.array(_column(got["/k_scores/k"], "Points2D:positions")[0])
+    assert (labels_xy[:, 1] > tips[:, 1].max()).all()  # K labels under every stem
+    # The 2-D view's bounds frame every point of the chart.
+    bounds = _layout(path)["views"]["score per K"]["props"]["VisualBounds2D"]["range"][0]
+    for x, y in np.vstack([tips, labels_xy]):
+        assert bounds["x_range"][0] < x < bounds["x_range"][1] and bounds["y_range"][0] < y < bounds["y_range"][1]
+    summary = _column(got["/summary"], "TextDocument:text")[0][0]
+    assert summary.startswith("**K = 2**: score 0.6, runner-up K = 1: 0.05 (margin +0.55)")
+    assert len(summary.strip().splitlines()) <= 5
+
+
+def test_k_chart_and_margin_helpers() -> None:
+    chart = k_chart({3: 0.2, 1: 0.4, 2: 0.0})
+    assert chart.ks.tolist() == [1, 2, 3]
+    np.testing.assert_allclose(chart.tips[:, 1], [-1.8, 0.0, -0.9])  # tallest stem 0.45 * (3 + 1)
+    assert k_chart({2: 0.0}).tips.tolist() == [[2.0, 0.0]]  # all zero: no division by zero
+    assert k_margin({1: 0.1, 2: 0.5, 3: 0.3}, 2) == pytest.approx((0.2, 3))
+    assert k_margin({1: 0.1, 2: 0.5, 3: 0.3}, 1) == pytest.approx((-0.4, 2))  # a forced K can trail
+    assert k_margin({2: 0.5}, 2) is None and k_margin({}, 2) is None and k_margin({1: 0.1, 2: 0.5}, 3) is None
+    assert k_margin({1: float("nan"), 2: 0.5, 3: 0.3}, 2) == pytest.approx((0.2, 3))  # NaN scores do not compete
+    assert k_margin({1: 0.1, 2: float("nan")}, 2) is None
+
+
+def test_embedding_is_framed_in_the_cube(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    far = np.vstack([rng.normal(size=(4, 6)), rng.normal(size=(1, 6)) + 40.0])  # one cluster far out
+    inputs = _inputs() | {"embeddings": far}
+    got = _read(write_recording(tmp_path / "clip.rrd", **inputs))["batches"]
+    xyz = np.array(_column(got["/embedding"], "Points3D:positions")[0])
+    assert np.abs(xyz).max() == pytest.approx(1.0) and (np.abs(xyz) <= 1.0).all()
+    assert _column(got["/embedding/box"], "Boxes3D:half_sizes")[0] == [[1.0, 1.0, 1.0]]
+
+
+def test_fit_in_box() -> None:
+    pts = np.array([[0.0, 0, 0], [4, 2, 0], [2, 1, 6]])
+    out = fit_in_box(pts)
+    np.testing.assert_allclose(out, [[-2 / 3, -1 / 3, -1], [2 / 3, 1 / 3, -1], [0, 0, 1]], atol=1e-6)
+    assert fit_in_box(np.ones((3, 3))).tolist() == [[0.0] * 3] * 3  # coincident points: the centre
+    assert fit_in_box(np.zeros((0, 3))).shape == (0, 3)
+
+
 def test_recording_without_masks_and_with_raw_frames(tmp_path: Path) -> None:
     inputs = _inputs() | {"masks": None, "k_scores": {}}
     path = write_recording(tmp_path / "raw.rrd", **inputs, cfg=VizConfig(jpeg_quality=0, trail_frames=2))
     rows = _read(path)["rows"]
-    assert "/video/mask" not in rows and "/k_scores" not in rows
+    assert "/video/mask" not in rows and not any(e.startswith("/k_scores") for e in rows)
     assert rows["/video/frame"] == T and rows["/summary"] == 1
+    assert "score per K" not in _layout(path)["views"]  # no scores (K forced): no empty chart
 
 
 def test_failed_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -162,25 +341,54 @@ def test_pair_recording(tmp_path: Path) -> None:
     class_ids = _column(got["batches"]["/image2/points"], "Points2D:class_ids")[0]
     assert class_ids == [0, 0, 1, 1, 255, 2]  # outlier -> class 255 (unknown)
     assert "unknown / outlier" in str(got["batches"]["/"])
+    assert _column(got["batches"]["/k_scores/k"], "Points2D:labels")[0] == ["K=2", "K=3"]
+    layout = _layout(path)
+    assert {"image 1", "image 2", "summary", "score per K", "embedding"} == set(layout["views"])
+    assert layout["panels"] == {"blueprint_panel": 2, "selection_panel": 2, "time_panel": 2}  # no timeline
     with pytest.raises(InputError, match="sizes do not match"):
         write_pair_recording(tmp_path / "bad.rrd", (img2, img1), matches, labels, np.zeros((6, 2)), None, {}, 3)
 
 
-def test_video_recorder_streams_frames_and_grows_classes(tmp_path: Path) -> None:
+def _decode(mp4: bytes) -> tuple[list[np.ndarray], list[tuple[int, int]]]:
+    """Frames (RGB) and (pts, dts) of each packet, in decoding order."""
+    import io
+
+    import av
+
+    with av.open(io.BytesIO(mp4)) as container:
+        stream = container.streams.video[0]
+        stamps = [(p.pts, p.dts) for p in container.demux(stream) if p.size]
+    with av.open(io.BytesIO(mp4)) as container:
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    return frames, stamps
+
+
+def _record_video(path: Path, cfg: VizConfig, num: int = 4) -> list[np.ndarray]:
     from mosegpipe.viz import VideoRecorder
 
     rng = np.random.default_rng(4)
-    path = tmp_path / "video.rrd"
-    with VideoRecorder(path, cfg=VizConfig(trail_frames=2, max_side_px=16)) as rec:
+    blocks = np.repeat(np.repeat(rng.integers(0, 256, (6, 8, 3), dtype=np.uint8), 4, axis=0), 4, axis=1)
+    images = []
+    with VideoRecorder(path, cfg=cfg, fps=25.0) as rec:
         assert not path.exists()  # only a temporary file while recording
-        for t in range(4):
-            image = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
+        rec.log_window(100, 2, {1: 0.1, 2: 0.5, 3: 0.2})
+        for t in range(num):
+            if t == 2:
+                rec.log_window(102, 0)  # an unlabelled window: K = 0, no margin
+            # 4x4-pixel blocks moving right: x264 would code some of these frames as B-frames.
+            image = np.roll(blocks, 2 * t, axis=1)
+            images.append(image)
             ids = np.array([1, 2, 3]) if t < 2 else np.array([2, 3, 7])
             labels = np.array([0, 1, 1]) if t < 3 else np.array([0, 1, 2])  # motion 3 appears late
             xy = rng.uniform(0, 23, (3, 2)).astype(np.float32)
             rec.log_frame(100 + t, image, xy, ids, labels, mask=np.ones((24, 32), np.uint8))
-    assert [p.name for p in tmp_path.iterdir()] == ["video.rrd"]
+    assert [p.name for p in path.parent.iterdir()] == [path.name]
+    return images
 
+
+def test_video_recorder_streams_frames_and_grows_classes(tmp_path: Path) -> None:
+    path = tmp_path / "video.rrd"
+    _record_video(path, VizConfig(trail_frames=2, max_side_px=16))
     got = _read(path)
     assert got["rows"]["/video/frame"] == 4 and got["rows"]["/video/points"] == 4
     assert sorted(_column(got["batches"]["/video/points"], "frame")) == [100, 101, 102, 103]
@@ -193,6 +401,75 @@ def test_video_recorder_streams_frames_and_grows_classes(tmp_path: Path) -> None
     assert "motion 2" in str(got["batches"]["/"]) and "motion 3" not in str(got["batches"]["/"])
 
 
+def test_video_recorder_stores_frames_as_one_h264_asset(tmp_path: Path) -> None:
+    path = tmp_path / "video.rrd"
+    images = _record_video(path, VizConfig(trail_frames=2))
+    got = _read(path)
+    assert got["rows"]["/video/asset"] == 1  # static: the whole video once
+    assert _column(got["batches"]["/video/asset"], "AssetVideo:media_type") == [["video/mp4"]]
+    blob = bytes(_column(got["batches"]["/video/asset"], "AssetVideo:blob")[0][0])
+    frames, stamps = _decode(blob)
+    assert len(frames) == 4 and frames[0].shape == (24, 32, 3)
+    assert [pts for pts, _ in stamps] == sorted(pts for pts, _ in stamps)  # no B-frames: decode order = display order
+    # Each decoded frame is nearest to its own source frame (lossy, 4:2:0 chroma on a 32x24 image).
+    errors = np.array([[np.abs(d.astype(int) - im).mean() for im in images] for d in frames])
+    assert errors.argmin(axis=1).tolist() == [0, 1, 2, 3] and errors.diagonal().max() < 16
+
+    refs = got["batches"]["/video/frame"]
+    assert sorted(_column(refs, "frame")) == [100, 101, 102, 103]
+    assert _column(refs, "VideoFrameReference:video_reference") == [["video/asset"]] * 4
+    stamps_ns = [s[0] for s in _column(refs, "VideoFrameReference:timestamp")]
+    assert stamps_ns == [0, 40_000_000, 80_000_000, 120_000_000]  # 25 fps
+    assert not any("EncodedImage" in name for b in got["batches"].values() for c in b for name in c)
+
+
+def test_video_recorder_jpeg_frames(tmp_path: Path) -> None:
+    path = tmp_path / "video.rrd"
+    _record_video(path, VizConfig(trail_frames=2, video_frames="jpeg"))
+    got = _read(path)
+    assert got["rows"]["/video/frame"] == 4 and "/video/asset" not in got["rows"]
+    assert _column(got["batches"]["/video/frame"], "EncodedImage:media_type") == [["image/jpeg"]] * 4
+
+
+def test_video_recorder_logs_k_per_window(tmp_path: Path) -> None:
+    path = tmp_path / "video.rrd"
+    _record_video(path, VizConfig())
+    got = _read(path)["batches"]
+    k_rows = [b for b in got["/windows/k"] if "frame" in b]
+    series = sorted(zip(_column(k_rows, "frame"), _column(k_rows, "Scalars:scalars")))
+    assert series == [(100, [2.0]), (102, [0.0])]
+    margins = [b for b in got["/windows/k_margin"] if "frame" in b]
+    assert list(zip(_column(margins, "frame"), _column(margins, "Scalars:scalars"))) == [(100, [pytest.approx(0.3)])]
+    layout = _layout(path)
+    assert layout["views"]["K per window"]["class"] == "TimeSeries"
+    assert layout["views"]["K per window"]["origin"] == "windows/k"
+    assert layout["views"]["K score margin"]["origin"] == "windows/k_margin"
+    assert layout["panels"] == {"blueprint_panel": 2, "selection_panel": 2, "time_panel": 3}
+
+
+def test_video_recorder_without_windows_or_margins(tmp_path: Path) -> None:
+    from mosegpipe.viz import VideoRecorder
+
+    path = tmp_path / "plain.rrd"
+    with VideoRecorder(path) as rec:
+        rec.log_frame(0, np.zeros((8, 8, 3), np.uint8), np.zeros((1, 2)), np.array([0]), np.array([0]))
+    assert set(_layout(path)["views"]) == {"video"}
+    with VideoRecorder(path) as rec:
+        rec.log_window(0, 3)  # no scores (K forced): K per window only
+        rec.log_frame(0, np.zeros((8, 8, 3), np.uint8), np.zeros((1, 2)), np.array([0]), np.array([0]))
+    assert set(_layout(path)["views"]) == {"video", "K per window"}
+
+
+def test_video_recorder_rejects_a_size_change_in_h264(tmp_path: Path) -> None:
+    from mosegpipe.viz import VideoRecorder
+
+    with pytest.raises(InputError, match="frame 1 is 16x8, earlier frames are 8x8"):
+        with VideoRecorder(tmp_path / "v.rrd") as rec:
+            rec.log_frame(0, np.zeros((8, 8, 3), np.uint8), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+            rec.log_frame(1, np.zeros((8, 16, 3), np.uint8), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_video_recorder_abort_leaves_nothing(tmp_path: Path) -> None:
     from mosegpipe.viz import VideoRecorder
 
@@ -203,3 +480,23 @@ def test_video_recorder_abort_leaves_nothing(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(InputError, match="already closed"):
         rec.log_frame(1, np.zeros((8, 8, 3), np.uint8), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    with pytest.raises(InputError, match="already closed"):
+        rec.log_window(1, 2)
+
+
+def test_video_recorder_failure_at_close_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mosegpipe.viz import VideoRecorder
+
+    def broken(self: VideoRecorder, rec: object) -> None:
+        raise RuntimeError("asset exploded")
+
+    monkeypatch.setattr(VideoRecorder, "_log_video_asset", broken)
+    with pytest.raises(RuntimeError, match="asset exploded"):
+        with VideoRecorder(tmp_path / "v.rrd") as rec:
+            rec.log_frame(0, np.zeros((8, 8, 3), np.uint8), np.zeros((1, 2)), np.array([0]), np.array([0]))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_viz_config_rejects_an_unknown_video_mode() -> None:
+    with pytest.raises(ValueError, match="video_frames='png' must be 'h264' or 'jpeg'"):
+        VizConfig(video_frames="png")  # type: ignore[arg-type]
