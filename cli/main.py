@@ -299,6 +299,7 @@ class LossChoice(StrEnum):
 
     mimi = "mimi"
     l2 = "l2"
+    l2_balanced = "l2-balanced"
     ce = "ce"
     triplet = "triplet"
     lifted = "lifted"
@@ -1352,7 +1353,8 @@ def train(
         LossChoice | None,
         typer.Option(
             "--loss",
-            help="Override the recipe's loss: mimi (the paper's MaxInterMinIntra), l2 or ce (affinity losses), "
+            help="Override the recipe's loss: mimi (the paper's MaxInterMinIntra), l2, l2-balanced (every pair of groups "
+            "weighted alike) or ce (affinity losses), "
             "triplet, lifted or facility (the metric-learning baselines of the paper's Table 2).",
         ),
     ] = None,
