@@ -426,7 +426,7 @@ def write_video_outputs(
                     # Keep what the summary and labels.npz need, not the images (flat memory).
                     windows.append(replace(window, frames=()))
                     if recorder is not None:
-                        recorder.log_window(window.start, window.k)
+                        recorder.log_window(window.start, window.k, window.k_scores)
                     for fr in window.frames:
                         keep = fr.labels >= 0
                         mask = frame_mask(fr, cfg.mask)

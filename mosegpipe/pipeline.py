@@ -20,7 +20,7 @@ import logging
 import threading
 import time
 import types
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
@@ -611,6 +611,8 @@ class WindowResult:
         num_frames_read: frames read from the source so far.
         k_note: automatic K's note on this window (Clustering.note: e.g. the K choice was
             ambiguous); "" when none.
+        k_scores: automatic K's score per candidate K in this window (Clustering.scores); empty
+            when K was forced or the window was left unlabelled.
     """
 
     start: int
@@ -624,6 +626,7 @@ class WindowResult:
     num_labels_reused: int
     num_frames_read: int
     k_note: str = ""
+    k_scores: Mapping[int, float] = field(default_factory=dict)
 
     @property
     def is_labelled(self) -> bool:
@@ -758,6 +761,7 @@ def segment_video(
         common = row_ids[traj.track_ids]  # tracker ids of the tracks live through the whole window
         k = 0
         note = ""
+        scores: dict[int, float] = {}
         labels_by_id: dict[int, int] = {}
         glob = np.zeros(0, dtype=np.int64)
         labelled_ids = np.zeros(0, dtype=np.int64)
@@ -766,7 +770,7 @@ def segment_video(
             forced = None if cfg.k is None else min(cfg.k, common.size)
             with _warnings_held(cluster_log):
                 clustering = cluster_auto_k(emb, cfg.cluster, k=forced, points=traj.data)
-            k, note = clustering.k, clustering.note
+            k, note, scores = clustering.k, clustering.note, dict(clustering.scores)
             glob = match_labels(prev, common, clustering.labels, k, book, num_windows)
             labelled_ids = common[glob >= 0]
             glob = glob[glob >= 0]
@@ -794,6 +798,7 @@ def segment_video(
             num_labels_reused=book.num_reused,
             num_frames_read=num_frames,
             k_note=note,
+            k_scores=scores,
         )
         if result.is_k_ambiguous:
             ambiguous.append((window[0][0], window[-1][0]))

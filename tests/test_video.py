@@ -193,3 +193,13 @@ def test_match_labels_small_clusters_join_or_stay_unlabelled() -> None:
     assert labels[:80].tolist() == [0] * 80 and set(labels[80:97].tolist()) == {1}
     assert labels[97:].tolist() == [-1] * 3  # 3 % of the tracks: not trusted as a new motion
     assert book.next_label == 2
+
+
+def test_windows_carry_their_k_scores(frames_dir: Path, model_path: Path) -> None:
+    from mosegpipe.pipeline import segment_video
+
+    model = SubspaceNet.from_checkpoint(model_path)
+    windows = list(segment_video(frames_dir, PipelineConfig(frames=5), model))
+    assert windows and all(w.k_scores and max(w.k_scores, key=lambda c: w.k_scores[c]) == w.k for w in windows)
+    forced = list(segment_video(frames_dir, PipelineConfig(frames=5, k=2), model))
+    assert all(w.k == 2 and not w.k_scores for w in forced)
