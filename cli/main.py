@@ -287,6 +287,7 @@ class PresetChoice(StrEnum):
     """train --preset: the names of mosegpipe.training.recipes.RECIPES (a test keeps them equal)."""
 
     clip_f5 = "clip-f5"
+    clip_f5_rendered = "clip-f5-rendered"
     base_f5 = "base-f5"
     synthetic_f5 = "synthetic-f5"
     pair_f2 = "pair-f2"
@@ -1422,6 +1423,13 @@ def eval_(
         ),
     ] = None,
     init: Annotated[Path | None, typer.Option("--init", help="LOO folds start from this checkpoint.")] = None,
+    recipe: Annotated[
+        PresetChoice | None,
+        typer.Option(
+            "--recipe",
+            help="kt3d-video-loo / adelaide-pairs-loo: the recipe each fold trains (default: the shipped one).",
+        ),
+    ] = None,
     steps: Annotated[int | None, typer.Option("--steps", min=1, help="Training steps per fold.")] = None,
     batch_size: Annotated[
         int | None, typer.Option("--batch-size", min=1, help="Clips per training step of each fold.")
@@ -1459,6 +1467,7 @@ def eval_(
         init=init,
         frames=frames,
         variant=_value(variant),
+        recipe=_value(recipe),
         steps=steps,
         batch_size=batch_size,
         lr=lr,

@@ -282,3 +282,8 @@ def test_end_to_end_loo_excludes_the_held_out_sequence_and_resumes(
     assert len(calls) == 2
     with pytest.raises(ConfigError, match="not in kt3d-video-loo"):
         proto.run(proto, replace(req, folds=("NoSuchSequence",)))
+    # Another recipe: its sources train (and the stored folds of the shipped recipe are not reused).
+    proto.run(proto, replace(req, recipe="clip-f5-rendered"))
+    assert len(calls) == 3 and dict(calls[-1])["rendered-own"] > 0
+    with pytest.raises(ConfigError, match="needs 5 frames"):
+        proto.run(proto, replace(req, recipe="pair-f2"))

@@ -45,6 +45,8 @@ class EvalRequest:
         init: leave-one-out folds start from this checkpoint (None = from scratch).
         frames: trajectory length F (None = the protocol's default_frames).
         variant: kt3d-loo training variant.
+        recipe: end-to-end leave-one-out: the recipe each fold trains instead of the protocol's
+            fold_recipe (None = the protocol's; it must have the protocol's frame count).
         steps, batch_size, lr, loss: per-fold training overrides (None = the defaults).
         synthetic_weight: LOO: weight of synthetic clips mixed into each fold.
         baselines: baseline names run beside SubspaceNet (benchmark protocols).
@@ -60,6 +62,7 @@ class EvalRequest:
     init: Path | None = None
     frames: int | None = None
     variant: str = "vanilla"
+    recipe: str | None = None
     steps: int | None = None
     batch_size: int | None = None
     lr: float | None = None
@@ -232,7 +235,12 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
     assert protocol.end_to_end is not None and protocol.fold_recipe is not None and protocol.fold_names is not None
     if req.data_root is None:
         raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
-    recipe = get_recipe(protocol.fold_recipe)
+    recipe = get_recipe(req.recipe or protocol.fold_recipe)
+    if recipe.train.frames != protocol.default_frames:
+        raise ConfigError(
+            f"--recipe {recipe.name}: trains {recipe.train.frames}-frame models, {protocol.name} needs "
+            f"{protocol.default_frames} frames"
+        )
     train_cfg = TrainOverrides(steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss).apply(recipe.train)
     k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
     cfg = PipelineConfig(frames=train_cfg.frames, cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max))
