@@ -9,7 +9,10 @@
     of a rendered 640x480 video (~900 tracks) and of vtest.avi resized to 640x480 (~400 tracks):
     frames per second, vtest.avi with and without the Rerun recording.
 (c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
-(d) start-up: `moseg run` on 5 frames from the shell, against `python -c "import torch"`.
+(d) start-up: `moseg run` on 5 frames (samples/rendered/frames) from the shell, fresh processes with
+    the commands interleaved, against `python -c "import numpy, cv2"` and `python -c "import torch"`
+    measured in the same rounds; then the same steps stamped one by one in a fresh process (interpreter,
+    imports, model, stages, files, recording, exit).
 
 (b) also times a bare OpenCV KLT loop on the same frames (same corners, no checks) right before each
 run and prints the pipeline's frames/s as a multiple of it: on these shared machines absolute
@@ -23,6 +26,7 @@ SubspaceNet of the same size: the timings hold, the segmentations do not.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import statistics
@@ -46,6 +50,7 @@ from mosegpipe.runtime import set_threads  # noqa: E402
 
 _IMPORT_S = time.perf_counter() - _T_START
 _DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+_SAMPLE_FRAMES = Path(__file__).resolve().parents[1] / "samples" / "rendered" / "frames"
 STAGES = ("read", "track", "embed", "cluster", "masks", "write", "rrd")
 
 
@@ -181,35 +186,128 @@ def video_table(runs: list[tuple[str, Path, bool]], model: SubspaceNet, work: Pa
     return "\n".join(lines)
 
 
-def startup_table(clip: Path, work: Path, repeats: int = 3) -> str:
-    """Wall time of `moseg run CLIP --frames 5` from the shell (a fresh process each time), against
-    `python -c "import torch"` in the same run. Median of `repeats`."""
-    import shutil
+# The steps of `moseg run CLIP --frames 5` (cli/main.py `run`) in a fresh interpreter, each stamped
+# with the wall clock (time.time(), comparable with the parent's): the breakdown of table (d).
+_STARTUP_PROBE = """
+import json, sys, time
+marks = {"started": time.time()}
+from mosegpipe.cli import main as cli
+marks["cli_imported"] = time.time()
+cli._setup(1, False, "mosegpipe.outputs")
+marks["setup"] = time.time()
+from mosegpipe.outputs import write_clip_outputs
+from mosegpipe.pipeline import load_model, segment_clip
+cfg = cli._pipeline_cfg(5, None, "silhouette", 8)
+model = load_model(5)
+marks["model"] = time.time()
+result = segment_clip(sys.argv[1], cfg, model)
+marks["segmented"] = time.time()
+summary = write_clip_outputs(result, sys.argv[2], cfg, rrd=True)
+marks["written"] = time.time()
+print(json.dumps({"marks": marks, "timings": result.timings, "rrd": summary["timings_s"].get("rrd", 0.0)}))
+"""
+STARTUP_PHASES = (
+    ("interpreter", "Python itself, up to the first line"),
+    ("CLI import", "mosegpipe.cli.main: Typer, NumPy"),
+    ("imports + setup", "torch, OpenCV, scikit-learn, SciPy, mosegpipe; thread settings"),
+    ("model", "the shipped weights"),
+    ("read", "5 frames"),
+    ("track", "KLT"),
+    ("embed", "SubspaceNet"),
+    ("cluster", "automatic K"),
+    ("masks", "dense masks"),
+    ("files", "masks, overlays, labels, summary"),
+    ("rrd", "the recording, Rerun's import included"),
+    ("exit", "interpreter teardown"),
+)
+
+
+def _timed_process(cmd: list[str], env: dict[str, str]) -> tuple[float, float, str]:
+    """(start time.time(), wall s, stdout) of one fresh process, run from the temporary folder."""
     import subprocess
 
-    def wall(cmd: list[str]) -> float:
-        times = []
-        for _ in range(repeats):
-            shutil.rmtree(work / "startup", ignore_errors=True)
-            t0 = time.perf_counter()
-            subprocess.run(cmd, check=True, capture_output=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
-            times.append(time.perf_counter() - t0)
-        return statistics.median(times)
+    started = time.time()
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=tempfile.gettempdir(), check=False)
+    seconds = time.perf_counter() - t0
+    if proc.returncode != 0:
+        sys.exit(f"speed.py: {' '.join(cmd)} failed:\n{proc.stderr}")
+    return started, seconds, proc.stdout
 
+
+def startup_tables(clip: Path, work: Path, repeats: int = 5) -> str:
+    """(d): wall and CPU time of fresh processes from the shell, `repeats` rounds, the commands
+    interleaved within each round (the load of a shared machine drifts; interleaving spreads it
+    evenly); then the breakdown of `moseg run` on 5 frames into its steps (_STARTUP_PROBE)."""
+    import resource
+    import shutil
+
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
     moseg = str(Path(sys.executable).with_name("moseg"))
-    rows = [
-        ("python -c pass", wall([sys.executable, "-c", "pass"])),
-        ('python -c "import torch"', wall([sys.executable, "-c", "import torch"])),
-        ("moseg --help", wall([moseg, "--help"])),
-        (
-            "moseg run CLIP --frames 5 --no-rrd",
-            wall([moseg, "run", str(clip), "--frames", "5", "--no-rrd", "--out", str(work / "startup")]),
-        ),
-        ("moseg run CLIP --frames 5", wall([moseg, "run", str(clip), "--frames", "5", "--out", str(work / "startup")])),
+    out = work / "startup"
+    commands = {
+        "python -c pass": [sys.executable, "-c", "pass"],
+        'python -c "import numpy, cv2"': [sys.executable, "-c", "import numpy, cv2"],
+        'python -c "import torch"': [sys.executable, "-c", "import torch"],
+        "moseg --help": [moseg, "--help"],
+        "moseg run CLIP --frames 5 --no-rrd": [moseg, "run", str(clip), "--frames", "5", "--no-rrd", "--out", str(out)],
+        "moseg run CLIP --frames 5": [moseg, "run", str(clip), "--frames", "5", "--out", str(out)],
+        "breakdown probe": [sys.executable, "-c", _STARTUP_PROBE, str(clip), str(out)],
+    }
+    wall: dict[str, list[float]] = {k: [] for k in commands}
+    cpu: dict[str, list[float]] = {k: [] for k in commands}
+    phases: dict[str, list[float]] = {name: [] for name, _ in STARTUP_PHASES}
+    for _ in range(repeats):
+        for name, cmd in commands.items():
+            shutil.rmtree(out, ignore_errors=True)
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            started, seconds, stdout = _timed_process(cmd, env)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            wall[name].append(seconds)
+            cpu[name].append((after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime))
+            if name == "breakdown probe":
+                rec = json.loads(stdout.strip().splitlines()[-1])
+                m, t = rec["marks"], rec["timings"]
+                stages = {k: float(t.get(k, 0.0)) for k in ("read", "track", "embed", "cluster", "masks")}
+                write_s = m["written"] - m["segmented"]
+                values = {
+                    "interpreter": m["started"] - started,
+                    "CLI import": m["cli_imported"] - m["started"],
+                    "imports + setup": m["setup"] - m["cli_imported"],
+                    "model": m["model"] - m["setup"],
+                    **stages,
+                    "files": write_s - rec["rrd"],
+                    "rrd": rec["rrd"],
+                    "exit": started + seconds - m["written"],
+                }
+                for key, value in values.items():
+                    phases[key].append(value)
+    ref = statistics.median(wall['python -c "import numpy, cv2"'])
+    torch_s = statistics.median(wall['python -c "import torch"'])
+    lines = [
+        f"Fresh processes, {repeats} interleaved rounds; CLIP = {clip}. CPU = user + system time of the process.\n",
+        "| command | wall s (median) | min–max | CPU s (median) | x `import numpy, cv2` | x `import torch` |",
+        "|---|---|---|---|---|---|",
     ]
-    torch_s = rows[1][1]
-    lines = ["| command | wall s (median) | x `import torch` |", "|---|---|---|"]
-    lines += [f"| `{name}` | {sec:.2f} | {sec / torch_s:.2f} |" for name, sec in rows]
+    for name in commands:
+        if name == "breakdown probe":
+            continue
+        w = statistics.median(wall[name])
+        lines.append(
+            f"| `{name}` | {w:.2f} | {min(wall[name]):.2f}–{max(wall[name]):.2f} | {statistics.median(cpu[name]):.2f} "
+            f"| {w / ref:.1f} | {w / torch_s:.2f} |"
+        )
+    total = statistics.median(wall["breakdown probe"])
+    lines += [
+        "",
+        f"Where the time of `moseg run CLIP --frames 5` goes (the same steps in a fresh process; medians of {repeats}; "
+        f"wall {total:.2f} s, CPU {statistics.median(cpu['breakdown probe']):.2f} s):\n",
+        "| step | what | ms (median) | share of the wall time |",
+        "|---|---|---|---|",
+    ]
+    for key, what in STARTUP_PHASES:
+        ms = 1000 * statistics.median(phases[key])
+        lines.append(f"| {key} | {what} | {ms:.0f} | {ms / 10 / total:.0f} % |")
     return "\n".join(lines)
 
 
@@ -238,7 +336,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--data-root", type=Path, default=Path(os.environ.get("MOSEG_DATA", _DEFAULT_DATA)))
     ap.add_argument("--video-frames", type=int, default=200, help="frames of the videos in whole-video mode")
     ap.add_argument("--repeats", type=int, default=3, help="warm calls per input in (a)")
-    ap.add_argument("--skip", nargs="*", default=[], choices=["clip", "video", "kt3d"])
+    ap.add_argument("--skip", nargs="*", default=[], choices=["clip", "video", "kt3d", "startup"])
+    ap.add_argument("--startup-clip", type=Path, default=_SAMPLE_FRAMES, help="input of the start-up table (d)")
+    ap.add_argument("--startup-repeats", type=int, default=5, help="rounds of the start-up table (d)")
     args = ap.parse_args(argv)
 
     set_threads(1)
@@ -261,8 +361,6 @@ def main(argv: list[str] | None = None) -> None:
                 clips["vtest.avi"] = write_video(resized_frames(vtest, 5), work / "vtest5.avi")
             print("## (a) `moseg run` on 5 frames at 640x480 (stage times in ms)\n")
             print(clip_table(clips, model, args.repeats, work) + "\n")
-            print("## (d) start-up: `moseg run` on 5 frames from the shell (rendered clip, 640x480)\n")
-            print(startup_table(clips["rendered"], work, args.repeats) + "\n")
         if "video" not in args.skip:
             from mosegpipe.synth.render import RenderConfig, render_clip
 
@@ -281,6 +379,9 @@ def main(argv: list[str] | None = None) -> None:
                 ]
             print("## (b) whole-video mode (`moseg run --whole`, windows of 5 frames)\n")
             print(video_table(runs, model, work) + "\n")
+        if "startup" not in args.skip:
+            print("## (d) start-up: `moseg run` on 5 frames from the shell\n")
+            print(startup_tables(args.startup_clip.resolve(), work, args.startup_repeats) + "\n")
         if "kt3d" not in args.skip:
             if (args.data_root / "kt3dmoseg").is_dir():
                 print("## (c) embedding + automatic K on the KT3DMoSeg test clips (one thread)\n")

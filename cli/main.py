@@ -5,15 +5,18 @@ Only this layer prints, and only here does a MosegError become one line on stder
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
+import gc
+import importlib
 import logging
 import os
 import re
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from enum import Enum, StrEnum
 from pathlib import Path
@@ -210,7 +213,36 @@ def _quiet_native_logs() -> None:
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
 
 
-def _setup(threads: int, verbose: bool) -> None:
+@contextlib.contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Runs the start-up imports with Python's cyclic garbage collector paused, then freezes what they built.
+
+    torch, scikit-learn and SciPy build about 250 k objects (functions, classes, module dicts) as
+    they are imported, and they live until the process exits. With the collector running, the
+    imports trigger several full collections that walk everything imported so far again, and the
+    interpreter's last collection at exit walks it all once more: about 1 s of a `moseg run` on 5
+    frames on the 2-core machine (benchmarks/speed.py, table (d)). `gc.freeze()` moves them to the
+    permanent generation, which collections skip: later ones walk only what the command builds (a
+    whole video is still collected as it goes), and the one at exit walks nothing. The price: the
+    few thousand objects of cyclic garbage the imports leave behind are kept until exit. Only the
+    first start-up in a process pauses; one that imported torch already (the CLI invoked in-process,
+    as the tests do) keeps its collector as it is.
+    """
+    if not gc.isenabled() or "torch" in sys.modules:
+        yield
+        return
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        gc.enable()
+        atexit.register(gc.freeze)  # at exit: before the interpreter's last collection
+
+
+def _setup(threads: int, verbose: bool, *preload: str) -> None:
+    """Logging, native log levels and thread counts; then `preload`, the modules the command imports
+    next (names for importlib), imported with the collector paused (see _collector_paused)."""
     from mosegpipe.runtime import set_threads
 
     root = logging.getLogger()
@@ -223,7 +255,10 @@ def _setup(threads: int, verbose: bool) -> None:
             root.addHandler(_WARNINGS)
         root.setLevel(logging.WARNING)
         _quiet_native_logs()
-    set_threads(threads)
+    with _collector_paused():
+        set_threads(threads)  # imports torch and OpenCV
+        for name in preload:
+            importlib.import_module(name)
 
 
 def _default_out(path: Path, suffix: str) -> Path:
@@ -812,7 +847,7 @@ def run(
     if max_frames is not None and not whole:
         raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
     _check_model_path(model)
-    _setup(threads, verbose)
+    _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
     from mosegpipe.pipeline import load_model, segment_clip
 
@@ -872,7 +907,7 @@ def pair(
         if not p.is_file():
             raise InputError(f"{p}: no such image file")
     _check_model_path(model)
-    _setup(threads, verbose)
+    _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.outputs import check_output_dir, write_pair_outputs
     from mosegpipe.pipeline import load_model, segment_pair
 
@@ -957,7 +992,7 @@ def tracks(
     if not file.is_file():
         raise InputError(f"{file}: no such file")
     _check_model_path(model)
-    _setup(threads, verbose)
+    _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.outputs import check_output_dir, write_tracks_outputs
     from mosegpipe.pipeline import load_model, segment_tracks
 
