@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import torch
 from scipy.optimize import linear_sum_assignment
+from typer.testing import CliRunner
 
 from mosegpipe.io import write_video
 from mosegpipe.model import ModelConfig, SubspaceNet
@@ -99,3 +100,23 @@ def read_rrd(path: Path) -> Counter[str]:
     for chunk in reader.stream().to_chunks():
         rows[chunk.entity_path] += chunk.num_rows
     return rows
+
+
+_RUNNER = CliRunner(env={"COLUMNS": "200"})
+
+
+def moseg(*args: object) -> tuple[int, str, str]:
+    """Runs the CLI in-process: (exit code, stdout, stderr); a bug (not a SystemExit) is raised."""
+    from mosegpipe.cli.main import app
+
+    result = _RUNNER.invoke(app, [str(a) for a in args])
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+def one_error_line(stderr: str) -> str:
+    """The single `moseg: error: ...` line stderr must hold."""
+    lines = stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("moseg: error: "), stderr
+    return lines[0]

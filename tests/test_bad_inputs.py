@@ -20,10 +20,8 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from typer.testing import CliRunner
 
 from mosegpipe import viz
-from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, single_motion_residual_px
 from mosegpipe.errors import CheckpointError, InputError
 from mosegpipe.io import read_image, read_video, video_info
@@ -31,9 +29,16 @@ from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import segment_frames, segment_pair, segment_tracks
 from mosegpipe.types import Frames
 
-from helpers import best_permutation_accuracy, motion_checkpoint, render_scene, tiny_model, write_avi
+from helpers import (
+    best_permutation_accuracy,
+    moseg,
+    motion_checkpoint,
+    one_error_line,
+    render_scene,
+    tiny_model,
+    write_avi,
+)
 
-runner = CliRunner(env={"COLUMNS": "200"})
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -45,19 +50,6 @@ def clip_avi(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def model5(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return motion_checkpoint(tmp_path_factory.mktemp("models") / "motion5.pt", 5)
-
-
-def moseg(*args: object) -> tuple[int, str, str]:
-    result = runner.invoke(app, [str(a) for a in args])
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result.exit_code, result.stdout, result.stderr
-
-
-def one_error_line(stderr: str) -> str:
-    lines = stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("moseg: error: "), stderr
-    return lines[0]
 
 
 def nothing_left(folder: Path) -> None:

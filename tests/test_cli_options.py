@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import typer.main
-from typer.testing import CliRunner
 
 from mosegpipe.cli import main as cli
 from mosegpipe.cli.main import app
@@ -29,22 +28,7 @@ from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_video
 from mosegpipe.track import TrackConfig
 
-from helpers import motion_checkpoint, render_scene, write_avi, write_frames
-
-runner = CliRunner(env={"COLUMNS": "200"})
-
-
-def moseg(*args: object) -> tuple[int, str, str]:
-    result = runner.invoke(app, [str(a) for a in args])
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result.exit_code, result.stdout, result.stderr
-
-
-def one_error_line(stderr: str) -> str:
-    lines = stderr.splitlines()
-    assert len(lines) == 1 and lines[0].startswith("moseg: error: "), stderr
-    return lines[0]
+from helpers import moseg, motion_checkpoint, one_error_line, render_scene, write_avi, write_frames
 
 
 @pytest.fixture(scope="module")

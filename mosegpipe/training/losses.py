@@ -136,18 +136,7 @@ def l2_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor) -> Tensor:
     Returns:
         Scalar tensor, mean over clips.
     """
-    z = _channels_first(z)
-    valid = _valid_points(z, labels, mask)
-    dense, num_groups = _dense_labels(labels, valid)
-    zm = torch.where(valid.unsqueeze(1), z, torch.zeros((), dtype=z.dtype, device=z.device))
-    y = F.one_hot(dense, num_groups).to(z.dtype) * valid.unsqueeze(-1).to(z.dtype)  # (B, N, K)
-    counts = valid.sum(-1).to(z.dtype)  # (B,)
-    yy = (y.sum(1) ** 2).sum(-1)
-    zz = (zm @ zm.transpose(1, 2)).pow(2).sum((1, 2))
-    zy = (zm @ y).pow(2).sum((1, 2))
-    # The three terms are each O(N^2) and nearly cancel at a good fit; clamp the float rounding.
-    per_clip = (yy - 2.0 * zy + zz).clamp_min(0.0) / counts.clamp_min(1.0) ** 2
-    return _mean_over_clips(per_clip, counts > 0, z)
+    return _affinity_error(z, labels, mask, balanced=False)
 
 
 def l2_balanced_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor) -> Tensor:
@@ -169,21 +158,35 @@ def l2_balanced_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor) -> Tensor
     Returns:
         Scalar tensor, mean over clips.
     """
+    return _affinity_error(z, labels, mask, balanced=True)
+
+
+def _affinity_error(z: Tensor, labels: Tensor, mask: Tensor, balanced: bool) -> Tensor:
+    """sum_ij w_i w_j (A_ij - z_i . z_j)^2 / (sum_i w_i)^2 per clip, averaged over clips, by traces.
+
+    w_i = 1 (l2_affinity_loss) or 1 / n_g(i) (balanced, l2_balanced_affinity_loss). With D = diag(sqrt(w)),
+    Y' = DY and Z' = DZ: ||Y'^T Y'||_F^2 (K x K), ||Z' Z'^T||_F^2 (E x E) and <Y' Y'^T, Z'^T Z'> =
+    ||Z' Y'||_F^2 (E x K), so no N x N matrix is formed.
+    """
     z = _channels_first(z)
     valid = _valid_points(z, labels, mask)
     dense, num_groups = _dense_labels(labels, valid)
     y = F.one_hot(dense, num_groups).to(z.dtype) * valid.unsqueeze(-1).to(z.dtype)  # (B, N, K)
-    sizes = y.sum(1)  # (B, K) points per group per clip
-    per_point = (y * (1.0 / sizes.clamp_min(1.0)).unsqueeze(1)).sum(-1)  # (B, N): 1 / n_g(i), 0 if invalid
-    root = per_point.sqrt()
-    yw = y * root.unsqueeze(-1)
-    zw = torch.where(valid.unsqueeze(1), z, torch.zeros((), dtype=z.dtype, device=z.device)) * root.unsqueeze(1)
-    groups = (sizes > 0).sum(-1).to(z.dtype)  # (B,) = sum_i w_i
-    yy = (yw.transpose(1, 2) @ yw).pow(2).sum((1, 2))
-    zz = (zw @ zw.transpose(1, 2)).pow(2).sum((1, 2))
-    zy = (zw @ yw).pow(2).sum((1, 2))
-    per_clip = (yy - 2.0 * zy + zz).clamp_min(0.0) / groups.clamp_min(1.0) ** 2
-    return _mean_over_clips(per_clip, groups > 0, z)
+    zm = torch.where(valid.unsqueeze(1), z, torch.zeros((), dtype=z.dtype, device=z.device))  # (B, E, N)
+    if balanced:
+        sizes = y.sum(1)  # (B, K) points per group per clip
+        weight = (y / sizes.clamp_min(1.0).unsqueeze(1)).sum(-1)  # (B, N): 1 / n_g(i), 0 if invalid
+        root = weight.sqrt()
+        y, zm = y * root.unsqueeze(-1), zm * root.unsqueeze(1)
+    else:
+        weight = valid.to(z.dtype)
+    total = weight.sum(-1)  # (B,): N, or the number of groups when balanced
+    yy = (y.transpose(1, 2) @ y).pow(2).sum((1, 2))
+    zz = (zm @ zm.transpose(1, 2)).pow(2).sum((1, 2))
+    zy = (zm @ y).pow(2).sum((1, 2))
+    # The three terms are each O(N^2) and nearly cancel at a good fit; clamp the float rounding.
+    per_clip = (yy - 2.0 * zy + zz).clamp_min(0.0) / total.clamp_min(1.0) ** 2
+    return _mean_over_clips(per_clip, total > 0, z)
 
 
 def ce_affinity_loss(z: Tensor, labels: Tensor, mask: Tensor, scale: float = 1.0) -> Tensor:
