@@ -22,6 +22,7 @@ import logging
 import os
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -230,37 +231,53 @@ class RenderedTracksConfig:
     seed: int = 0
 
 
-def texture_photos(data_root: str | Path, exclude: Collection[str] = ()) -> list[tuple[str, npt.NDArray[np.uint8]]]:
-    """Real photographs to texture rendered clips with: the AdelaideRMF images and the OpenCV samples.
+PhotoLoader = Callable[[], list[tuple[str, npt.NDArray[np.uint8]]]]
+"""Reads one texture source: its (name, RGB uint8 image) pairs."""
 
-    KT3DMoSeg frames are deliberately not among them, so that no KT3DMoSeg leave-one-out fold sees
-    its test sequence through a texture; AdelaideRMF pairs named in `exclude` are left out too.
+
+def texture_sources(data_root: str | Path, exclude: Collection[str] = ()) -> list[tuple[str, PhotoLoader]]:
+    """The files that texture rendered clips, each with a loader, without reading any image.
+
+    AdelaideRMF pairs (both images), the OpenCV sample PNGs and every 100th / 34th frame of the sample
+    videos. KT3DMoSeg frames are deliberately not among them, so that no KT3DMoSeg leave-one-out fold
+    sees its test sequence through a texture; AdelaideRMF pairs named in `exclude` are left out too.
 
     Returns:
-        (name, RGB uint8 image) pairs in a fixed order.
+        (source name, loader) pairs in a fixed order.
     """
     from mosegpipe.data.adelaidermf import list_adelaide, read_adelaide_pair
     from mosegpipe.io import read_image, read_video
 
     root = Path(data_root)
-    photos: list[tuple[str, npt.NDArray[np.uint8]]] = []
+    sources: list[tuple[str, PhotoLoader]] = []
+
+    def pair_images(name: str) -> list[tuple[str, npt.NDArray[np.uint8]]]:
+        pair = read_adelaide_pair(root, name)
+        return [(f"adelaidermf/{name}/1", pair.img1), (f"adelaidermf/{name}/2", pair.img2)]
+
+    def image(png: Path) -> list[tuple[str, npt.NDArray[np.uint8]]]:
+        return [(f"videos/{png.name}", read_image(png))]
+
+    def video_frames(clip: str, every: int) -> list[tuple[str, npt.NDArray[np.uint8]]]:
+        frames = read_video(root / "videos" / clip).images
+        return [(f"videos/{clip}/{t}", frames[t]) for t in range(0, len(frames), every)]
+
     if (root / "adelaidermf").is_dir():
         for name in list_adelaide(root):
-            if name in exclude:
-                continue
-            pair = read_adelaide_pair(root, name)
-            photos += [(f"adelaidermf/{name}/1", pair.img1), (f"adelaidermf/{name}/2", pair.img2)]
+            if name not in exclude:
+                sources.append((f"adelaidermf/{name}", partial(pair_images, name)))
     videos = root / "videos"
     for png in sorted(videos.glob("*.png")) if videos.is_dir() else []:
-        photos.append((f"videos/{png.name}", read_image(png)))
+        sources.append((f"videos/{png.name}", partial(image, png)))
     for clip, every in (("vtest.avi", 100), ("tree.avi", 34)):
         if (videos / clip).is_file():
-            frames = read_video(videos / clip).images
-            photos += [(f"videos/{clip}/{t}", frames[t]) for t in range(0, len(frames), every)]
-    return [
-        (n, np.ascontiguousarray(np.broadcast_to(im[..., None], (*im.shape, 3)) if im.ndim == 2 else im[..., :3]))
-        for n, im in photos
-    ]
+            sources.append((f"videos/{clip}/every-{every}", partial(video_frames, clip, every)))
+    return sources
+
+
+def texture_photos(data_root: str | Path, exclude: Collection[str] = ()) -> list[tuple[str, npt.NDArray[np.uint8]]]:
+    """The photographs of `texture_sources`, read: (name, RGB uint8 image) pairs in a fixed order."""
+    return [photo for _, load in texture_sources(data_root, exclude) for photo in load()]
 
 
 def label_rendered_tracks(clip: Any, xy: npt.NDArray[np.floating], boundary_px: int) -> npt.NDArray[np.int64]:
@@ -310,15 +327,15 @@ def rendered_own_clips(
     """
     from mosegpipe.synth.render import RenderConfig, render_clip
 
-    photos = texture_photos(data_root, exclude)
-    if not photos:
+    sources = texture_sources(data_root, exclude)
+    if not sources:
         return []
-    names = [n for n, _ in photos]
-    key = cache_key("rendered-own", frames=frames, cfg=cfg, track=track, photos=names)
+    key = cache_key("rendered-own", frames=frames, cfg=cfg, track=track, photos=[n for n, _ in sources])
     path = Path(cache_dir or default_cache_dir()) / f"rendered-own-f{frames}-{key}.npz"
-    images = [im for _, im in photos]
 
     def build() -> dict[str, npt.NDArray[Any]]:
+        # The photographs are read only here: a cached build needs none of them.
+        images = [im for _, load in sources for _, im in load()]
         out: dict[str, npt.NDArray[Any]] = {}
         for i in range(cfg.num_clips):
             rng = np.random.default_rng([cfg.seed, i])
