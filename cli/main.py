@@ -371,6 +371,11 @@ class StudyChoice(StrEnum):
 
     model_selection = "model-selection"
     tsne = "tsne"
+    losses = "losses"
+    weak_supervision = "weak-supervision"
+    embedding_dim = "embedding-dim"
+    networks = "networks"
+    depth = "depth"
 
 
 class BudgetChoice(StrEnum):

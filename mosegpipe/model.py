@@ -53,6 +53,8 @@ logger = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "mosegpipe.subspacenet/1"
 INPUT_NORMS = ("shared", "channel", "motion")
+ARCHITECTURES = ("subspacenet", "pointnet", "corresnet")
+"""ModelConfig.arch: the network (SubspaceNet; and the two baselines of the paper's Figure 6, left)."""
 
 # Context normalisation eps, added to the variance (same role and value as BatchNorm's default): it
 # keeps a channel that is constant over a clip (a dead ReLU, a clip of coincident points) at 0
@@ -95,6 +97,13 @@ class ModelConfig:
             frame 1 (divided by the RMS displacement), so that motion, often 1 % of the positions'
             spread, reaches the network at unit scale. All three are invariant to translating or
             scaling the whole clip and have no learned parameters.
+        arch: "subspacenet" (the layout of the module docstring), or one of the two baselines of the
+            paper's network comparison: "pointnet" (a shared per-point MLP of num_blocks ReLU layers,
+            then a max-pooled global feature concatenated to every point's feature and a two-layer
+            head; no context normalisation) or "corresnet" (num_blocks blocks of two layers, each
+            layer linear -> CN -> batch norm -> ReLU, without the residual shortcut).
+        l2_normalize: end with the per-point L2 normalisation (the paper's supplementary study
+            switches it off; then the embedding is the head's raw output).
     """
 
     in_dim: int = 10
@@ -102,6 +111,8 @@ class ModelConfig:
     num_blocks: int = 30
     embed_dim: int = 5
     input_norm: str = "shared"
+    arch: str = "subspacenet"
+    l2_normalize: bool = True
 
     def __post_init__(self) -> None:
         for name in ("in_dim", "width", "num_blocks", "embed_dim"):
@@ -113,6 +124,10 @@ class ModelConfig:
                 raise ConfigError(f"ModelConfig.{name}={value}: must lie in {lowest}..{MODEL_LIMITS[name]}")
         if not isinstance(self.input_norm, str) or self.input_norm not in INPUT_NORMS:
             raise ConfigError(f"ModelConfig.input_norm={self.input_norm!r}: expected one of {INPUT_NORMS}")
+        if not isinstance(self.arch, str) or self.arch not in ARCHITECTURES:
+            raise ConfigError(f"ModelConfig.arch={self.arch!r}: expected one of {ARCHITECTURES}")
+        if not isinstance(self.l2_normalize, bool):
+            raise ConfigError(f"ModelConfig.l2_normalize={self.l2_normalize!r}: must be a bool")
         if self.num_parameters > MODEL_LIMITS["num_parameters"]:
             raise ConfigError(
                 f"ModelConfig width={self.width}, num_blocks={self.num_blocks}: {self.num_parameters} parameters, "
@@ -123,7 +138,11 @@ class ModelConfig:
     def num_parameters(self) -> int:
         """Scalar parameters of the model this configuration builds (weights and biases)."""
         c = self.width
-        return (self.in_dim + 1) * c + self.num_blocks * 2 * (c + 1) * c + (c + 1) * self.embed_dim
+        ends = (self.in_dim + 1) * c + (c + 1) * self.embed_dim
+        if self.arch == "pointnet":
+            return ends + self.num_blocks * (c + 1) * c + (2 * c + 1) * c
+        per_block = 2 * (c + 1) * c + (4 * c if self.arch == "corresnet" else 0)
+        return ends + self.num_blocks * per_block
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict of all fields (stored in checkpoints)."""
@@ -223,8 +242,54 @@ class _ResidualBlock(nn.Module):
         return h + self.lin2(F.relu(context_norm(u, w)))
 
 
+class _PlainLayer(nn.Module):
+    """ReLU(W h) on (B, N, C): one layer of the PointNet-style shared MLP."""
+
+    def __init__(self, width: int) -> None:
+        super().__init__()
+        self.lin = nn.Linear(width, width)
+
+    def forward(self, h: Tensor, w: Tensor) -> Tensor:
+        return F.relu(self.lin(h))
+
+
+def _masked_batch_norm(bn: nn.BatchNorm1d, h: Tensor, w: Tensor) -> Tensor:
+    """Batch norm of (B, N, C) over the real points only (w > 0), padding passed through unchanged."""
+    real = (w.squeeze(1) > 0).reshape(-1)
+    flat = h.reshape(-1, h.shape[-1])
+    out = flat.clone()
+    out[real] = bn(flat[real])
+    return out.reshape(h.shape)
+
+
+class _CorresBlock(nn.Module):
+    """ReLU(BN(CN(W2 ReLU(BN(CN(W1 h)))))) on (B, N, C), without a residual shortcut."""
+
+    def __init__(self, width: int) -> None:
+        super().__init__()
+        self.lin1 = nn.Linear(width, width)
+        self.bn1 = nn.BatchNorm1d(width)
+        self.lin2 = nn.Linear(width, width)
+        self.bn2 = nn.BatchNorm1d(width)
+
+    def forward(self, h: Tensor, w: Tensor) -> Tensor:
+        u = F.relu(_masked_batch_norm(self.bn1, context_norm(self.lin1(h), w), w))
+        return F.relu(_masked_batch_norm(self.bn2, context_norm(self.lin2(u), w), w))
+
+
+def _block(arch: str, width: int) -> nn.Module:
+    if arch == "pointnet":
+        return _PlainLayer(width)
+    if arch == "corresnet":
+        return _CorresBlock(width)
+    return _ResidualBlock(width)
+
+
 class SubspaceNet(nn.Module):
     """Per-point residual network with context normalisation; see the module docstring.
+
+    `cfg.arch` builds the network comparison's baselines in the same class instead (PointNet- and
+    CorresNet-style), so that training, checkpoints and inference are shared.
 
     Attributes:
         cfg: the architecture.
@@ -238,7 +303,10 @@ class SubspaceNet(nn.Module):
         self.recipe: dict[str, Any] = {}
         self.metrics: dict[str, Any] = {}
         self.input = nn.Linear(cfg.in_dim, cfg.width)
-        self.blocks = nn.ModuleList(_ResidualBlock(cfg.width) for _ in range(cfg.num_blocks))
+        self.blocks = nn.ModuleList(_block(cfg.arch, cfg.width) for _ in range(cfg.num_blocks))
+        if cfg.arch == "pointnet":
+            # The per-point feature and the max-pooled global feature, concatenated.
+            self.pool_head = nn.Linear(2 * cfg.width, cfg.width)
         self.head = nn.Linear(cfg.width, cfg.embed_dim)
 
     def _embed_points(self, x: Tensor, mask: Tensor | None) -> Tensor:
@@ -252,7 +320,17 @@ class SubspaceNet(nn.Module):
         h = self.input(normalize_input(x, w64, self.cfg.input_norm))
         for block in self.blocks:
             h = block(h, w)
-        z = F.normalize(self.head(F.relu(context_norm(h, w))), dim=-1)
+        if self.cfg.arch == "pointnet":
+            real = (w > 0).transpose(1, 2)  # (B, N, 1)
+            pooled = torch.where(real, h, torch.full((), -torch.inf, dtype=h.dtype)).amax(dim=1, keepdim=True)
+            h = F.relu(self.pool_head(torch.cat([h, pooled.expand_as(h)], dim=-1)))
+            z = self.head(h)
+        elif self.cfg.arch == "corresnet":
+            z = self.head(h)
+        else:
+            z = self.head(F.relu(context_norm(h, w)))
+        if self.cfg.l2_normalize:
+            z = F.normalize(z, dim=-1)
         if mask is not None:
             z = z * mask.unsqueeze(-1).to(z.dtype)
         return z
@@ -267,7 +345,8 @@ class SubspaceNet(nn.Module):
                 Padded points never influence the real points' outputs.
 
         Returns:
-            (B, N, E) float32 embeddings, unit L2 norm at every real point, 0 at padded points.
+            (B, N, E) float32 embeddings, unit L2 norm at every real point (unless cfg.l2_normalize
+                is False), 0 at padded points.
 
         Raises:
             InputError: x or mask has the wrong shape.
@@ -294,7 +373,7 @@ class SubspaceNet(nn.Module):
                 x_1, y_1, ..., x_F, y_F in pixels and D = cfg.in_dim exactly.
 
         Returns:
-            (N, E) float32 unit-norm embeddings.
+            (N, E) float32 embeddings (unit norm unless cfg.l2_normalize is False).
 
         Raises:
             InputError: the matrix is not 2-D, has D != cfg.in_dim columns, is not real numbers
@@ -484,6 +563,10 @@ def _check_state_dict(state: dict[str, Any], cfg: ModelConfig, src: str) -> None
         )
     for name, shape in expected.items():
         value = state[name]
+        if name.endswith("num_batches_tracked"):  # batch norm's step counter (corresnet), an integer
+            if not isinstance(value, Tensor) or tuple(value.shape) != shape or value.dtype.is_floating_point:
+                raise CheckpointError(f"{src}: weight {name!r} must be an integer scalar tensor")
+            continue
         if not isinstance(value, Tensor) or not value.dtype.is_floating_point:
             what = value.dtype if isinstance(value, Tensor) else type(value).__name__
             raise CheckpointError(f"{src}: weight {name!r} must be a floating-point tensor, got {what}")

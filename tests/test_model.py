@@ -289,3 +289,57 @@ def test_training_smoke_mimi_separates_affine_motions() -> None:
     trained = _mean_error(net, test_clips)
     assert untrained > 0.3  # near chance (0.5) before training
     assert trained < 0.12
+
+
+@pytest.mark.parametrize("arch", ["pointnet", "corresnet"])
+def test_baseline_networks_count_pad_and_round_trip(arch: str, tmp_path: Path) -> None:
+    cfg = ModelConfig(in_dim=10, width=16, num_blocks=3, embed_dim=4, arch=arch)
+    net = _net(cfg)
+    assert num_parameters(net) == cfg.num_parameters
+    # One training step moves the batch-norm statistics (corresnet), so that the round trip checks them.
+    x, labels, mask = pad_batch([_traj(30), _traj(18, seed=1)], [np.arange(30) % 2, np.arange(18) % 3])
+    assert labels is not None
+    mimi_loss(net(x, mask), labels, mask).backward()
+    net.eval()
+    x[1, 18:] = float("nan")
+    z = net(x, mask).detach()
+    alone = net(x[1:, :18]).detach()
+    assert torch.allclose(z[1, :18], alone[0], atol=1e-5, rtol=0)
+    assert torch.allclose(z.norm(dim=2)[mask], torch.ones(48), atol=1e-5)
+    path = net.save(tmp_path / "net.pt")
+    back = SubspaceNet.from_checkpoint(path)
+    assert back.cfg == cfg
+    assert torch.equal(back(x, mask).detach(), z)
+
+
+def test_pointnet_global_feature_reaches_every_point() -> None:
+    # Moving one point changes the others' embeddings only through the pooled feature.
+    net = _net(ModelConfig(in_dim=10, width=16, num_blocks=2, embed_dim=4, arch="pointnet", input_norm="channel"))
+    a = torch.from_numpy(_traj(20))[None]
+    b = a.clone()
+    b[0, 0] += 300.0
+    za, zb = net(a).detach(), net(b).detach()
+    assert not torch.allclose(za[0, 1:], zb[0, 1:], atol=1e-4)
+
+
+def test_without_l2_normalisation_the_embedding_is_not_unit() -> None:
+    cfg = ModelConfig(in_dim=10, width=16, num_blocks=2, embed_dim=4, l2_normalize=False)
+    z = _net(cfg)(torch.from_numpy(_traj(40))[None]).detach()
+    norms = z.norm(dim=2)
+    assert not torch.allclose(norms, torch.ones_like(norms), atol=1e-3)
+    unit = _net(replace_cfg(cfg, l2_normalize=True))(torch.from_numpy(_traj(40))[None]).detach()
+    assert torch.allclose(unit, torch.nn.functional.normalize(z, dim=-1), atol=1e-5)
+
+
+def replace_cfg(cfg: ModelConfig, **changes: object) -> ModelConfig:
+    import dataclasses
+
+    return dataclasses.replace(cfg, **changes)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("field", "value"), [("arch", "resnet"), ("l2_normalize", 1)])
+def test_bad_architecture_fields_are_config_errors(field: str, value: object) -> None:
+    from mosegpipe.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=field):
+        ModelConfig(**{field: value})  # type: ignore[arg-type]

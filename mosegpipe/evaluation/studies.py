@@ -513,7 +513,17 @@ _STUDIES: Sequence[Study] = (
     ),
 )
 
-STUDIES: dict[str, Study] = {s.name: s for s in _STUDIES}
+
+def _training_studies() -> tuple[Study, ...]:
+    from mosegpipe.evaluation.study_training import training_study_records
+
+    return tuple(
+        Study(name, desc, paper=paper, run=run, budgets=budgets)
+        for name, desc, paper, run, budgets in training_study_records()
+    )
+
+
+STUDIES: dict[str, Study] = {s.name: s for s in (*_STUDIES, *_training_studies())}
 """Every study by name (the order of --help and of error messages)."""
 
 
