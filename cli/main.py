@@ -5,10 +5,8 @@ Only this layer prints, and only here does a MosegError become one line on stder
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import functools
-import gc
 import importlib
 import logging
 import os
@@ -16,7 +14,7 @@ import re
 import signal
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import replace
 from enum import Enum, StrEnum
 from pathlib import Path
@@ -213,37 +211,10 @@ def _quiet_native_logs() -> None:
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
 
 
-@contextlib.contextmanager
-def _collector_paused() -> Iterator[None]:
-    """Runs the start-up imports with Python's cyclic garbage collector paused, then freezes what they built.
-
-    torch, scikit-learn and SciPy build about 250 k objects (functions, classes, module dicts) as
-    they are imported, and they live until the process exits. With the collector running, the
-    imports trigger several full collections that walk everything imported so far again, and the
-    interpreter's last collection at exit walks it all once more: about 1 s of a `moseg run` on 5
-    frames on the 2-core machine (benchmarks/speed.py, table (d)). `gc.freeze()` moves them to the
-    permanent generation, which collections skip: later ones walk only what the command builds (a
-    whole video is still collected as it goes), and the one at exit walks nothing. The price: the
-    few thousand objects of cyclic garbage the imports leave behind are kept until exit. Only the
-    first start-up in a process pauses; one that imported torch already (the CLI invoked in-process,
-    as the tests do) keeps its collector as it is.
-    """
-    if not gc.isenabled() or "torch" in sys.modules:
-        yield
-        return
-    gc.disable()
-    try:
-        yield
-    finally:
-        gc.freeze()
-        gc.enable()
-        atexit.register(gc.freeze)  # at exit: before the interpreter's last collection
-
-
 def _setup(threads: int, verbose: bool, *preload: str) -> None:
     """Logging, native log levels and thread counts; then `preload`, the modules the command imports
-    next (names for importlib), imported with the collector paused (see _collector_paused)."""
-    from mosegpipe.runtime import set_threads
+    next (names for importlib), imported with the collector paused (see runtime.collector_paused)."""
+    from mosegpipe.runtime import collector_paused, set_threads
 
     root = logging.getLogger()
     if root.handlers and all(h is _WARNINGS for h in root.handlers) and verbose:
@@ -255,7 +226,7 @@ def _setup(threads: int, verbose: bool, *preload: str) -> None:
             root.addHandler(_WARNINGS)
         root.setLevel(logging.WARNING)
         _quiet_native_logs()
-    with _collector_paused():
+    with collector_paused("sklearn"):
         set_threads(threads)  # imports torch and OpenCV
         for name in preload:
             importlib.import_module(name)
@@ -853,8 +824,9 @@ def run(
         raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
+    from mosegpipe.inference import load_embedder
     from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
-    from mosegpipe.pipeline import load_model, segment_clip
+    from mosegpipe.pipeline import segment_clip
 
     cfg = _pipeline_cfg(
         frames,
@@ -867,7 +839,7 @@ def run(
     )
     out = out or _default_out(clip, "_moseg")
     check_output_dir(out, overwrite)
-    net = load_model(frames, model)
+    net = load_embedder(frames, model)
     if whole:
         with _frames_progress(clip, cfg, max_frames, quiet) as on_window:
             summary = write_video_outputs(
@@ -913,8 +885,9 @@ def pair(
             raise InputError(f"{p}: no such image file")
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
+    from mosegpipe.inference import load_embedder
     from mosegpipe.outputs import check_output_dir, write_pair_outputs
-    from mosegpipe.pipeline import load_model, segment_pair
+    from mosegpipe.pipeline import segment_pair
 
     cfg = _pipeline_cfg(
         2,
@@ -925,7 +898,7 @@ def pair(
     )
     out = out or _default_out(img1, "_pair_moseg")
     check_output_dir(out, overwrite)
-    result = segment_pair(img1, img2, cfg, load_model(2, model))
+    result = segment_pair(img1, img2, cfg, load_embedder(2, model))
     summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
     _print_summary(summary, out)
     _print_total(started)
@@ -998,15 +971,16 @@ def tracks(
         raise InputError(f"{file}: no such file")
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
+    from mosegpipe.inference import load_embedder
     from mosegpipe.outputs import check_output_dir, write_tracks_outputs
-    from mosegpipe.pipeline import load_model, segment_tracks
+    from mosegpipe.pipeline import segment_tracks
 
     xy, visible = read_tracks_file(file)
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
     cfg = _pipeline_cfg(max(2, window), k, k_method, k_max, start=start)
     out = out or _default_out(file, "_moseg")
     check_output_dir(out, overwrite)
-    net = load_model(max(2, window), model)
+    net = load_embedder(max(2, window), model)
     result = segment_tracks(xy, visible, cfg, net, start=start, frames=frames)
     summary = write_tracks_outputs(result, out, cfg, source=str(file), overwrite=overwrite)
     _print_tracks_summary(summary, out)
@@ -1242,6 +1216,7 @@ def replay(
     started = time.perf_counter()
     recorded = _read_run_summary(summary)
     _setup(threads, verbose)
+    from mosegpipe.inference import load_embedder
     from mosegpipe.outputs import (
         check_output_dir,
         write_clip_outputs,
@@ -1249,13 +1224,13 @@ def replay(
         write_tracks_outputs,
         write_video_outputs,
     )
-    from mosegpipe.pipeline import PipelineConfig, load_model, segment_clip, segment_pair, segment_tracks
+    from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_pair, segment_tracks
 
     kind, source = recorded["kind"], recorded["source"]
     cfg = PipelineConfig.from_dict(recorded.get("config", {}), f"{summary}: config")
     out = out or _default_out(summary.parent, "_replay")
     check_output_dir(out, overwrite)
-    net = load_model(recorded["model"]["model_frames"], recorded["model"].get("checkpoint"))
+    net = load_embedder(recorded["model"]["model_frames"], recorded["model"].get("checkpoint"))
     _check_same_model(net, recorded["model"], summary)
     if kind == "video":
         clip = Path(source)

@@ -49,6 +49,12 @@ logger = logging.getLogger(__name__)
 # ---------------------------------------------------------------------------------------------
 
 
+def default_cache_dir() -> Path:
+    """`$MOSEG_CACHE`, else `~/.cache/mosegpipe`: tracked training windows, inference copies of weights."""
+    env = os.environ.get("MOSEG_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "mosegpipe"
+
+
 def as_path(path: object, what: str = "path") -> Path:
     """`path` as a Path, or an InputError naming what was given instead (None, a number, an array).
 

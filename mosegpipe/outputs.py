@@ -23,9 +23,9 @@ import numpy.typing as npt
 
 from mosegpipe import __version__
 from mosegpipe.errors import InputError, OutputExistsError
+from mosegpipe.inference import load_embedder
 from mosegpipe.io import default_palette, video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
 from mosegpipe.masks import overlay_image
-from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import (
     ClipResult,
     PairResult,
@@ -35,12 +35,12 @@ from mosegpipe.pipeline import (
     check_video_settings,
     decode_errors,
     frame_mask,
-    load_model,
     model_info,
     segment_video,
 )
 
 if TYPE_CHECKING:
+    from mosegpipe.inference import Embedder
     from mosegpipe.viz import VizConfig
 
 SUMMARY_SCHEMA = "mosegpipe.summary/2"
@@ -284,7 +284,7 @@ def video_summary(
     info: dict[str, Any],
     windows: list[WindowResult],
     cfg: PipelineConfig,
-    model: SubspaceNet,
+    model: Embedder,
     seconds: float,
 ) -> dict[str, Any]:
     """The JSON summary of a whole-video run (schema: docs/OUTPUTS.md)."""
@@ -367,7 +367,7 @@ def write_video_outputs(
     path: str | Path,
     out_dir: str | Path,
     cfg: PipelineConfig = PipelineConfig(),
-    model: SubspaceNet | None = None,
+    model: Embedder | None = None,
     overwrite: bool = False,
     rrd: bool = True,
     max_frames: int | None = None,
@@ -404,7 +404,7 @@ def write_video_outputs(
     """
     check_video_settings(cfg, max_frames)
     check_output_dir(out_dir, overwrite)
-    model = model or load_model(cfg.frames)
+    model = model or load_embedder(cfg.frames)
     with decode_errors(path):
         info = video_info(path)
     fps = float(info.get("fps") or 0.0) or _FALLBACK_FPS

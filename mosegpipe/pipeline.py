@@ -23,7 +23,7 @@ import types
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
+from typing import TYPE_CHECKING, Any, Literal, Union, get_args, get_origin, get_type_hints
 
 import cv2
 import numpy as np
@@ -35,10 +35,13 @@ from mosegpipe.errors import CheckpointError, InputError, TooFewTracksError
 from mosegpipe.io import check_images, iter_video, read_image, read_video, video_info
 from mosegpipe.masks import MAX_LABEL, MaskConfig, labels_to_mask, labels_to_masks
 from mosegpipe.match import MatchConfig, match_sift
-from mosegpipe.model import SubspaceNet, available_default_frames
 from mosegpipe.track import KLTTracker, TrackConfig, track_klt, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories, trajectories_from_matches
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
+
+if TYPE_CHECKING:
+    from mosegpipe.inference import Embedder
+    from mosegpipe.model import SubspaceNet
 
 log = logging.getLogger(__name__)
 
@@ -212,6 +215,9 @@ def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet
     Raises:
         CheckpointError: the checkpoint is missing, corrupt or not a SubspaceNet, or no weights are shipped.
     """
+    from mosegpipe.architecture import available_default_frames
+    from mosegpipe.model import SubspaceNet
+
     if checkpoint is not None:
         model = SubspaceNet.from_checkpoint(checkpoint)
         # object.__setattr__: nn.Module's own __setattr__ is typed for tensors and modules only.
@@ -224,7 +230,7 @@ def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet
         raise CheckpointError(f"{exc}; pass --model CHECKPOINT to use other weights") from exc
 
 
-def model_info(model: SubspaceNet) -> dict[str, Any]:
+def model_info(model: Embedder) -> dict[str, Any]:
     """The model's recipe name, input frame count, configuration and checkpoint file, as recorded in
     summary.json ("checkpoint": the file given to load_model, None for the shipped weights or a
     model built in memory)."""
@@ -237,7 +243,7 @@ def model_info(model: SubspaceNet) -> dict[str, Any]:
     }
 
 
-def embed_at_model_frames(model: SubspaceNet, traj: Trajectories) -> npt.NDArray[np.float32]:
+def embed_at_model_frames(model: Embedder, traj: Trajectories) -> npt.NDArray[np.float32]:
     """(N, E) embeddings of trajectories of any length, resampled in time to the model's F first."""
     return model.embed(traj)
 
@@ -249,11 +255,13 @@ def _check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
         raise InputError(f"{source}: --k {k} is larger than the number of {what} ({n})")
 
 
-def _model_or_default(model: SubspaceNet | None, frames: int, timings: dict[str, float]) -> SubspaceNet:
+def _model_or_default(model: Embedder | None, frames: int, timings: dict[str, float]) -> Embedder:
     if model is not None:
         return model
+    from mosegpipe.inference import load_embedder
+
     t0 = time.perf_counter()
-    model = load_model(frames)
+    model = load_embedder(frames)
     timings["load_model"] = time.perf_counter() - t0
     return model
 
@@ -277,9 +285,7 @@ def decode_errors(source: str | Path) -> Iterator[None]:
         raise InputError(f"{source}: cannot read it ({detail})") from exc
 
 
-def segment_frames(
-    frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None
-) -> ClipResult:
+def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: Embedder | None = None) -> ClipResult:
     """Segments the motions in a short stack of frames.
 
     Args:
@@ -334,9 +340,7 @@ def _container_frames(path: str | Path) -> int | None:
     return info["num_frames"] if info["kind"] == "video" else None
 
 
-def segment_clip(
-    path: str | Path, cfg: PipelineConfig = PipelineConfig(), model: SubspaceNet | None = None
-) -> ClipResult:
+def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model: Embedder | None = None) -> ClipResult:
     """Reads cfg.frames frames from frame cfg.start of a video file or frame folder and segments them.
 
     Args:
@@ -391,7 +395,7 @@ def segment_pair(
     img1: str | Path | npt.NDArray[np.uint8],
     img2: str | Path | npt.NDArray[np.uint8],
     cfg: PipelineConfig = PipelineConfig(frames=2),
-    model: SubspaceNet | None = None,
+    model: Embedder | None = None,
 ) -> PairResult:
     """Segments the motions between two images (they may differ in size); outliers get label -1.
 
@@ -713,7 +717,7 @@ def video_frames_to_read(path: str | Path, cfg: PipelineConfig, max_frames: int 
 def segment_video(
     path: str | Path,
     cfg: PipelineConfig = PipelineConfig(),
-    model: SubspaceNet | None = None,
+    model: Embedder | None = None,
     max_frames: int | None = None,
     masks: bool = True,
 ) -> Iterator[WindowResult]:
@@ -872,7 +876,7 @@ def segment_tracks(
     xy: npt.ArrayLike,
     visible: npt.ArrayLike | None = None,
     cfg: PipelineConfig = PipelineConfig(),
-    model: SubspaceNet | None = None,
+    model: Embedder | None = None,
     start: int = 0,
     frames: int | None = None,
 ) -> TracksResult:

@@ -7,8 +7,11 @@ Nothing here runs at import; callers (the CLI, benchmarks, tests) opt in.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
+import gc
 import os
+import sys
 from collections.abc import Iterator
 
 
@@ -17,16 +20,30 @@ def set_threads(num_threads: int = 1) -> None:
 
     Args:
         num_threads: threads for intra-op parallelism; 1 is fastest for per-clip work here.
+
+    Torch is not imported for this (a single-clip run may not need it, see inference.py): a torch
+    imported later takes the count from `requested_threads` (model.py applies it on import).
     """
+    import sys
+
     import cv2
-    import torch
     from threadpoolctl import threadpool_limits
 
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(num_threads))
-    torch.set_num_threads(num_threads)
+    _requested[0] = num_threads
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(num_threads)
     cv2.setNumThreads(num_threads)
     threadpool_limits(num_threads)
+
+
+_requested: list[int | None] = [None]  # the count of the last set_threads call
+
+
+def requested_threads() -> int | None:
+    """The thread count of the last `set_threads` call in this process (None: never called)."""
+    return _requested[0]
 
 
 _active_limit: list[int | None] = [None]  # the limit of the innermost limited_threads block
@@ -54,3 +71,32 @@ def limited_threads(num_threads: int = 1) -> Iterator[None]:
             yield
         finally:
             _active_limit[0] = previous
+
+
+@contextlib.contextmanager
+def collector_paused(marker: str) -> Iterator[None]:
+    """Runs heavy imports with Python's cyclic garbage collector paused, then freezes what they built.
+
+    scikit-learn, SciPy and torch build hundreds of thousands of objects (functions, classes, module
+    dicts) as they are imported, and they live until the process exits. With the collector running,
+    the imports trigger several full collections that walk everything imported so far again, and the
+    interpreter's last collection at exit walks it all once more: about 1 s of a `moseg run` on 5
+    frames on the 2-core machine (benchmarks/speed.py, table (d)). `gc.freeze()` moves them to the
+    permanent generation, which collections skip: later ones walk only what the command builds (a
+    whole video is still collected as it goes), and the one at exit walks nothing. The price: the
+    few thousand objects of cyclic garbage the imports leave behind are kept until exit.
+
+    Args:
+        marker: a module the block imports; when it is imported already (a second start-up in one
+            process, as in the tests) the block runs with the collector as it is.
+    """
+    if not gc.isenabled() or marker in sys.modules:
+        yield
+        return
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        gc.enable()
+        atexit.register(gc.freeze)  # at exit: before the interpreter's last collection

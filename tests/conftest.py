@@ -18,6 +18,14 @@ def one_thread() -> None:
     set_threads(1)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """A cache folder of the session's own (inference copies of weights, tracked windows), unless
+    $MOSEG_CACHE names one: tests neither read nor fill the user's ~/.cache/mosegpipe."""
+    if "MOSEG_CACHE" not in os.environ:
+        os.environ["MOSEG_CACHE"] = str(tmp_path_factory.mktemp("moseg-cache"))
+
+
 @pytest.fixture(scope="session")
 def data_root() -> Path:
     """The real benchmark folder: $MOSEG_DATA, else ../shared/data beside the repository."""

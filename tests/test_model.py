@@ -11,7 +11,7 @@ from scipy.optimize import linear_sum_assignment
 from sklearn.cluster import KMeans
 
 import mosegpipe
-import mosegpipe.model as model_mod
+from mosegpipe import architecture
 from mosegpipe.errors import CheckpointError, InputError
 from mosegpipe.model import (
     CHECKPOINT_FORMAT,
@@ -192,7 +192,7 @@ def test_corrupt_missing_and_mismatched_checkpoints(tmp_path: Path) -> None:
 
 
 def test_default_weights_lookup(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(model_mod, "weights_dir", lambda: tmp_path)
+    monkeypatch.setattr(architecture, "weights_dir", lambda: tmp_path)
     assert available_default_frames() == []
     with pytest.raises(CheckpointError, match="no shipped weights for 5 frames; available: none"):
         SubspaceNet.default(frames=5)

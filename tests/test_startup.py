@@ -58,8 +58,9 @@ def test_setup_imports_with_the_collector_paused_and_freezes_them(tmp_path: Path
     )
     proc = _python(code, tmp_path)
     full, enabled, frozen, has_torch, has_sklearn = proc.stdout.split()
-    # torch + scikit-learn + SciPy: ~250 k objects; with the collector running they cost ~5 full collections.
-    assert (full, enabled, has_torch, has_sklearn) == ("0", "True", "True", "True")
+    # scikit-learn + SciPy (+ OpenCV, Rerun): ~180 k objects; with the collector running they cost full
+    # collections. Torch is not among them: a single-clip run embeds with NumPy (inference.py).
+    assert (full, enabled, has_torch, has_sklearn) == ("0", "True", "False", "True")
     assert int(frozen) > 50_000
     # At exit the lists are frozen too (a few hundred objects frozen at start-up may have gone since).
     assert _at_exit(proc.stderr)[1] >= int(frozen) + 10_000

@@ -19,7 +19,6 @@ import dataclasses
 import hashlib
 import json
 import logging
-import os
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from functools import partial
@@ -36,7 +35,7 @@ from mosegpipe.evaluation.label_transfer import (
     transfer_match_labels,
     transfer_track_labels,
 )
-from mosegpipe.io import write_npz
+from mosegpipe.io import default_cache_dir, write_npz
 from mosegpipe.match import MatchConfig, match_sift
 from mosegpipe.track import TrackConfig, track_klt
 from mosegpipe.trajectories import build_trajectories
@@ -49,12 +48,6 @@ CACHE_VERSION = 1
 
 MIN_LABELLED = 10
 """A window with fewer labelled points than this teaches nothing and is left out."""
-
-
-def default_cache_dir() -> Path:
-    """`$MOSEG_CACHE`, else `~/.cache/mosegpipe` (the tracked windows of the benchmarks)."""
-    env = os.environ.get("MOSEG_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "mosegpipe"
 
 
 def cache_key(kind: str, **settings: Any) -> str:
