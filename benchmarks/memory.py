@@ -6,7 +6,8 @@
 Length sweep (the default): writes one synthetic video (a textured background panning back and
 forth and two textured rectangles moving across it, MJPG) as long as the longest length, then
 segments its first L frames in a fresh subprocess per length (mosegpipe.outputs.write_video_outputs,
-as `moseg run --whole`). Each subprocess reports its peak resident set size (resource.getrusage
+as `moseg run --whole`, with the model loaded as `moseg run` loads it: NumPy, no torch; the parent
+loads it once first so that the copy exists). Each subprocess reports its peak resident set size (resource.getrusage
 ru_maxrss) right after the imports and the model (the baseline) and after the run. Flat memory means
 the peak does not grow with L. One thread throughout.
 
@@ -99,19 +100,14 @@ def make_h264_video(path: Path, frames: int, size_wh: tuple[int, int], fps: floa
 
 def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     """Runs in the subprocess: segments the first `frames` frames, prints one JSON line."""
-    import torch
-
-    from mosegpipe.model import ModelConfig, SubspaceNet
+    from mosegpipe.inference import load_embedder
     from mosegpipe.outputs import write_video_outputs
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.runtime import set_threads
 
     set_threads(1)
-    if model_path is not None:
-        model = SubspaceNet.from_checkpoint(model_path)
-    else:
-        torch.manual_seed(0)
-        model = SubspaceNet(ModelConfig(in_dim=10)).eval()
+    # As `moseg run` loads it: the NumPy copy that the parent made sure of (no torch in the child).
+    model = load_embedder(5, model_path)
     if rrd:
         import rerun  # noqa: F401 - imported here so that the baseline includes it, as the run will
 
@@ -287,7 +283,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lengths", type=int, nargs="+", default=[50, 200, 400], help="video lengths in frames")
     ap.add_argument("--size", default="1280x720", help="WxH of the synthetic video")
     ap.add_argument("--rrd", action="store_true", help="also write the Rerun recording")
-    ap.add_argument("--model", type=Path, default=None, help="5-frame checkpoint (default: untrained, same size)")
+    ap.add_argument("--model", type=Path, default=None, help="5-frame checkpoint (default: the shipped weights)")
     ap.add_argument("--minutes", type=float, default=None, help="long-video mode: this many minutes of video")
     ap.add_argument("--fps", type=float, default=30.0, help="long-video mode: frames per second of the video")
     ap.add_argument("--video", type=Path, default=None, help="long-video mode: use (or keep) this .mp4")
@@ -312,7 +308,10 @@ def main(argv: list[str] | None = None) -> None:
     w, h = (int(v) for v in args.size.lower().split("x"))
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     print(f"# whole-video peak memory, {w}x{h} MJPG, windows of 5 frames, recording {'on' if args.rrd else 'off'}\n")
-    print(f"model: {args.model or 'untrained SubspaceNet (30 x 64, same size as the shipped one)'}\n")
+    from mosegpipe.inference import load_embedder
+
+    load_embedder(5, args.model)  # makes the NumPy copy that the children load, as a second `moseg run` does
+    print(f"model: {args.model or 'the shipped 5-frame weights'}, NumPy inference (no torch in the children)\n")
     rows = []
     with tempfile.TemporaryDirectory(prefix="moseg_mem_video_") as tmp:
         video = Path(tmp) / "synthetic.avi"
