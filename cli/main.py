@@ -371,6 +371,7 @@ class StudyChoice(StrEnum):
 
     model_selection = "model-selection"
     tsne = "tsne"
+    sampling_imbalance = "sampling-imbalance"
 
 
 class BudgetChoice(StrEnum):
