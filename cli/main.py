@@ -342,6 +342,7 @@ class StudyChoice(StrEnum):
 
     model_selection = "model-selection"
     tsne = "tsne"
+    sampling_imbalance = "sampling-imbalance"
     losses = "losses"
     weak_supervision = "weak-supervision"
     embedding_dim = "embedding-dim"

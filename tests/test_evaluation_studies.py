@@ -38,6 +38,7 @@ def test_registry_records_are_complete() -> None:
     assert list(STUDIES) == [
         "model-selection",
         "tsne",
+        "sampling-imbalance",
         "losses",
         "weak-supervision",
         "embedding-dim",

@@ -4,7 +4,19 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.synth.lce import CURVE_TYPES, LCEConfig, LCEDataset, lce_sample, lce_splits, make_lce
+from mosegpipe.synth.lce import (
+    CURVE_KINDS,
+    CURVE_TYPES,
+    SINGLE_KIND_K,
+    LCEConfig,
+    LCEDataset,
+    SingleKindDataset,
+    lce_sample,
+    lce_splits,
+    make_lce,
+    single_kind_sample,
+    single_kind_splits,
+)
 from mosegpipe.types import LabeledClip
 
 
@@ -109,3 +121,58 @@ def test_invalid_config() -> None:
         LCEConfig(noise_sigma=-1.0)
     with pytest.raises(InputError, match="num_samples"):
         LCEDataset(-1)
+
+
+# --- single-kind problems (the sampling-imbalance study)
+
+
+@pytest.mark.parametrize("kind", CURVE_KINDS)
+def test_single_kind_sample_has_k_curves_of_its_kind(kind: str) -> None:
+    clip = single_kind_sample(np.random.default_rng(4), kind, 5, LCEConfig(points_per_curve=(8, 12)))
+    assert clip.dataset == f"lce-{kind}" and clip.k == 5 and clip.meta["num_models"] == 5
+    assert clip.traj.dtype == np.float32 and clip.traj.shape == (clip.num_points, 2)
+    assert clip.labels.dtype == np.int64 and sorted(np.unique(clip.labels)) == [0, 1, 2, 3, 4]
+    counts = np.bincount(clip.labels)
+    assert counts.min() >= 8 and counts.max() <= 12
+    assert [c["type"] for c in clip.meta["curves"]] == [kind] * 5
+    # Noise-free points lie on their own curve.
+    exact = single_kind_sample(np.random.default_rng(4), kind, 5, LCEConfig(noise_sigma=0.0))
+    for label, curve in enumerate(exact.meta["curves"]):
+        assert _distance_to_curve(exact.traj[exact.labels == label].astype(np.float64), curve).max() < 2e-3
+
+
+def test_single_kind_dataset_is_deterministic_per_index() -> None:
+    a = SingleKindDataset("circle", 30, (2, 3, 4, 5, 6), seed=2, split="train")
+    b = SingleKindDataset("circle", 30, (2, 3, 4, 5, 6), seed=2, split="train")
+    _ = [b[i] for i in range(5)]
+    np.testing.assert_array_equal(a[17].traj, b[17].traj)
+    np.testing.assert_array_equal(a[17].labels, b[17].labels)
+    assert not np.array_equal(a[0].traj, SingleKindDataset("circle", 30, (2, 3, 4, 5, 6), seed=3)[0].traj)
+    # Another kind with the same seed and split is another problem, not the same points.
+    assert not np.array_equal(
+        a[0].traj[:4], SingleKindDataset("line", 30, (2, 3, 4, 5, 6), seed=2, split="train")[0].traj[:4]
+    )
+    ks = {clip.k for clip in a}
+    assert ks <= {2, 3, 4, 5, 6} and len(ks) >= 4  # K drawn per sample from the given numbers
+    assert a[3].name == "lce-circle/train/00003"
+
+
+def test_single_kind_splits_sizes_and_fixed_k() -> None:
+    splits = single_kind_splits("ellipse", num_train=100, num_test=7)
+    assert list(splits) == ["train", "test/k2", "test/k3", "test/k4", "test/k5", "test/k6"]
+    assert len(splits["train"]) == 100 and all(len(splits[f"test/k{k}"]) == 7 for k in SINGLE_KIND_K)
+    for k in SINGLE_KIND_K:
+        assert {c.k for c in splits[f"test/k{k}"]} == {k}
+    assert not np.array_equal(splits["test/k2"][0].traj[:4], splits["train"][0].traj[:4])
+    assert len(single_kind_splits("line")["train"]) == 8000
+
+
+def test_single_kind_bad_arguments() -> None:
+    with pytest.raises(InputError, match="curve kind 'hyperbola'"):
+        single_kind_sample(np.random.default_rng(0), "hyperbola", 2)
+    with pytest.raises(InputError, match="k=0"):
+        single_kind_sample(np.random.default_rng(0), "line", 0)
+    with pytest.raises(InputError, match="k=\\(2, 0\\)"):
+        SingleKindDataset("line", 3, (2, 0))
+    with pytest.raises(InputError, match="num_samples"):
+        SingleKindDataset("line", -1, 2)

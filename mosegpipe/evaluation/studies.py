@@ -495,6 +495,19 @@ def run_tsne(study: Study, req: StudyRequest) -> StudyResult:
 
 _NO_TRAINING = "no training: one pass over the test clips"
 
+
+def _run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
+    from mosegpipe.evaluation.study_imbalance import run_sampling_imbalance
+
+    return run_sampling_imbalance(study, req)
+
+
+def _imbalance_budgets() -> dict[str, str]:
+    from mosegpipe.evaluation.study_imbalance import IMBALANCE_BUDGETS
+
+    return {name: b.describe() for name, b in IMBALANCE_BUDGETS.items()}
+
+
 _STUDIES: Sequence[Study] = (
     Study(
         "model-selection",
@@ -510,6 +523,15 @@ _STUDIES: Sequence[Study] = (
         paper="Figure 3, bottom row",
         run=run_tsne,
         budgets={"cpu": _NO_TRAINING, "full": _NO_TRAINING},
+    ),
+    Study(
+        "sampling-imbalance",
+        "error against the number of models (K = 2..6 lines, circles or ellipses): SubspaceNet trained per "
+        "curve kind against sequential RANSAC on the same synthetic problems",
+        paper="Figure 4",
+        run=_run_sampling_imbalance,
+        needs_data=False,
+        budgets=_imbalance_budgets(),
     ),
 )
 

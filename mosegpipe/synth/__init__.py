@@ -4,7 +4,8 @@ Modules:
     camera: the shared camera model (poses, rotations, the named camera motions).
     trajectories: synthetic multi-body point trajectories with ground-truth labels (training clips).
     render: rendered video frames of textured moving objects with per-pixel ground-truth masks.
-    lce: the lines / circles / ellipses curve dataset of the SubspaceNet paper.
+    lce: the lines / circles / ellipses curve dataset of the SubspaceNet paper, and single-kind problems
+        (K lines, circles or ellipses) for the sampling-imbalance study.
     seeded: the base of lazily generated datasets (item i is a pure function of the seed and i).
 
 Nothing in the inference pipeline imports this package.

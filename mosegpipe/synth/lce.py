@@ -13,6 +13,10 @@ length-3 segment centred on its anchor. Circles and ellipses are sampled uniform
 
 Samples are generated lazily and deterministically per index, so a split of 8000 samples costs
 nothing until read and sample i is the same whether or not samples 0..i-1 were read.
+
+Single-kind problems (the paper's sampling-imbalance study, Figure 4): K curves of one kind (all lines,
+all circles or all ellipses), with the same parameter ranges and noise; labels 0..K-1, one per curve
+(`single_kind_sample`, `SingleKindDataset`, `single_kind_splits`).
 """
 
 from __future__ import annotations
@@ -31,6 +35,10 @@ from mosegpipe.types import LabeledClip
 DATASET = "lce"
 CURVE_TYPES = ("line", "circle", "ellipse", "ellipse")
 SPLIT_SIZES = {"train": 8000, "val": 200, "test": 200}
+CURVE_KINDS = ("line", "circle", "ellipse")
+"""The kinds of a single-kind problem."""
+SINGLE_KIND_K = (2, 3, 4, 5, 6)
+"""Numbers of curves of the sampling-imbalance study (the paper's Figure 4)."""
 
 
 @dataclass(frozen=True)
@@ -197,3 +205,140 @@ def lce_splits(seed: int = 0, cfg: LCEConfig = LCEConfig()) -> dict[str, LCEData
         {"train": ..., "val": ..., "test": ...}, each a Sequence[LabeledClip].
     """
     return {split: LCEDataset(size, seed=seed, split=split, cfg=cfg) for split, size in SPLIT_SIZES.items()}
+
+
+def _check_kind(kind: str) -> str:
+    if kind not in CURVE_KINDS:
+        raise InputError(f"curve kind {kind!r}: choose from {', '.join(CURVE_KINDS)}")
+    return kind
+
+
+def single_kind_sample(
+    rng: np.random.Generator, kind: str, k: int, cfg: LCEConfig = LCEConfig(), name: str = ""
+) -> LabeledClip:
+    """Draw one problem of K curves of a single kind.
+
+    Curves are drawn like the LCE curves (same parameter ranges, points per curve and noise), so a
+    K-line problem differs from an LCE sample only in the mix of kinds.
+
+    Args:
+        rng: random generator (consumed).
+        kind: "line", "circle" or "ellipse".
+        k: number of curves K >= 1.
+        cfg: generator parameters.
+        name: clip name (default "lce-<kind>").
+
+    Returns:
+        traj (N, 2) float32 noisy points (unit scale), labels (N,) int64 in 0..K-1 (one per curve);
+        dataset "lce-<kind>"; meta "curves" (per label: type and parameters), "noise_sigma", "frames"
+        (1), "kind", "num_models" (K).
+
+    Raises:
+        InputError: unknown kind or K < 1.
+    """
+    _check_kind(kind)
+    if k < 1:
+        raise InputError(f"k={k}: a problem needs at least one curve")
+    lo, hi = cfg.points_per_curve
+    chunks, labels, curves = [], [], []
+    for label in range(k):
+        count = int(rng.integers(lo, hi + 1))
+        points, params = _curve_points(rng, kind, count, cfg)
+        chunks.append(points)
+        labels.append(np.full(count, label, dtype=np.int64))
+        curves.append(params)
+    xy = np.concatenate(chunks)
+    xy = xy + rng.normal(0.0, cfg.noise_sigma, size=xy.shape)
+    label_arr = np.concatenate(labels)
+    if cfg.shuffle:
+        perm = rng.permutation(label_arr.size)
+        xy, label_arr = xy[perm], label_arr[perm]
+    return LabeledClip(
+        name=name or f"{DATASET}-{kind}",
+        traj=xy.astype(np.float32),
+        labels=label_arr,
+        dataset=f"{DATASET}-{kind}",
+        meta={"curves": curves, "noise_sigma": cfg.noise_sigma, "frames": 1, "kind": kind, "num_models": k},
+    )
+
+
+class SingleKindDataset(SeededClips):
+    """A fixed-size, lazily generated split of single-kind problems; item i depends only on (seed, kind, split, i).
+
+    Args:
+        kind: "line", "circle" or "ellipse".
+        num_samples: length of the split.
+        k: the number of curves of every item, or a tuple of numbers from which each item draws its K
+            uniformly (from its own seed).
+        seed: base seed.
+        split: split name mixed into the per-item seed (with the kind), so that splits differ.
+        cfg: generator parameters.
+    """
+
+    def __init__(
+        self,
+        kind: str,
+        num_samples: int,
+        k: int | tuple[int, ...],
+        seed: int = 0,
+        split: str = "",
+        cfg: LCEConfig = LCEConfig(),
+    ) -> None:
+        self.kind = _check_kind(kind)
+        if num_samples < 0:
+            raise InputError(f"num_samples={num_samples} must be >= 0")
+        self.ks = (int(k),) if isinstance(k, int | np.integer) else tuple(int(v) for v in k)
+        if not self.ks or min(self.ks) < 1:
+            raise InputError(f"k={k}: every number of curves must be >= 1")
+        self.num_samples = int(num_samples)
+        self.length = self.num_samples
+        self.seed = int(seed)
+        self.split = split
+        self.cfg = cfg
+        self._key = zlib.crc32(f"{kind}/{split}".encode())
+
+    def _make(self, i: int) -> LabeledClip:
+        rng = np.random.default_rng([self.seed, self._key, i])
+        k = self.ks[0] if len(self.ks) == 1 else self.ks[int(rng.integers(len(self.ks)))]
+        prefix = f"{self.split}/" if self.split else ""
+        clip = single_kind_sample(rng, self.kind, k, self.cfg, name=f"{DATASET}-{self.kind}/{prefix}{i:05d}")
+        clip.meta.update({"seed": self.seed, "split": self.split, "index": i})
+        return clip
+
+    def __iter__(self) -> Iterator[LabeledClip]:
+        for i in range(self.num_samples):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        return (
+            f"SingleKindDataset(kind={self.kind!r}, num_samples={self.num_samples}, k={self.ks}, "
+            f"seed={self.seed}, split={self.split!r})"
+        )
+
+
+def single_kind_splits(
+    kind: str,
+    num_train: int = 8000,
+    num_test: int = 200,
+    ks: tuple[int, ...] = SINGLE_KIND_K,
+    seed: int = 0,
+    cfg: LCEConfig = LCEConfig(),
+) -> dict[str, SingleKindDataset]:
+    """The splits of the sampling-imbalance study for one kind, generated lazily.
+
+    Args:
+        kind: "line", "circle" or "ellipse".
+        num_train: training samples; each draws its K uniformly from `ks`.
+        num_test: test samples per K.
+        ks: the numbers of curves.
+        seed: base seed.
+        cfg: generator parameters.
+
+    Returns:
+        {"train": ..., "test/k2": ..., ..., "test/k6": ...}: every test split has exactly K curves
+        per sample.
+    """
+    splits = {"train": SingleKindDataset(kind, num_train, tuple(ks), seed=seed, split="train", cfg=cfg)}
+    for k in ks:
+        splits[f"test/k{k}"] = SingleKindDataset(kind, num_test, k, seed=seed, split=f"test/k{k}", cfg=cfg)
+    return splits
