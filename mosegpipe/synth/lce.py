@@ -105,6 +105,31 @@ def _curve_points(
     return points, {"type": kind, **params}
 
 
+def _noisy_curves(
+    rng: np.random.Generator, kinds: tuple[str, ...], cfg: LCEConfig
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], list[dict[str, object]]]:
+    """Points on one curve per entry of `kinds` (label = its index), noise added, rows shuffled if asked.
+
+    Returns:
+        (xy (N, 2) noisy points, labels (N,), the curves' parameters per label).
+    """
+    lo, hi = cfg.points_per_curve
+    chunks, labels, curves = [], [], []
+    for label, kind in enumerate(kinds):
+        count = int(rng.integers(lo, hi + 1))
+        points, params = _curve_points(rng, kind, count, cfg)
+        chunks.append(points)
+        labels.append(np.full(count, label, dtype=np.int64))
+        curves.append(params)
+    xy = np.concatenate(chunks)
+    xy = xy + rng.normal(0.0, cfg.noise_sigma, size=xy.shape)
+    label_arr = np.concatenate(labels)
+    if cfg.shuffle:
+        perm = rng.permutation(label_arr.size)
+        xy, label_arr = xy[perm], label_arr[perm]
+    return xy, label_arr, curves
+
+
 def lce_sample(rng: np.random.Generator, cfg: LCEConfig = LCEConfig(), name: str = "lce") -> LabeledClip:
     """Draw one LCE sample.
 
@@ -117,20 +142,7 @@ def lce_sample(rng: np.random.Generator, cfg: LCEConfig = LCEConfig(), name: str
         traj (N, 2) float32 noisy points, labels (N,) int64 in 0..3 (0 line, 1 circle, 2-3
         ellipses); meta "curves" (per label: type and parameters), "noise_sigma", "frames" (1).
     """
-    lo, hi = cfg.points_per_curve
-    chunks, labels, curves = [], [], []
-    for label, kind in enumerate(CURVE_TYPES):
-        count = int(rng.integers(lo, hi + 1))
-        points, params = _curve_points(rng, kind, count, cfg)
-        chunks.append(points)
-        labels.append(np.full(count, label, dtype=np.int64))
-        curves.append(params)
-    xy = np.concatenate(chunks)
-    xy = xy + rng.normal(0.0, cfg.noise_sigma, size=xy.shape)
-    label_arr = np.concatenate(labels)
-    if cfg.shuffle:
-        perm = rng.permutation(label_arr.size)
-        xy, label_arr = xy[perm], label_arr[perm]
+    xy, label_arr, curves = _noisy_curves(rng, CURVE_TYPES, cfg)
     return LabeledClip(
         name=name,
         traj=xy.astype(np.float32),
@@ -239,20 +251,7 @@ def single_kind_sample(
     _check_kind(kind)
     if k < 1:
         raise InputError(f"k={k}: a problem needs at least one curve")
-    lo, hi = cfg.points_per_curve
-    chunks, labels, curves = [], [], []
-    for label in range(k):
-        count = int(rng.integers(lo, hi + 1))
-        points, params = _curve_points(rng, kind, count, cfg)
-        chunks.append(points)
-        labels.append(np.full(count, label, dtype=np.int64))
-        curves.append(params)
-    xy = np.concatenate(chunks)
-    xy = xy + rng.normal(0.0, cfg.noise_sigma, size=xy.shape)
-    label_arr = np.concatenate(labels)
-    if cfg.shuffle:
-        perm = rng.permutation(label_arr.size)
-        xy, label_arr = xy[perm], label_arr[perm]
+    xy, label_arr, curves = _noisy_curves(rng, (kind,) * k, cfg)
     return LabeledClip(
         name=name or f"{DATASET}-{kind}",
         traj=xy.astype(np.float32),
