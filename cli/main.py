@@ -371,6 +371,7 @@ class StudyChoice(StrEnum):
 
     model_selection = "model-selection"
     tsne = "tsne"
+    lce_curve = "lce-curve"
 
 
 class BudgetChoice(StrEnum):

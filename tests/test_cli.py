@@ -243,7 +243,7 @@ def test_bad_input_gives_one_error_line(case: str, tmp_path: Path, clip_avi: Pat
         (["eval", "kitti", "-o", "out"], "PROTOCOL: 'kitti' is not one of 'kt3d-test', 'kt3d-loo',"),
         (["train", "--preset", "huge"], "--preset huge: 'huge' is not one of 'clip-f5', 'clip-f5-rendered',"),
         (["train", "--loss", "hinge"], "--loss hinge: 'hinge' is not one of 'mimi', 'l2', 'l2-balanced', 'ce'"),
-        (["study", "speed", "-o", "out"], "NAME: 'speed' is not one of 'model-selection', 'tsne'"),
+        (["study", "speed", "-o", "out"], "NAME: 'speed' is not one of 'model-selection', 'tsne', 'lce-curve'"),
         (["study", "tsne", "-o", "out", "--budget", "huge"], "--budget huge: 'huge' is not one of 'cpu', 'full'"),
         (["eval", "kt3d-loo", "-o", "out", "--variant", "x"], "--variant x: 'x' is not one of 'vanilla', 'augment'"),
         (["run", "x.avi", "--mask-method", "flood"], "--mask-method flood: 'flood' is not one of 'watershed'"),

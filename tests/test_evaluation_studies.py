@@ -35,7 +35,7 @@ def _clip(name: str, centres: list[tuple[float, float, float, float]], per: int 
 
 
 def test_registry_records_are_complete() -> None:
-    assert list(STUDIES) == ["model-selection", "tsne"]
+    assert list(STUDIES) == ["model-selection", "tsne", "lce-curve"]
     for study in STUDIES.values():
         assert set(study.budgets) == {"cpu", "full"} and study.paper and study.description
     with pytest.raises(ConfigError, match="model-selection"):
