@@ -343,6 +343,7 @@ class StudyChoice(StrEnum):
     model_selection = "model-selection"
     tsne = "tsne"
     sampling_imbalance = "sampling-imbalance"
+    lce_curve = "lce-curve"
     losses = "losses"
     weak_supervision = "weak-supervision"
     embedding_dim = "embedding-dim"

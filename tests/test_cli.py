@@ -245,7 +245,7 @@ def test_bad_input_gives_one_error_line(case: str, tmp_path: Path, clip_avi: Pat
         (["train", "--loss", "hinge"], "--loss hinge: 'hinge' is not one of 'mimi', 'l2', 'l2-balanced', 'ce'"),
         (
             ["study", "speed", "-o", "out"],
-            "NAME: 'speed' is not one of 'model-selection', 'tsne', 'sampling-imbalance', 'losses', 'weak-supervision', 'embedding-dim', 'networks', 'depth'",
+            "NAME: 'speed' is not one of 'model-selection', 'tsne', 'sampling-imbalance', 'lce-curve', 'losses', 'weak-supervision', 'embedding-dim', 'networks', 'depth'",
         ),
         (["study", "tsne", "-o", "out", "--budget", "huge"], "--budget huge: 'huge' is not one of 'cpu', 'full'"),
         (["eval", "kt3d-loo", "-o", "out", "--variant", "x"], "--variant x: 'x' is not one of 'vanilla', 'augment'"),

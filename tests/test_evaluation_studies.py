@@ -39,6 +39,7 @@ def test_registry_records_are_complete() -> None:
         "model-selection",
         "tsne",
         "sampling-imbalance",
+        "lce-curve",
         "losses",
         "weak-supervision",
         "embedding-dim",

@@ -508,6 +508,12 @@ def _imbalance_budgets() -> dict[str, str]:
     return {name: b.describe() for name, b in IMBALANCE_BUDGETS.items()}
 
 
+def _run_lce_curve(study: Study, req: StudyRequest) -> StudyResult:
+    from mosegpipe.evaluation.study_lce import run_lce_curve
+
+    return run_lce_curve(study, req)
+
+
 _STUDIES: Sequence[Study] = (
     Study(
         "model-selection",
@@ -532,6 +538,20 @@ _STUDIES: Sequence[Study] = (
         run=_run_sampling_imbalance,
         needs_data=False,
         budgets=_imbalance_budgets(),
+    ),
+    Study(
+        "lce-curve",
+        "learning curves on the synthetic lines/circles/ellipses benchmark: error (auto and true K) and NMI "
+        "against samples seen, scored at checkpoints of one training run per configuration (budget or design?)",
+        paper="the synthetic LCE experiment (18.04 % error, NMI 0.727)",
+        run=_run_lce_curve,
+        needs_data=False,
+        budgets={
+            "cpu": "the recipe 4000 steps of 16 samples (64 k samples seen), two alternatives 2000 steps each, 6 "
+            "checkpoints per run; val: first 100 of 200, test: all 200; about 30 min of one CPU core",
+            "full": "the paper's 300 epochs over 8000 samples (150 000 steps of 16) per configuration, 10 "
+            "checkpoints, on the GPU when there is one; val and test: all 200",
+        },
     ),
 )
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -75,6 +75,60 @@ class TrainResult:
     history: list[dict[str, float]] = field(default_factory=list)
     seconds: float = 0.0
     steps_done: int = 0
+
+
+@dataclass
+class TrainState:
+    """Everything needed to continue a run exactly where it stopped (see `train_model`'s `resume`).
+
+    Attributes:
+        step: optimiser steps done.
+        model_state: the model's state_dict (tensors on the training device).
+        optim_state: the Adam optimizer's state_dict.
+        rng_state: the numpy data stream's bit-generator state (plain data).
+        history: the loss history up to `step`.
+        seconds: training time up to `step` (checkpoint callbacks not counted).
+    """
+
+    step: int
+    model_state: dict[str, Any]
+    optim_state: dict[str, Any]
+    rng_state: dict[str, Any]
+    history: list[dict[str, float]] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict for torch.save (tensors moved to the CPU; loadable with weights_only=True)."""
+        return {
+            "step": self.step,
+            "model_state": {k: v.detach().cpu() for k, v in self.model_state.items()},
+            "optim_state": _to_cpu(self.optim_state),
+            "rng_state": self.rng_state,
+            "history": self.history,
+            "seconds": self.seconds,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainState:
+        """Inverse of `to_dict`."""
+        return cls(
+            step=int(data["step"]),
+            model_state=data["model_state"],
+            optim_state=data["optim_state"],
+            rng_state=data["rng_state"],
+            history=list(data.get("history", [])),
+            seconds=float(data.get("seconds", 0.0)),
+        )
+
+
+def _to_cpu(obj: Any) -> Any:
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return {k: _to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_to_cpu(v) for v in obj]
+    return obj
 
 
 def clip_sampler(clips: Sequence[LabeledClip]) -> Sampler:
@@ -146,6 +200,11 @@ def train_model(
     init: SubspaceNet | None = None,
     log_every: int = 50,
     on_log: Callable[[dict[str, float]], None] | None = None,
+    checkpoints: Collection[int] = (),
+    on_checkpoint: Callable[[TrainState, SubspaceNet], None] | None = None,
+    resume: TrainState | None = None,
+    stop_after: int | None = None,
+    device: str | torch.device = "cpu",
 ) -> TrainResult:
     """Trains SubspaceNet on clips drawn from `sampler`.
 
@@ -156,6 +215,16 @@ def train_model(
         init: a model to fine-tune (copied; the argument is left untouched).
         log_every: steps between history entries.
         on_log: called with each history entry (e.g. to print progress).
+        checkpoints: step counts (1..cfg.steps) after which `on_checkpoint` is called.
+        on_checkpoint: called with the state after each checkpoint step and the model (in eval mode
+            during the call; it may embed with it, and must not change its weights). The state holds
+            the live tensors: save or copy it during the call. Its time is not counted in the
+            training seconds.
+        resume: continue from this state (a `TrainState` from an earlier call with the same sampler,
+            cfg and architecture): the result is the same as one uninterrupted run.
+        stop_after: stop after this many steps (<= cfg.steps) without changing the learning-rate
+            schedule, which is always that of cfg.steps (None = run all steps).
+        device: where the model trains (the returned model stays there).
 
     Returns:
         TrainResult with the model in eval mode.
@@ -171,23 +240,43 @@ def train_model(
         model = SubspaceNet(model_cfg or ModelConfig(in_dim=2 * cfg.frames))
     if model.cfg.in_dim != 2 * cfg.frames:
         raise ConfigError(f"model input dimension {model.cfg.in_dim} does not fit {cfg.frames} frames")
+    bad = sorted(c for c in checkpoints if not 1 <= c <= cfg.steps)
+    if bad:
+        raise ConfigError(f"checkpoint steps {bad} outside 1..{cfg.steps}")
     loss_fn = LOSSES[cfg.loss]
     kwargs: dict[str, Any] = {"alpha": cfg.alpha} if cfg.loss == "mimi" else {}
+    model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    model.train()
     history: list[dict[str, float]] = []
+    first = 0
+    spent = 0.0  # training seconds before this call (resumed runs)
+    if resume is not None:
+        model.load_state_dict(resume.model_state)
+        opt.load_state_dict(resume.optim_state)
+        rng.bit_generator.state = resume.rng_state
+        history, first, spent = list(resume.history), resume.step, resume.seconds
+    last = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
+    wanted = set(checkpoints)
+    model.train()
     t0 = time.perf_counter()
+    paused = 0.0  # seconds spent in on_checkpoint, left out of the training time
+
+    def elapsed() -> float:
+        return spent + time.perf_counter() - t0 - paused
+
     running = 0.0
     count = 0
-    step = 0
-    for step in range(cfg.steps):
-        if cfg.time_budget_s is not None and time.perf_counter() - t0 > cfg.time_budget_s:
+    step = first
+    for step in range(first, last):
+        if cfg.time_budget_s is not None and elapsed() > cfg.time_budget_s:
             log.info("time budget of %.0f s reached after %d steps", cfg.time_budget_s, step)
             break
         for group in opt.param_groups:
             group["lr"] = _lr_at(step, cfg)
         batch = [augment(sampler(rng), rng, cfg) for _ in range(cfg.batch_size)]
         x, labels, mask = pad_batch([b[0] for b in batch], [b[1] for b in batch])
+        assert labels is not None  # pad_batch returns labels when given labels
+        x, labels, mask = x.to(device), labels.to(device), mask.to(device)
         z = model(x, mask)
         loss = loss_fn(z, labels, mask, **kwargs)
         opt.zero_grad(set_to_none=True)
@@ -197,14 +286,23 @@ def train_model(
         running += float(loss.detach())
         count += 1
         if (step + 1) % log_every == 0 or step + 1 == cfg.steps:
-            history.append(_log_entry(step + 1, running / count, _lr_at(step, cfg), time.perf_counter() - t0, on_log))
+            history.append(_log_entry(step + 1, running / count, _lr_at(step, cfg), elapsed(), on_log))
             running, count = 0.0, 0
+        if step + 1 in wanted and on_checkpoint is not None:
+            state = TrainState(
+                step + 1, model.state_dict(), opt.state_dict(), dict(rng.bit_generator.state), list(history), elapsed()
+            )
+            t_pause = time.perf_counter()
+            model.eval()
+            on_checkpoint(state, model)
+            model.train()
+            paused += time.perf_counter() - t_pause
     else:
-        step = cfg.steps
+        step = last
     if count:  # stopped by the time budget between two log points: keep the last losses
-        history.append(_log_entry(step, running / count, _lr_at(step - 1, cfg), time.perf_counter() - t0, on_log))
+        history.append(_log_entry(step, running / count, _lr_at(step - 1, cfg), elapsed(), on_log))
     model.eval()
-    return TrainResult(model=model, history=history, seconds=time.perf_counter() - t0, steps_done=step)
+    return TrainResult(model=model, history=history, seconds=elapsed(), steps_done=step)
 
 
 def _log_entry(
