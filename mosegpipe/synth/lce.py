@@ -22,7 +22,6 @@ all circles or all ellipses), with the same parameter ranges and noise; labels 0
 from __future__ import annotations
 
 import zlib
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -179,10 +178,6 @@ class LCEDataset(SeededClips):
         clip.meta.update({"seed": self.seed, "split": self.split, "index": i})
         return clip
 
-    def __iter__(self) -> Iterator[LabeledClip]:
-        for i in range(self.num_samples):
-            yield self[i]
-
     def __repr__(self) -> str:
         return f"LCEDataset(num_samples={self.num_samples}, seed={self.seed}, split={self.split!r})"
 
@@ -303,10 +298,6 @@ class SingleKindDataset(SeededClips):
         clip = single_kind_sample(rng, self.kind, k, self.cfg, name=f"{DATASET}-{self.kind}/{prefix}{i:05d}")
         clip.meta.update({"seed": self.seed, "split": self.split, "index": i})
         return clip
-
-    def __iter__(self) -> Iterator[LabeledClip]:
-        for i in range(self.num_samples):
-            yield self[i]
 
     def __repr__(self) -> str:
         return (
