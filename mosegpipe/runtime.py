@@ -18,11 +18,11 @@ from collections.abc import Iterator
 def set_threads(num_threads: int = 1) -> None:
     """Set torch, OpenCV and BLAS/OpenMP thread counts for this process.
 
-    Args:
-        num_threads: threads for intra-op parallelism; 1 is fastest for per-clip work here.
-
     Torch is not imported for this (a single-clip run may not need it, see inference.py): a torch
     imported later takes the count from `requested_threads` (model.py applies it on import).
+
+    Args:
+        num_threads: threads for intra-op parallelism; 1 is fastest for per-clip work here.
     """
     import sys
 
