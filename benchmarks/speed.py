@@ -43,6 +43,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from mosegpipe.cluster import cluster_auto_k  # noqa: E402
+from mosegpipe.inference import Embedder, NumpySubspaceNet  # noqa: E402
 from mosegpipe.model import ModelConfig, SubspaceNet  # noqa: E402
 from mosegpipe.outputs import write_clip_outputs  # noqa: E402
 from mosegpipe.pipeline import PipelineConfig, segment_clip  # noqa: E402
@@ -73,19 +74,22 @@ def machine_info() -> str:
     )
 
 
-def load_model(path: Path | None, frames: int = 5) -> tuple[SubspaceNet, str]:
-    """The model to time and a description of it."""
+def load_model(path: Path | None, frames: int = 5) -> tuple[Embedder, str]:
+    """The model to time and a description of it: in NumPy, as the single-clip commands run it."""
     if path is not None:
         t0 = time.perf_counter()
-        model = SubspaceNet.from_checkpoint(path)
-        return model, f"checkpoint {path} (loaded in {1000 * (time.perf_counter() - t0):.0f} ms)"
-    try:
-        return SubspaceNet.default(frames=frames), f"shipped weights for {frames} frames"
-    except Exception:  # noqa: BLE001 - any failure means: no usable shipped weights
-        torch.manual_seed(0)
-        return SubspaceNet(
-            ModelConfig(in_dim=2 * frames)
-        ).eval(), "untrained SubspaceNet (no shipped weights; accuracy meaningless)"
+        net = SubspaceNet.from_checkpoint(path)
+        what = f"checkpoint {path} (loaded in {1000 * (time.perf_counter() - t0):.0f} ms)"
+    else:
+        try:
+            net, what = SubspaceNet.default(frames=frames), f"shipped weights for {frames} frames"
+        except Exception:  # noqa: BLE001 - any failure means: no usable shipped weights
+            torch.manual_seed(0)
+            net = SubspaceNet(ModelConfig(in_dim=2 * frames)).eval()
+            what = "untrained SubspaceNet (no shipped weights; accuracy meaningless)"
+    if net.cfg.arch != "subspacenet":
+        return net, f"{what}, torch inference"
+    return NumpySubspaceNet.from_torch(net), f"{what}, NumPy inference (as moseg run)"
 
 
 def write_video(frames: list[np.ndarray], path: Path, fps: float = 10.0) -> Path:
@@ -107,7 +111,7 @@ def resized_frames(video: Path, count: int, size_wh: tuple[int, int] = (640, 480
     return [cv2.resize(f, size_wh, interpolation=cv2.INTER_AREA) for _, f in iter_video(video, max_frames=count)]
 
 
-def run_once(clip: Path, out: Path, model: SubspaceNet, cfg: PipelineConfig) -> tuple[dict[str, float], dict[str, Any]]:
+def run_once(clip: Path, out: Path, model: Embedder, cfg: PipelineConfig) -> tuple[dict[str, float], dict[str, Any]]:
     """One `moseg run` (segment_clip + write_clip_outputs with the recording): seconds per stage."""
     t0 = time.perf_counter()
     result = segment_clip(clip, cfg, model)
@@ -121,7 +125,7 @@ def run_once(clip: Path, out: Path, model: SubspaceNet, cfg: PipelineConfig) -> 
     return times, summary
 
 
-def clip_table(clips: dict[str, Path], model: SubspaceNet, repeats: int, work: Path) -> str:
+def clip_table(clips: dict[str, Path], model: Embedder, repeats: int, work: Path) -> str:
     cfg = PipelineConfig(frames=5)
     cols = [*STAGES, "total"]
     lines = [
@@ -161,7 +165,7 @@ def bare_klt_fps(video: Path) -> float:
     return (len(grays) - 1) / (time.perf_counter() - t0)
 
 
-def video_table(runs: list[tuple[str, Path, bool]], model: SubspaceNet, work: Path) -> str:
+def video_table(runs: list[tuple[str, Path, bool]], model: Embedder, work: Path) -> str:
     """Whole-video mode on each (name, video, with recording) run, against bare KLT on the same frames
     measured just before it (timings on shared machines drift: the ratio is the figure to compare)."""
     from mosegpipe.outputs import write_video_outputs
@@ -319,7 +323,7 @@ def startup_tables(clip: Path, work: Path, repeats: int = 5) -> str:
     return "\n".join(lines)
 
 
-def kt3d_line(data_root: Path, model: SubspaceNet) -> str:
+def kt3d_line(data_root: Path, model: Embedder) -> str:
     from mosegpipe.data.kt3dmoseg import kt3d_test_clips
 
     clips = kt3d_test_clips(data_root, frames=5)
