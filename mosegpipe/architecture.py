@@ -180,3 +180,17 @@ def check_trajectory_matrix(traj: Trajectories | npt.NDArray[np.floating], cfg: 
             f"(more than {_MAX_COORD:.0e}; coordinates are expected in pixels)"
         )
     return arr
+
+
+def check_embedding(out: npt.NDArray[np.float32], arr: npt.NDArray[np.generic]) -> npt.NDArray[np.float32]:
+    """`out`, the embeddings of the checked matrix `arr`, if they are finite.
+
+    Raises:
+        InputError: non-finite embeddings: the coordinates were too large to normalise.
+    """
+    if not np.all(np.isfinite(out)):
+        raise InputError(
+            f"trajectory matrix values up to {float(np.abs(arr).max()):.3g}: too large to normalise "
+            "(coordinates are expected in pixels)"
+        )
+    return out

@@ -29,6 +29,7 @@ from mosegpipe.architecture import (
     CHECKPOINT_FORMAT,
     ModelConfig,
     available_default_frames,
+    check_embedding,
     check_trajectory_matrix,
     weights_dir,
 )
@@ -115,19 +116,18 @@ class NumpySubspaceNet:
         if cfg.arch != "subspacenet":
             raise CheckpointError(f"NumPy inference covers arch 'subspacenet', not {cfg.arch!r}")
         shapes = expected_shapes(cfg)
-        wrong = [k for k, s in shapes.items() if k not in weights or tuple(weights[k].shape) != s]
-        if wrong or set(weights) != set(shapes):
-            raise CheckpointError(f"weights do not fit {cfg}: {sorted(set(wrong) | (set(weights) ^ set(shapes)))[:5]}")
+        misfit = sorted(
+            k for k in shapes.keys() | weights.keys() if tuple(getattr(weights.get(k), "shape", ())) != shapes.get(k)
+        )
+        if misfit:
+            raise CheckpointError(f"weights do not fit {cfg}: {misfit[:5]}")
         self.cfg = cfg
         self.weights = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in weights.items()}
         self.recipe: dict[str, Any] = dict(recipe or {})
         self.metrics: dict[str, Any] = dict(metrics or {})
         # Transposed once: x @ W.T is then one contiguous matrix product per layer.
-        self._layers = {
-            k[: -len(".weight")]: (v.T.copy(), self.weights[k[: -len("weight")] + "bias"])
-            for k, v in self.weights.items()
-            if k.endswith(".weight")
-        }
+        layers = {k.removesuffix(".weight") for k in self.weights if k.endswith(".weight")}
+        self._layers = {n: (self.weights[f"{n}.weight"].T.copy(), self.weights[f"{n}.bias"]) for n in layers}
 
     @property
     def num_frames(self) -> int:
@@ -151,13 +151,7 @@ class NumpySubspaceNet:
         z = self._linear("head", np.maximum(_context_norm(h), 0))
         if self.cfg.l2_normalize:
             z = z / np.maximum(np.linalg.norm(z, axis=1, keepdims=True), np.float32(1e-12))
-        out = z.astype(np.float32, copy=False)
-        if not np.all(np.isfinite(out)):
-            raise InputError(
-                f"trajectory matrix values up to {float(np.abs(arr).max()):.3g}: too large to normalise "
-                "(coordinates are expected in pixels)"
-            )
-        return out
+        return check_embedding(z.astype(np.float32, copy=False), arr)
 
     @classmethod
     def from_torch(cls, model: SubspaceNet) -> NumpySubspaceNet:

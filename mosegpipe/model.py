@@ -50,6 +50,7 @@ from mosegpipe.architecture import (
     MODEL_LIMITS,
     ModelConfig,
     available_default_frames,
+    check_embedding,
     check_trajectory_matrix,
     weights_dir,
 )
@@ -308,13 +309,7 @@ class SubspaceNet(nn.Module):
                 z = self._embed_points(x.unsqueeze(0), None)[0]
         finally:
             self.train(was_training)
-        out = z.cpu().numpy().astype(np.float32, copy=False)
-        if not np.all(np.isfinite(out)):
-            raise InputError(
-                f"trajectory matrix values up to {float(np.abs(arr).max()):.3g}: too large to normalise "
-                "(coordinates are expected in pixels)"
-            )
-        return out
+        return check_embedding(z.cpu().numpy().astype(np.float32, copy=False), arr)
 
     def checkpoint(self, recipe: dict[str, Any] | None = None, metrics: dict[str, Any] | None = None) -> dict[str, Any]:
         """A self-describing, `torch.load(weights_only=True)`-loadable checkpoint dict.
