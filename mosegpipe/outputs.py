@@ -8,15 +8,13 @@ summary.json schema are in docs/OUTPUTS.md.
 
 from __future__ import annotations
 
-import queue
 import shutil
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -38,6 +36,7 @@ from mosegpipe.pipeline import (
     model_info,
     segment_video,
 )
+from mosegpipe.runtime import run_ahead
 
 if TYPE_CHECKING:
     from mosegpipe.inference import Embedder
@@ -315,53 +314,6 @@ def video_summary(
 _WINDOWS_AHEAD = 2
 """Windows the tracking thread may run ahead of the writer (memory: that many windows' frames)."""
 
-_T = TypeVar("_T")
-_DONE = object()
-
-
-def _ahead(items: Iterator[_T], depth: int) -> Iterator[_T]:
-    """Runs the iterator `items` on a background thread, at most `depth` items ahead of the consumer.
-
-    Whole-video mode spends its time in OpenCV, PyAV and BLAS calls that release the GIL: KLT
-    tracking and clustering (this thread) overlap with masks, overlays and encoding (the caller's).
-    An exception in `items` is raised in the caller; when the caller stops early (an error, Ctrl-C),
-    the thread is told to stop and exits at its next item.
-    """
-    q: queue.Queue[Any] = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-
-    def put(item: Any) -> bool:
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def run() -> None:
-        try:
-            for item in items:
-                if not put(item):
-                    return
-            put(_DONE)
-        except BaseException as exc:  # handed to the consumer, raised there
-            put(exc)
-
-    worker = threading.Thread(target=run, name="moseg-segment", daemon=True)
-    worker.start()
-    try:
-        while True:
-            item = q.get()
-            if item is _DONE:
-                return
-            if isinstance(item, BaseException):
-                raise item
-            yield item
-    finally:
-        stop.set()
-        worker.join(timeout=5.0)
-
 
 def write_video_outputs(
     path: str | Path,
@@ -422,7 +374,9 @@ def write_video_outputs(
 
             def overlays() -> Iterator[npt.NDArray[np.uint8]]:
                 """Writes each frame's mask (and recording) as the windows arrive; yields its overlay."""
-                for window in _ahead(segment_video(path, cfg, model, max_frames, masks=False), _WINDOWS_AHEAD):
+                for window in run_ahead(
+                    segment_video(path, cfg, model, max_frames, masks=False), _WINDOWS_AHEAD, "moseg-segment"
+                ):
                     # Keep what the summary and labels.npz need, not the images (flat memory).
                     windows.append(replace(window, frames=()))
                     if recorder is not None:

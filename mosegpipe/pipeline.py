@@ -9,8 +9,10 @@ Whole videos: consecutive F-frame windows, streamed, with motion labels kept con
 Windows share their boundary frame (window w covers frames w(F-1) .. w(F-1)+F-1) and the tracker
 re-seeds corners at every window start, so tracks run on from one window into the next. A window's
 clusters take the global label of the previous window's cluster they share most tracks with
-(Hungarian matching on the overlap counts); a cluster that matches nothing starts a new global label.
-Only the current window's frames (at most F images) are held.
+(Hungarian matching on the overlap counts); a cluster of new tracks starts a new global label, a
+cluster that split off a known motion only once it splits off in two windows running (`match_labels`).
+On a near tie of the automatic-K scores a window keeps the previous window's K. Only the current
+window's frames (at most F images) are held.
 """
 
 from __future__ import annotations
@@ -469,12 +471,15 @@ class LabelBook:
         last_window: label -> the last window that used it.
         num_reused: how many times a label was handed out again (only after 255 labels).
         max_label: largest label a mask can hold (mask value = label <= 254; 255 = unknown).
+        pending: track id -> split candidate of the last window: the tracks of a cluster that
+            split off a known motion, which kept that motion's label (see match_labels).
     """
 
     next_label: int = 0
     last_window: dict[int, int] = field(default_factory=dict)
     num_reused: int = 0
     max_label: int = MAX_LABEL
+    pending: dict[int, int] = field(default_factory=dict)
 
     def new_label(self, busy: set[int]) -> int:
         """A label for a motion that continues none seen before: the next unused one, else the least
@@ -499,47 +504,61 @@ def match_labels(
 ) -> npt.NDArray[np.int64]:
     """Maps this window's clusters to global labels through the tracks shared with the previous window.
 
-    Clusters and previous labels are paired by the Hungarian method on their overlap counts
-    (maximum total overlap, one-to-one). A pair is kept only when at least half of the cluster's
-    shared tracks carried that label, so a new object that happens to share a few mislabelled
-    tracks with an old one does not inherit its label.
+    1. Clusters and previous labels are paired by the Hungarian method on their overlap counts
+       (maximum total overlap, one-to-one). A pair is kept only when at least half of the cluster's
+       shared tracks carried that label and at least a quarter of its tracks carried a label at all
+       (across a camera cut the few tracks that survive it say nothing about the new shot).
+    2. A cluster left over whose tracks are known (that quarter carried labels) is a piece of the
+       motions they carried: K-means split a motion (over-segmentation) or joined two. It takes the
+       label most of its shared tracks carried, as in the window before, and becomes a split
+       candidate. Only when a candidate splits off again in the next window (at least half of the
+       cluster's shared tracks were one candidate's) does it get a new label: a motion that
+       separates from another is labelled one window late, a split that comes and goes never.
+    3. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
+       unless the cluster is too small to trust (fewer than _MIN_NEW_TRACKS tracks and under
+       _MIN_NEW_SHARE of the window's), which stays unlabelled (-1).
 
     Args:
         prev: track id -> global label from the previous labelled window.
         ids: (N,) int64 track ids of this window's trajectories.
         clusters: (N,) int64 cluster of each, in 0..k-1.
         k: number of clusters in this window.
-        book: the global label state (updated).
+        book: the global label state (updated, its split candidates included).
         window: index of this window (for least-recently-used label reuse).
 
     Returns:
         (N,) int64 global labels.
     """
     old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
+    candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     shared = old >= 0
     mapping: dict[int, int] = {}
     sizes = np.bincount(clusters, minlength=k)
     small = max(min(_MIN_NEW_TRACKS, 0.25 * clusters.size), _MIN_NEW_SHARE * clusters.size)
+    splits: dict[int, int] = {}  # cluster -> the label it split off (it keeps that label for now)
+    confirmed: set[int] = set()  # clusters that split off in two windows running: new labels
     if shared.any():
         olds = np.unique(old[shared])
         overlap = np.zeros((k, olds.size), dtype=np.int64)
         np.add.at(overlap, (clusters[shared], np.searchsorted(olds, old[shared])), 1)
         per_cluster = overlap.sum(axis=1)
-        # A cluster continues a label only when enough of its tracks were labelled before: across
-        # a camera cut the few tracks that survive it say nothing about the new shot.
         known = per_cluster >= _MIN_CONTINUED * sizes
+        for r in range(k):
+            mine = candidate[(clusters == r) & (candidate >= 0)]
+            if known[r] and sizes[r] >= small and mine.size and np.bincount(mine).max() >= _MIN_SHARE * per_cluster[r]:
+                confirmed.add(r)
+        overlap[list(confirmed)] = 0  # a recurring split continues none of the labels
         rows, cols = linear_sum_assignment(-overlap)
         for r, c in zip(rows, cols):
             if known[r] and overlap[r, c] > 0 and overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
                 mapping[int(r)] = int(olds[c])
-        # A small cluster that Hungarian left over but whose shared tracks mostly carried one label
-        # is a fragment of that motion (K-means splitting a motion in this window), not a new one.
         for r in range(k):
-            if r in mapping or sizes[r] >= small or not known[r] or per_cluster[r] == 0:
+            if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
                 continue
-            c = int(overlap[r].argmax())
-            if overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
-                mapping[r] = int(olds[c])
+            mapping[r] = int(olds[int(overlap[r].argmax())])
+            if sizes[r] >= small:
+                splits[r] = mapping[r]
+    book.pending = {int(i): int(c) for i, c in zip(ids, clusters) if int(c) in splits}
     # The dominant motion takes label 0 when no cluster carries 0 on, e.g. after a camera cut: the
     # clips' convention (mask value 0 = the dominant motion) holds for videos too.
     if 0 not in mapping and 0 not in mapping.values() and book.next_label > 0:
@@ -548,7 +567,7 @@ def match_labels(
     for c in range(k):
         if c in mapping:
             continue
-        if sizes[c] < small and k > 1:
+        if sizes[c] < small and k > 1 and c not in confirmed:
             # Too few tracks to trust as a motion that just appeared: left unlabelled (-1).
             mapping[c] = -1
             continue
@@ -739,7 +758,9 @@ def segment_video(
         TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
             the video is exhausted).
 
-    Automatic K's warning that its choice is ambiguous is logged once, after the last window
+    Automatic K keeps the previous window's K when that K scores within cfg.cluster.ambiguity_margin
+    of the best (`cluster_auto_k`'s prefer_k): a change of K needs clear evidence. Automatic K's
+    warning that its choice is ambiguous is logged once, after the last window
     ("K was ambiguous in 3 of 40 windows: ..."), not per window; each window keeps its note
     (WindowResult.k_note, summary.json `windows[].k_ambiguous`).
     """
@@ -751,6 +772,7 @@ def segment_video(
     tracker = KLTTracker(replace(cfg.track, reseed=True, reseed_every=f - 1))
     book = LabelBook()
     prev: dict[int, int] = {}
+    prev_k = 0  # K of the last labelled window (0: none yet)
     num_windows = 0
     num_labelled = 0
     num_frames = 0
@@ -759,7 +781,7 @@ def segment_video(
 
     def label_window(window: list[_Frame], new: list[_Frame]) -> WindowResult:
         """Clusters the tracks live through the whole window and labels the frames in `new`."""
-        nonlocal prev, num_windows, num_labelled
+        nonlocal prev, prev_k, num_windows, num_labelled
         tracks, row_ids = tracks_from_steps([(ids, xy) for _, _, ids, xy in window], window[0][1].shape[:2])
         traj = build_trajectories(tracks)
         common = row_ids[traj.track_ids]  # tracker ids of the tracks live through the whole window
@@ -773,13 +795,13 @@ def segment_video(
             emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
             forced = None if cfg.k is None else min(cfg.k, common.size)
             with _warnings_held(cluster_log):
-                clustering = cluster_auto_k(emb, cfg.cluster, k=forced, points=traj.data)
+                clustering = cluster_auto_k(emb, cfg.cluster, k=forced, points=traj.data, prefer_k=prev_k or None)
             k, note, scores = clustering.k, clustering.note, dict(clustering.scores)
             glob = match_labels(prev, common, clustering.labels, k, book, num_windows)
             labelled_ids = common[glob >= 0]
             glob = glob[glob >= 0]
             labels_by_id = {int(i): int(g) for i, g in zip(labelled_ids, glob)}
-            prev = labels_by_id
+            prev, prev_k = labels_by_id, k
             num_labelled += 1
         else:
             log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)

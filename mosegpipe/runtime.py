@@ -11,8 +11,11 @@ import atexit
 import contextlib
 import gc
 import os
+import queue
 import sys
+import threading
 from collections.abc import Iterator
+from typing import Any, TypeVar
 
 
 def set_threads(num_threads: int = 1) -> None:
@@ -100,3 +103,57 @@ def collector_paused(marker: str) -> Iterator[None]:
         gc.freeze()
         gc.enable()
         atexit.register(gc.freeze)  # at exit: before the interpreter's last collection
+
+
+_T = TypeVar("_T")
+_DONE = object()
+
+
+def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Iterator[_T]:
+    """Runs the iterator `items` on a background thread, at most `depth` items ahead of the consumer.
+
+    Whole-video mode spends its time in OpenCV, PyAV and BLAS calls that release the GIL, so its
+    stages run as a chain of these: reading + KLT tracking, then embedding + clustering, then masks,
+    overlays and encoding (the caller's thread); on two or more cores they overlap.
+    An exception in `items` is raised in the consumer. When the consumer stops early (an error,
+    Ctrl-C, a closed generator), the thread is told to stop, closes `items` (so that a chain of
+    these winds down stage by stage) and exits.
+    """
+    q: queue.Queue[Any] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item: Any) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def run() -> None:
+        try:
+            for item in items:
+                if not put(item):
+                    return
+            put(_DONE)
+        except BaseException as exc:  # handed to the consumer, raised there
+            put(exc)
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:
+                close()
+
+    worker = threading.Thread(target=run, name=name, daemon=True)
+    worker.start()
+    try:
+        while True:
+            item = q.get()
+            if item is _DONE:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        worker.join(timeout=5.0)

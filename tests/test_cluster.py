@@ -4,7 +4,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, relabel_by_size
+from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, mean_silhouette, relabel_by_size
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.metrics import misclassification_error
 
@@ -195,3 +195,32 @@ def test_tiny_inputs_do_not_crash(method: str, n: int) -> None:
     assert result.labels.shape == (n,)
     assert 1 <= result.k <= n
     assert result.labels.max() < result.k
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_mean_silhouette_equals_scikit_learn(seed: int) -> None:
+    from sklearn.metrics import pairwise_distances, silhouette_score
+
+    rng = np.random.default_rng(seed)
+    x = rng.normal(size=(120, 5))
+    labels = rng.integers(0, 2 + seed, size=120)
+    labels[7] = labels.max() + 1  # a cluster of one point scores 0
+    d = pairwise_distances(x)
+    assert mean_silhouette(d, labels) == pytest.approx(silhouette_score(d, labels, metric="precomputed"), abs=1e-12)
+    x[:5] = x[0]  # duplicate points: zero distances
+    d = pairwise_distances(x)
+    assert mean_silhouette(d, labels) == pytest.approx(silhouette_score(d, labels, metric="precomputed"), abs=1e-12)
+
+
+def test_prefer_k_wins_only_a_near_tie() -> None:
+    x, _ = sphere_blobs(3, n=240, noise=0.2, seed=3)
+    cfg = ClusterConfig(method="silhouette")
+    free = cluster_auto_k(x, cfg)
+    others = sorted((k for k in free.scores if k != free.k), key=lambda k: free.scores[free.k] - free.scores[k])
+    near, far = others[0], others[-1]
+    gap = free.scores[free.k] - free.scores[near]
+    tie = ClusterConfig(method="silhouette", ambiguity_margin=gap + 1e-9)
+    assert cluster_auto_k(x, tie, prefer_k=near).k == near
+    assert cluster_auto_k(x, ClusterConfig(method="silhouette", ambiguity_margin=gap / 2), prefer_k=near).k == free.k
+    assert free.scores[free.k] - free.scores[far] > gap and cluster_auto_k(x, tie, prefer_k=far).k == free.k
+    assert cluster_auto_k(x, tie, prefer_k=99).k == free.k  # not a candidate: ignored

@@ -18,6 +18,9 @@ def test_labels_per_object_counts_identity_switches() -> None:
     pred[2, 5:15, 5:15] = 255  # unknown there: the frame says nothing
     assert labels_per_object(pred, gt, min_px=50) == {1: 1}
     assert labels_per_object(pred, gt, min_px=101) == {}  # too small in every frame
+    pred[2, 5:15, 5:15] = 0  # taken for the background in the last frame
+    assert labels_per_object(pred, gt, min_px=50) == {1: 2}
+    assert labels_per_object(pred, gt, min_px=50, ignore=0) == {1: 1}
 
 
 def test_long_clip_has_a_cut_and_new_object_ids_after_it() -> None:

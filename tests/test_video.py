@@ -57,13 +57,24 @@ def test_match_labels_follows_shared_tracks() -> None:
     assert book.next_label == 3 and book.last_window == {0: 1, 1: 1, 2: 1}
 
 
-def test_match_labels_needs_a_majority_of_shared_tracks() -> None:
+def test_match_labels_gives_a_split_a_new_label_only_when_it_recurs() -> None:
     book = LabelBook(next_label=2)
     prev = {1: 0, 2: 0, 3: 0, 4: 1, 5: 0, 6: 0}
+    ids, clusters = np.array([1, 2, 3, 4, 5, 6, 7]), np.array([0, 0, 0, 1, 1, 1, 1])
     # Overlaps: cluster 0 = {motion 0: 3}, cluster 1 = {motion 0: 2, motion 1: 1}. The best pairing
-    # is 0 -> 0, 1 -> 1, but only 1 of cluster 1's 3 shared tracks was motion 1: a new motion.
-    labels = match_labels(prev, np.array([1, 2, 3, 4, 5, 6, 7]), np.array([0, 0, 0, 1, 1, 1, 1]), 2, book)
-    assert labels.tolist() == [0, 0, 0, 2, 2, 2, 2]
+    # is 0 -> 0, 1 -> 1, but only 1 of cluster 1's 3 shared tracks was motion 1: cluster 1 split off
+    # motion 0, and keeps its label for now.
+    labels = match_labels(prev, ids, clusters, 2, book)
+    assert labels.tolist() == [0] * 7 and book.next_label == 2
+    assert book.pending == {4: 1, 5: 1, 6: 1, 7: 1}
+    # The same split in the next window: a motion of its own.
+    labels = match_labels(dict(zip(ids.tolist(), labels.tolist())), ids, clusters, 2, book, window=1)
+    assert labels.tolist() == [0, 0, 0, 2, 2, 2, 2] and book.pending == {}
+    # A split that does not recur joins its motion again and leaves no candidate behind.
+    book = LabelBook(next_label=2)
+    labels = match_labels(prev, ids, clusters, 2, book)
+    labels = match_labels(dict(zip(ids.tolist(), labels.tolist())), ids, np.zeros(7, dtype=np.int64), 1, book, window=1)
+    assert labels.tolist() == [0] * 7 and book.pending == {} and book.next_label == 2
 
 
 def test_label_book_reuses_the_least_recently_used_label() -> None:

@@ -630,7 +630,9 @@ def long_rendered_clip(seed: int, size_hw: tuple[int, int] = (480, 640), frames:
     )
 
 
-def labels_per_object(pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, min_px: int = 200) -> dict[int, int]:
+def labels_per_object(
+    pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, min_px: int = 200, ignore: int | None = None
+) -> dict[int, int]:
     """How many different predicted labels each ground-truth object was given over a video.
 
     A label counts for an object when it is the most frequent known label on the object's pixels in
@@ -640,6 +642,8 @@ def labels_per_object(pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, min_px
         pred_masks: (T, H, W) predicted labels, 255 = unknown.
         gt_masks: (T, H, W) ground-truth ids, 0 = background (not counted).
         min_px: frames where the object is smaller than this are skipped.
+        ignore: a label not counted (e.g. 0, the dominant motion: then frames where an object was
+            not told from the background do not count as a switch; only switches between motions do).
 
     Returns:
         {object id: number of labels} for every object visible with min_px pixels in some frame.
@@ -654,7 +658,7 @@ def labels_per_object(pred_masks: npt.ArrayLike, gt_masks: npt.ArrayLike, min_px
             vals = p[t][(g[t] == gid) & (p[t] != 255)]
             if vals.size:
                 seen.setdefault(int(gid), set()).add(int(np.bincount(vals).argmax()))
-    return {gid: len(labs) for gid, labs in seen.items()}
+    return {gid: len(labs - {ignore}) for gid, labs in seen.items()}
 
 
 def long_rendered_rows(
@@ -682,7 +686,9 @@ def long_rendered_rows(
     Returns:
         One row per seed: seed, camera (both shots), objects (ground-truth objects visible),
         num_motions (labels handed out), J and F (video level, objects only), labels_per_object
-        (mean over objects of `labels_per_object`), max_labels_per_object, seconds and fps
+        (mean over objects of `labels_per_object`), max_labels_per_object, moving_labels_per_object
+        (the same without label 0: identity switches between motions only, not frames where an
+        object was taken for the background), seconds and fps
         (segment_video with its masks; rendering and scoring excluded).
     """
     import tempfile
@@ -709,6 +715,7 @@ def long_rendered_rows(
             seconds = time.perf_counter() - t0
         scores = mask_scores(pred, clip.masks, background=0, unknown=255, tolerance=tolerance)
         per = labels_per_object(pred, clip.masks)
+        moving = labels_per_object(pred, clip.masks, ignore=0)
         rows.append(
             {
                 "seed": seed,
@@ -719,6 +726,7 @@ def long_rendered_rows(
                 "F": scores.f,
                 "labels_per_object": float(np.mean(list(per.values()))) if per else float("nan"),
                 "max_labels_per_object": max(per.values(), default=0),
+                "moving_labels_per_object": float(np.mean(list(moving.values()))) if moving else float("nan"),
                 "seconds": seconds,
                 "fps": frames / seconds if seconds > 0 else 0.0,
             }
