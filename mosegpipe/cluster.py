@@ -417,15 +417,17 @@ def _cluster_auto_k(
         scores = {1: float(threshold), **scores}
         fits[1] = np.zeros(n, dtype=np.int64)
     best = max(scores, key=lambda kk: (scores[kk], -kk))
+    preferred = False
     if prefer_k is not None and prefer_k in scores and scores[best] - scores[prefer_k] <= cfg.ambiguity_margin:
-        best = prefer_k
+        best, preferred = prefer_k, best != prefer_k
     logger.debug("%s scores %s: K=%d", cfg.method, scores, best)
     note = ""
     runner_up = max((kk for kk in scores if kk != best), key=lambda kk: (scores[kk], -kk), default=None)
     if runner_up is not None and scores[best] - scores[runner_up] <= cfg.ambiguity_margin:
         note = (
             f"the K choice is ambiguous: K = {best} scored {scores[best]:.3f}, K = {runner_up} {scores[runner_up]:.3f} "
-            f"({cfg.method}, within {cfg.ambiguity_margin:g}); pass --k to decide"
+            f"({cfg.method}, within {cfg.ambiguity_margin:g}){'; the preferred K kept' if preferred else ''}; "
+            "pass --k to decide"
         )
         logger.warning(note)
     return Clustering(labels=fits[best], k=best, scores=scores, method=cfg.method, note=note)

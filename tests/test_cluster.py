@@ -224,3 +224,5 @@ def test_prefer_k_wins_only_a_near_tie() -> None:
     assert cluster_auto_k(x, ClusterConfig(method="silhouette", ambiguity_margin=gap / 2), prefer_k=near).k == free.k
     assert free.scores[free.k] - free.scores[far] > gap and cluster_auto_k(x, tie, prefer_k=far).k == free.k
     assert cluster_auto_k(x, tie, prefer_k=99).k == free.k  # not a candidate: ignored
+    kept = cluster_auto_k(x, tie, prefer_k=near)
+    assert kept.note.startswith("the K choice is ambiguous") and "the preferred K kept" in kept.note

@@ -211,6 +211,7 @@ def test_windows_carry_their_k_scores(frames_dir: Path, model_path: Path) -> Non
 
     model = SubspaceNet.from_checkpoint(model_path)
     windows = list(segment_video(frames_dir, PipelineConfig(frames=5), model))
-    assert windows and all(w.k_scores and max(w.k_scores, key=lambda c: w.k_scores[c]) == w.k for w in windows)
+    margin = PipelineConfig().cluster.ambiguity_margin  # a near tie may keep the previous window's K
+    assert windows and all(w.k_scores and w.k_scores[w.k] >= max(w.k_scores.values()) - margin for w in windows)
     forced = list(segment_video(frames_dir, PipelineConfig(frames=5, k=2), model))
     assert all(w.k == 2 and not w.k_scores for w in forced)
