@@ -65,6 +65,11 @@ class PipelineConfig:
         mask: dense-mask settings.
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix RANSAC fit explains less
             than this fraction of its points is labelled as outliers.
+        video_k_step: whole videos: a window tries K up to the previous window's K plus this (and at
+            most cluster.k_max), so K rises by at most this much every F - 1 frames; None = the full
+            sweep in every window. The sweep's larger K cost the most K-means time, and a jump of
+            several motions in one window was K-means over-segmenting more often than motions
+            appearing (docs/RESULTS.md, "Long videos").
     """
 
     frames: int = 5
@@ -76,6 +81,11 @@ class PipelineConfig:
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     mask: MaskConfig = field(default_factory=MaskConfig)
     outlier_inlier_ratio: float = 0.5
+    video_k_step: int | None = 2
+
+    def __post_init__(self) -> None:
+        if self.video_k_step is not None and self.video_k_step < 1:
+            raise InputError(f"video_k_step={self.video_k_step} must be at least 1 (or None: no limit)")
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
@@ -795,7 +805,11 @@ def segment_video(
             emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
             forced = None if cfg.k is None else min(cfg.k, common.size)
             with _warnings_held(cluster_log):
-                clustering = cluster_auto_k(emb, cfg.cluster, k=forced, points=traj.data, prefer_k=prev_k or None)
+                sweep = cfg.cluster
+                if prev_k and cfg.video_k_step is not None:
+                    k_max = max(sweep.k_min, min(sweep.k_max, prev_k + cfg.video_k_step))
+                    sweep = replace(sweep, k_max=k_max)
+                clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=prev_k or None)
             k, note, scores = clustering.k, clustering.note, dict(clustering.scores)
             glob = match_labels(prev, common, clustering.labels, k, book, num_windows)
             labelled_ids = common[glob >= 0]

@@ -215,3 +215,16 @@ def test_windows_carry_their_k_scores(frames_dir: Path, model_path: Path) -> Non
     assert windows and all(w.k_scores and w.k_scores[w.k] >= max(w.k_scores.values()) - margin for w in windows)
     forced = list(segment_video(frames_dir, PipelineConfig(frames=5, k=2), model))
     assert all(w.k == 2 and not w.k_scores for w in forced)
+
+
+def test_whole_video_k_rises_by_at_most_video_k_step(frames_dir: Path, model_path: Path) -> None:
+    from mosegpipe.pipeline import segment_video
+
+    model = SubspaceNet.from_checkpoint(model_path)
+    full = list(segment_video(frames_dir, PipelineConfig(frames=5, video_k_step=None), model))
+    assert max(full[1].k_scores) > full[0].k + 1  # unlimited: the whole sweep in every window
+    stepped = list(segment_video(frames_dir, PipelineConfig(frames=5, video_k_step=1), model))
+    for before, window in zip(stepped, stepped[1:]):
+        assert max(window.k_scores) <= max(before.k + 1, 2) and window.k <= before.k + 1
+    with pytest.raises(InputError, match="video_k_step=0 must be at least 1"):
+        PipelineConfig(video_k_step=0)
