@@ -48,3 +48,19 @@ def test_every_method_writes_masks_from_the_cli(tmp_path: Path, method: str) -> 
     result = runner.invoke(app, ["run", str(clip), "--mask-method", method, "--out", str(out), "--no-rrd"])
     assert result.exit_code == 0, result.output
     assert '"method": "' + method + '"' in (out / "summary.json").read_text()
+
+
+def test_watershed_with_one_label_fills_everything_near_a_track() -> None:
+    import cv2
+
+    from mosegpipe.masks import labels_to_mask
+
+    rng = np.random.default_rng(1)
+    image = cv2.GaussianBlur(rng.integers(0, 255, (120, 160, 3), dtype=np.uint8), (5, 5), 0)
+    xy = rng.uniform((0, 0), (159, 119), size=(40, 2)).astype(np.float32)
+    xy[:, 0] *= 0.5  # the right half of the image is far from every track
+    mask = labels_to_mask(xy, np.full(40, 3), (120, 160), MaskConfig(method="watershed"), image)
+    seeds = np.full((120, 160), 255, np.uint8)
+    seeds[np.round(xy[:, 1]).astype(int), np.round(xy[:, 0]).astype(int)] = 0
+    near = cv2.distanceTransform(seeds, cv2.DIST_L2, 5) <= 40
+    assert np.array_equal(mask, np.where(near, 3, UNKNOWN)) and not near.all()
