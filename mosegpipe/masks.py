@@ -178,9 +178,9 @@ def _watershed(
         mask = np.where(markers > 0, markers - 1, UNKNOWN).astype(np.uint8)
     # Evidence comes from every labelled track (seeding or not): no track near = unknown. (The
     # distances alone, without the Voronoi cells, cost a fifth of the time.)
-    seeds = np.full(small_hw, 255, dtype=np.uint8)
-    seeds[xy_s[:, 1], xy_s[:, 0]] = 0
-    dist = cv2.distanceTransform(seeds, cv2.DIST_L2, 5)
+    tracked = np.full(small_hw, 255, dtype=np.uint8)
+    tracked[xy_s[:, 1], xy_s[:, 0]] = 0
+    dist = cv2.distanceTransform(tracked, cv2.DIST_L2, 5)
     mask[dist > cfg.max_distance_px * small_hw[1] / width] = UNKNOWN
     if small_hw != (height, width):
         mask = cv2.resize(mask, (width, height), interpolation=cv2.INTER_NEAREST)

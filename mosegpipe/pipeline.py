@@ -67,9 +67,8 @@ class PipelineConfig:
             than this fraction of its points is labelled as outliers.
         video_k_step: whole videos: a window tries K up to the previous window's K plus this (and at
             most cluster.k_max), so K rises by at most this much every F - 1 frames; None = the full
-            sweep in every window. The sweep's larger K cost the most K-means time, and a jump of
-            several motions in one window was K-means over-segmenting more often than motions
-            appearing (docs/RESULTS.md, "Long videos").
+            sweep in every window. The sweep's larger K cost the most K-means time; on the long
+            rendered clips the limit changed no segmentation (docs/RESULTS.md, "Speed").
     """
 
     frames: int = 5
@@ -577,7 +576,7 @@ def match_labels(
     for c in range(k):
         if c in mapping:
             continue
-        if sizes[c] < small and k > 1 and c not in confirmed:
+        if sizes[c] < small and k > 1:
             # Too few tracks to trust as a motion that just appeared: left unlabelled (-1).
             mapping[c] = -1
             continue
@@ -769,7 +768,8 @@ def segment_video(
             the video is exhausted).
 
     Automatic K keeps the previous window's K when that K scores within cfg.cluster.ambiguity_margin
-    of the best (`cluster_auto_k`'s prefer_k): a change of K needs clear evidence. Automatic K's
+    of the best (`cluster_auto_k`'s prefer_k): a change of K needs clear evidence; and it tries K only
+    up to the previous window's K + cfg.video_k_step. Automatic K's
     warning that its choice is ambiguous is logged once, after the last window
     ("K was ambiguous in 3 of 40 windows: ..."), not per window; each window keeps its note
     (WindowResult.k_note, summary.json `windows[].k_ambiguous`).
