@@ -372,6 +372,13 @@ KMethod = Annotated[
     typer.Option("--k-method", help="Automatic K: silhouette (default, more often right) or residual (faster)."),
 ]
 KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered by automatic K.")]
+RigidCheck = Annotated[
+    bool,
+    typer.Option(
+        "--rigid-check/--no-rigid-check",
+        help="After automatic K, split off groups of tracks that their cluster's rigid motion does not explain.",
+    ),
+]
 ModelOpt = Annotated[Path | None, typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results already in the output folder.")]
 NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
@@ -520,6 +527,7 @@ def _pipeline_cfg(
     k_max: int,
     *,
     start: int = 0,
+    rigid_check: bool = True,
     track: dict[str, Any] | None = None,
     mask: dict[str, Any] | None = None,
 ) -> Any:
@@ -527,6 +535,7 @@ def _pipeline_cfg(
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.rigid import RigidCheckConfig
     from mosegpipe.track import TrackConfig
 
     method = cast(KMethodName, check_choice("--k-method", _value(k_method), get_args(KMethodName)))
@@ -546,6 +555,7 @@ def _pipeline_cfg(
         k=k,
         track=track_cfg,
         cluster=replace(ClusterConfig(), method=method, k_max=k_max),
+        rigid=RigidCheckConfig(enabled=rigid_check),
         mask=mask_cfg,
     )
 
@@ -795,6 +805,7 @@ def run(
     k: KOpt = None,
     k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
+    rigid_check: RigidCheck = True,
     max_corners: MaxCorners = 1000,
     min_distance: MinDistance = 7.0,
     quality: Quality = 0.01,
@@ -836,6 +847,7 @@ def run(
         k_method,
         k_max,
         start=start,
+        rigid_check=rigid_check,
         track=_tracker(max_corners, min_distance, quality, win_size),
         mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
     )
@@ -956,6 +968,7 @@ def tracks(
     k: KOpt = None,
     k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
+    rigid_check: RigidCheck = True,
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     config: ConfigOpt = None,
@@ -979,7 +992,7 @@ def tracks(
 
     xy, visible = read_tracks_file(file)
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
-    cfg = _pipeline_cfg(max(2, window), k, k_method, k_max, start=start)
+    cfg = _pipeline_cfg(max(2, window), k, k_method, k_max, start=start, rigid_check=rigid_check)
     out = out or _default_out(file, "_moseg")
     check_output_dir(out, overwrite)
     net = load_embedder(max(2, window), model)
@@ -1001,6 +1014,7 @@ def batch(
     k: KOpt = None,
     k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
+    rigid_check: RigidCheck = True,
     max_corners: MaxCorners = 1000,
     min_distance: MinDistance = 7.0,
     quality: Quality = 0.01,
@@ -1078,6 +1092,7 @@ def batch(
         k_method,
         k_max,
         start=start,
+        rigid_check=rigid_check,
         track=_tracker(max_corners, min_distance, quality, win_size),
         mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
     )
@@ -1466,6 +1481,7 @@ def eval_(
     folds: Annotated[str | None, typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
     k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
+    rigid_check: RigidCheck = True,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,
@@ -1494,6 +1510,7 @@ def eval_(
         folds=tuple(folds.split(",")) if folds else None,
         k_method=k_method,
         k_max=k_max,
+        rigid_check=rigid_check,
         progress=typer.echo,
     )
     result = proto.run(proto, request)

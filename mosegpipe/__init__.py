@@ -36,6 +36,7 @@ _EXPORTS = {
     "mosegpipe.evaluation.metrics": ("misclassification_error", "nmi"),
     "mosegpipe.model": ("ModelConfig", "SubspaceNet"),
     "mosegpipe.outputs": ("write_clip_outputs", "write_pair_outputs", "write_video_outputs"),
+    "mosegpipe.rigid": ("RigidCheckConfig", "split_by_rigid_motion"),
     "mosegpipe.pipeline": ("PipelineConfig", "segment_clip", "segment_frames", "segment_pair", "segment_video"),
     "mosegpipe.track": ("KLTTracker", "TrackConfig", "track_klt"),
     "mosegpipe.trajectories": ("build_trajectories", "resample_frames", "trajectories_from_matches"),

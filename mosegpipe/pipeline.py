@@ -37,6 +37,7 @@ from mosegpipe.errors import CheckpointError, InputError, TooFewTracksError
 from mosegpipe.io import check_images, iter_video, read_image, read_video, video_info
 from mosegpipe.masks import MAX_LABEL, MaskConfig, labels_to_mask, labels_to_masks
 from mosegpipe.match import MatchConfig, match_sift
+from mosegpipe.rigid import RigidCheckConfig, split_by_rigid_motion
 from mosegpipe.track import KLTTracker, TrackConfig, track_klt, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories, trajectories_from_matches
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
@@ -62,6 +63,9 @@ class PipelineConfig:
         track: KLT settings.
         match: SIFT matching settings (pairs).
         cluster: automatic-K settings.
+        rigid: the rigid-motion check after automatic K (clips, whole videos, tracks; not pairs, not
+            with k given): groups of tracks that their cluster's rigid motion does not explain
+            become clusters of their own (mosegpipe.rigid).
         mask: dense-mask settings.
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix RANSAC fit explains less
             than this fraction of its points is labelled as outliers.
@@ -78,6 +82,7 @@ class PipelineConfig:
     track: TrackConfig = field(default_factory=TrackConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    rigid: RigidCheckConfig = field(default_factory=RigidCheckConfig)
     mask: MaskConfig = field(default_factory=MaskConfig)
     outlier_inlier_ratio: float = 0.5
     video_k_step: int | None = 2
@@ -266,6 +271,23 @@ def _check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
         raise InputError(f"{source}: --k {k} is larger than the number of {what} ({n})")
 
 
+def check_rigid(
+    clustering: Clustering, points: npt.NDArray[np.float32], size_hw: tuple[int, int], cfg: PipelineConfig
+) -> Clustering:
+    """`clustering` after the rigid-motion check (unchanged when K was given or the check is off).
+
+    Its note then says how many groups the check split off, after automatic K's own note.
+    """
+    if cfg.k is not None or not cfg.rigid.enabled:
+        return clustering
+    labels, split = split_by_rigid_motion(points, clustering.labels, size_hw, cfg.rigid)
+    if not split:
+        return clustering
+    what = f"the rigid-motion check split off {split} group{'s' if split > 1 else ''} (K = {clustering.k} -> {clustering.k + split})"
+    note = f"{clustering.note}; {what}" if clustering.note else what
+    return replace(clustering, labels=labels, k=clustering.k + split, note=note)
+
+
 def _model_or_default(model: Embedder | None, frames: int, timings: dict[str, float]) -> Embedder:
     if model is not None:
         return model
@@ -330,6 +352,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     timings["embed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
+    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
     timings["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     masks = labels_to_masks(tracks, traj.track_ids, clustering.labels, cfg.mask, frames.images)
@@ -810,12 +833,14 @@ def segment_video(
                     k_max = max(sweep.k_min, min(sweep.k_max, prev_k + cfg.video_k_step))
                     sweep = replace(sweep, k_max=k_max)
                 clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=prev_k or None)
+            sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
+            clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
             k, note, scores = clustering.k, clustering.note, dict(clustering.scores)
             glob = match_labels(prev, common, clustering.labels, k, book, num_windows)
             labelled_ids = common[glob >= 0]
             glob = glob[glob >= 0]
             labels_by_id = {int(i): int(g) for i, g in zip(labelled_ids, glob)}
-            prev, prev_k = labels_by_id, k
+            prev, prev_k = labels_by_id, sweep_k
             num_labelled += 1
         else:
             log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
@@ -972,6 +997,7 @@ def segment_tracks(
     timings["embed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
+    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
     timings["cluster"] = time.perf_counter() - t0
     labels = np.full(num, -1, dtype=np.int64)
     labels[traj.track_ids] = clustering.labels

@@ -12,6 +12,7 @@ import select
 import subprocess
 import sys
 import typing
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from mosegpipe.masks import MASK_METHODS, MaskConfig
 from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_video
+from mosegpipe.rigid import RigidCheckConfig
 from mosegpipe.track import TrackConfig
 
 from helpers import moseg, motion_checkpoint, one_error_line, render_scene, write_avi, write_frames
@@ -262,6 +264,20 @@ def test_tracker_and_mask_options_reach_the_pipeline(tmp_path: Path, long_avi: P
         return int((read_palette_png(tmp_path / name / "masks" / "000000.png") == 255).sum())
 
     assert unknown("set") > unknown("default")  # 8 px from the nearest track, not 40
+
+
+def test_rigid_check_switch_reaches_the_pipeline(tmp_path: Path, long_avi: Path, models: dict[int, Path]) -> None:
+    base = ["run", long_avi, "-f", "3", "--model", models[3], "--no-rrd"]
+    code, _, stderr = moseg(*base, "-o", tmp_path / "on")
+    assert code == 0, stderr
+    code, _, stderr = moseg(*base, "--no-rigid-check", "-o", tmp_path / "off")
+    assert code == 0, stderr
+    assert summary_of(tmp_path / "on")["config"]["rigid"] == asdict(RigidCheckConfig())
+    assert summary_of(tmp_path / "off")["config"]["rigid"] == asdict(RigidCheckConfig(enabled=False))
+    group = typer.main.get_command(app)
+    for command in ("run", "batch", "tracks", "eval"):
+        defaults = {p.name: p.default for p in group.commands[command].params}
+        assert defaults["rigid_check"] is RigidCheckConfig().enabled, command
 
 
 @pytest.mark.parametrize(

@@ -16,6 +16,7 @@ INFERENCE_MODULES = [
     "mosegpipe.trajectories",
     "mosegpipe.model",
     "mosegpipe.cluster",
+    "mosegpipe.rigid",
     "mosegpipe.masks",
     "mosegpipe.viz",
 ]

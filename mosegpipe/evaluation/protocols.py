@@ -53,6 +53,8 @@ class EvalRequest:
         folds: only these held-out names (None = all).
         k_method: automatic-K rule ("silhouette" or "residual").
         k_max: largest K considered by automatic K.
+        rigid_check: end-to-end protocols: run the rigid-motion check after automatic K
+            (PipelineConfig.rigid; False = automatic K alone, as before the check existed).
         progress: called with one line per fold / stage.
     """
 
@@ -72,6 +74,7 @@ class EvalRequest:
     folds: tuple[str, ...] | None = None
     k_method: str = "silhouette"
     k_max: int = 8
+    rigid_check: bool = True
     progress: Callable[[str], None] | None = field(default=None, compare=False)
 
 
@@ -182,18 +185,31 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
     return EvalResult(rows, summary, table)
 
 
-def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
-    """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
+def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
+    """The pipeline settings an end-to-end protocol runs with: F frames, the request's K rule and check."""
     from dataclasses import replace
 
     from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.rigid import RigidCheckConfig
+
+    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
+    return PipelineConfig(
+        frames=frames,
+        cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max),
+        rigid=RigidCheckConfig(enabled=req.rigid_check),
+    )
+
+
+def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
+    """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
+
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
-    from mosegpipe.pipeline import PipelineConfig, load_model
+    from mosegpipe.pipeline import load_model
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
     f = req.frames or protocol.default_frames
-    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
-    cfg = PipelineConfig(frames=f, cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max))
+    cfg = _pipeline_config(req, f)
     net = load_model(f, req.model)
     rows = protocol.end_to_end(req.data_root, net, cfg, None, req.baselines or None)
     config = {
@@ -201,6 +217,7 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "frames": f,
         "k_method": req.k_method,
         "k_max": req.k_max,
+        "rigid_check": req.rigid_check,
         "model": str(req.model or "shipped default"),
     }
     table = format_rows(rows)
@@ -222,13 +239,11 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """
     import hashlib
     import json
-    from dataclasses import asdict, replace
+    from dataclasses import asdict
 
-    from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
     from mosegpipe.io import write_text
     from mosegpipe.model import SubspaceNet
-    from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.training.recipes import get_recipe
     from mosegpipe.training.run import TrainOverrides, train_recipe, train_sources
 
@@ -242,8 +257,7 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
             f"{protocol.default_frames} frames"
         )
     train_cfg = TrainOverrides(steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss).apply(recipe.train)
-    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
-    cfg = PipelineConfig(frames=train_cfg.frames, cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max))
+    cfg = _pipeline_config(req, train_cfg.frames)
     say = req.progress or (lambda _msg: None)
     names = protocol.fold_names(req.data_root)
     if req.folds is not None:
@@ -297,6 +311,7 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "init": str(init_path) if init_path else None,
         "k_method": req.k_method,
         "k_max": req.k_max,
+        "rigid_check": req.rigid_check,
         "baselines": list(req.baselines),
         "folds": names,
     }

@@ -1,0 +1,249 @@
+"""The rigid-motion check after clustering: split off the groups that a cluster's motion does not explain.
+
+Automatic K on the embeddings tends to leave a small object inside the cluster of the background (or of
+another object): a car of a few dozen tracks barely moves the silhouette. Geometry sees what the
+embedding misses. Every cluster of tracks is meant to be one rigid motion, so between the window's
+first frame and a later one its points obey one fundamental matrix (a camera moving through a static
+3D scene) or one homography (a camera that only rotates or stands still, a plane). For each cluster
+(`split_by_rigid_motion`):
+
+1. Fit both models by RANSAC (OpenCV) from frame 0 to frame t, for t = F // 2 and t = F - 1. The
+   homography is used when it keeps nearly as many inliers as the fundamental matrix
+   (`homography_ratio`): with a still or rotating camera a fundamental matrix is degenerate and also
+   explains an object that translates. A point's residual is the larger of its two frame pairs'
+   (Sampson distance, or transfer error for the homography), in pixels.
+2. Points with a residual above `residual_px` are candidates. A spatially coherent group of them that
+   moves alike is a motion of its own: candidates are linked when they lie within
+   `neighbour_frac` of the image diagonal of each other in frame 0 and their displacements agree in
+   every frame to `motion_px` plus `motion_frac` of the larger displacement; a connected group of at
+   least `min_tracks` points becomes a new cluster when one rigid model of its own explains at
+   least `consistency` of it. Scattered outliers (tracker failures) are left where they are.
+
+Measured on data that no protocol scores (docs/RESULTS.md, "The rigid-motion check"). Not applied
+when K is given, nor to image pairs (their outliers are their own group).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from mosegpipe.cluster import relabel_by_size
+from mosegpipe.errors import InputError
+
+_MIN_FUNDAMENTAL = 15  # fewer points: only the homography is fitted (8 would do, but barely constrain it)
+
+
+@dataclass(frozen=True)
+class RigidCheckConfig:
+    """Settings of `split_by_rigid_motion` (see the module docstring for what each one does).
+
+    Attributes:
+        enabled: run the check (clips, whole videos and tracks with automatic K).
+        residual_px: a point further than this from its cluster's rigid model (pixels, in either of
+            the two frame pairs) is a candidate for a motion of its own.
+        min_tracks: the smallest group split off.
+        min_host: only clusters of at least this many points are checked, and a split must leave
+            this many behind.
+        neighbour_frac: candidates within this fraction of the image diagonal of each other in
+            frame 0 may belong to one group.
+        motion_px, motion_frac: two candidates move alike when their displacements from frame 0
+            differ by at most motion_px + motion_frac * the larger displacement, in every frame.
+        consistency: a group is split off only when one rigid model of its own explains at least
+            this fraction of it (to residual_px).
+        homography_ratio: the homography is the model when it keeps at least this fraction of the
+            fundamental matrix's RANSAC inliers.
+    """
+
+    enabled: bool = True
+    residual_px: float = 1.5
+    min_tracks: int = 10
+    min_host: int = 30
+    neighbour_frac: float = 0.05
+    motion_px: float = 2.0
+    motion_frac: float = 0.15
+    consistency: float = 0.5
+    homography_ratio: float = 0.95
+
+    def __post_init__(self) -> None:
+        for name in ("residual_px", "neighbour_frac", "motion_px"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"rigid check: {name}={getattr(self, name)} must be positive")
+        for name in ("motion_frac", "consistency", "homography_ratio"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise InputError(f"rigid check: {name}={getattr(self, name)} must lie in [0, 1]")
+        for name in ("min_tracks", "min_host"):
+            if getattr(self, name) < 1:
+                raise InputError(f"rigid check: {name}={getattr(self, name)} must be at least 1")
+
+
+def _sampson_px(
+    f_mat: npt.NDArray[np.float64], a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """First-order geometric distance of each correspondence a -> b to the epipolar constraint, pixels."""
+    a1 = np.c_[a, np.ones(len(a))]
+    b1 = np.c_[b, np.ones(len(b))]
+    fa = a1 @ f_mat.T
+    ftb = b1 @ f_mat
+    num = np.sum(b1 * fa, axis=1) ** 2
+    den = fa[:, 0] ** 2 + fa[:, 1] ** 2 + ftb[:, 0] ** 2 + ftb[:, 1] ** 2
+    return np.asarray(np.sqrt(num / np.maximum(den, 1e-12)))
+
+
+Residuals = Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+"""A fitted rigid motion: (M, F, 2) positions -> (M,) residuals, pixels."""
+
+
+def _h_residual_px(
+    h_mat: npt.NDArray[np.float64], a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Transfer error of each correspondence a -> b under the homography, pixels."""
+    p = np.c_[a, np.ones(len(a))] @ h_mat.T
+    w = np.where(np.abs(p[:, 2:]) < 1e-12, 1e-12, p[:, 2:])
+    return np.asarray(np.linalg.norm(p[:, :2] / w - b, axis=1))
+
+
+def _fit_pair(
+    a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cfg: RigidCheckConfig
+) -> Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None:
+    """The rigid model of most correspondences a -> b as a residual function (None: no model fits)."""
+    h_mat, _ = cv2.findHomography(a, b, cv2.RANSAC, cfg.residual_px, maxIters=1000, confidence=0.999)
+    if len(a) >= _MIN_FUNDAMENTAL:
+        f_mat, _ = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, cfg.residual_px, 0.999, 1000)
+        if f_mat is not None and f_mat.shape == (3, 3):
+            f_in = (_sampson_px(f_mat, a, b) <= cfg.residual_px).sum()
+            if h_mat is None or (_h_residual_px(h_mat, a, b) <= cfg.residual_px).sum() < cfg.homography_ratio * f_in:
+                return lambda a2, b2: _sampson_px(f_mat, a2, b2)
+    if h_mat is None:
+        return None
+    return lambda a2, b2: _h_residual_px(h_mat, a2, b2)
+
+
+def fit_rigid_motion(xy: npt.NDArray[np.float64], cfg: RigidCheckConfig = RigidCheckConfig()) -> Residuals | None:
+    """The rigid motion of most of the points (see the module docstring, step 1).
+
+    Args:
+        xy: (N, F, 2) positions of N >= 4 points in F >= 2 frames.
+        cfg: the residual threshold (RANSAC's inlier distance) and the model choice.
+
+    Returns:
+        A function of (M, F, 2) positions giving each point's residual, pixels: the larger of frame
+        pairs (0, F // 2) and (0, F - 1); None when RANSAC found no model (degenerate points).
+    """
+    frames = xy.shape[1]
+    steps = sorted({max(1, frames // 2), frames - 1})
+    models = []
+    for t in steps:
+        model = _fit_pair(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, t]), cfg)
+        if model is None:
+            return None
+        models.append((t, model))
+
+    def residuals(other: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        res = [m(np.ascontiguousarray(other[:, 0]), np.ascontiguousarray(other[:, t])) for t, m in models]
+        return np.asarray(np.max(res, axis=0))
+
+    return residuals
+
+
+def rigid_residuals_px(
+    xy: npt.NDArray[np.float64], cfg: RigidCheckConfig = RigidCheckConfig()
+) -> npt.NDArray[np.float64] | None:
+    """Each point's distance to the rigid motion of most points (`fit_rigid_motion`), pixels; None: no fit."""
+    model = fit_rigid_motion(xy, cfg)
+    return None if model is None else model(xy)
+
+
+def _alike(
+    disp_a: npt.NDArray[np.float64], disp_b: npt.NDArray[np.float64], cfg: RigidCheckConfig
+) -> npt.NDArray[np.bool_]:
+    """Row-wise: do displacements (M, F, 2) a and b agree in every frame (module docstring, step 2)?"""
+    diff = np.linalg.norm(disp_a - disp_b, axis=2).max(axis=1)
+    size = np.maximum(np.linalg.norm(disp_a, axis=2).max(axis=1), np.linalg.norm(disp_b, axis=2).max(axis=1))
+    return np.asarray(diff <= cfg.motion_px + cfg.motion_frac * size)
+
+
+def _coherent_groups(xy: npt.NDArray[np.float64], radius: float, cfg: RigidCheckConfig) -> npt.NDArray[np.int64]:
+    """Connected groups of points that lie close in frame 0 and move alike: (N,) group index."""
+    disp = xy - xy[:, :1]
+    pairs = cKDTree(xy[:, 0]).query_pairs(radius, output_type="ndarray")
+    i, j = pairs[:, 0], pairs[:, 1]
+    alike = _alike(disp[i], disp[j], cfg)
+    n = len(xy)
+    graph = coo_matrix((np.ones(int(alike.sum())), (i[alike], j[alike])), shape=(n, n))
+    return np.asarray(connected_components(graph, directed=False)[1], dtype=np.int64)
+
+
+def split_by_rigid_motion(
+    points: npt.ArrayLike,
+    labels: npt.ArrayLike,
+    size_hw: tuple[int, int],
+    cfg: RigidCheckConfig = RigidCheckConfig(),
+) -> tuple[npt.NDArray[np.int64], int]:
+    """Splits off the coherent groups that their cluster's rigid motion does not explain.
+
+    Args:
+        points: (N, 2F) trajectory matrix in pixels (x_0, y_0, x_1, y_1, ...), F >= 2.
+        labels: (N,) cluster labels 0..k-1.
+        size_hw: (H, W) of the frames, pixels (the neighbourhood is a fraction of its diagonal).
+        cfg: thresholds, see RigidCheckConfig.
+
+    Returns:
+        (labels, number of groups split off): labels ordered by decreasing cluster size as
+        `cluster_auto_k` orders them; unchanged (but relabelled by size) when nothing was split.
+    """
+    data = np.asarray(points, dtype=np.float64)
+    lab = np.asarray(labels, dtype=np.int64)
+    n = data.shape[0]
+    xy = data.reshape(n, data.shape[1] // 2, 2)
+    if n == 0:
+        return lab.copy(), 0
+    radius = cfg.neighbour_frac * float(np.hypot(*size_hw))
+    out = lab.copy()
+    next_label = int(lab.max()) + 1
+    for c in np.unique(lab):
+        host = np.flatnonzero(lab == c)
+        if host.size < cfg.min_host + cfg.min_tracks:
+            continue
+        host_model = fit_rigid_motion(xy[host], cfg)
+        if host_model is None:
+            continue
+        res = host_model(xy[host])
+        far = host[res > cfg.residual_px]
+        if far.size < cfg.min_tracks:
+            continue
+        groups = _coherent_groups(xy[far], radius, cfg)
+        sizes = np.bincount(groups)
+        left = host.size
+        for g in np.flatnonzero(sizes >= cfg.min_tracks):
+            members = far[groups == g]
+            if left - members.size < cfg.min_host:
+                continue
+            own = fit_rigid_motion(xy[members], cfg)
+            if own is None or np.mean(own(xy[members]) <= cfg.residual_px) < cfg.consistency:
+                continue
+            out[members] = next_label
+            # Points of the object that happen to fit the host's model too (e.g. near their epipolar
+            # lines) follow when they lie next to a member, move like it and fit the group better.
+            rest = host[out[host] == c]
+            dist, near = cKDTree(xy[members, 0]).query(xy[rest, 0], distance_upper_bound=radius)
+            ok = np.isfinite(dist)
+            rest, near = rest[ok], members[near[ok]]
+            own_res = own(xy[rest])
+            joins = (
+                _alike(xy[rest] - xy[rest, :1], xy[near] - xy[near, :1], cfg)
+                & (own_res <= cfg.residual_px)
+                & (own_res < host_model(xy[rest]))
+            )
+            out[rest[joins]] = next_label
+            next_label += 1
+            left -= members.size + int(joins.sum())
+    split = next_label - (int(lab.max()) + 1)
+    return relabel_by_size(out), split

@@ -1,0 +1,166 @@
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from mosegpipe.errors import InputError
+from mosegpipe.pipeline import PipelineConfig, check_rigid
+from mosegpipe.rigid import RigidCheckConfig, rigid_residuals_px, split_by_rigid_motion
+from mosegpipe.types import Clustering
+
+SIZE_HW = (480, 640)
+FOCAL = 500.0
+
+
+def _project(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Pinhole projection of (..., 3) camera-frame points, principal point at the image centre."""
+    return FOCAL * points[..., :2] / points[..., 2:] + np.array([SIZE_HW[1] / 2, SIZE_HW[0] / 2])
+
+
+def scene(
+    camera: str,
+    object_points: int = 25,
+    frames: int = 5,
+    background: int = 400,
+    noise_px: float = 0.2,
+    seed: int = 0,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """(N, 2F) trajectories of a static scene at depths 4-40 seen by a moving camera, plus one object.
+
+    camera "forward": the camera moves 0.3 units along its axis per frame and turns a little (strong
+    parallax, so no homography explains the background); "static": it does not move. The object is
+    a compact rigid box that moves sideways by 0.08 units per frame at depth ~8 (object_points = 0:
+    none). Returns the trajectories and the true labels (0 background, 1 object).
+    """
+    rng = np.random.default_rng(seed)
+    pix = rng.uniform([40, 40], [SIZE_HW[1] - 40, SIZE_HW[0] - 40], size=(background, 2))
+    depth = rng.uniform(4.0, 40.0, size=background)
+    world = np.c_[(pix - [SIZE_HW[1] / 2, SIZE_HW[0] / 2]) * depth[:, None] / FOCAL, depth]
+    centre = np.array([0.6, 0.2, 8.0])
+    box = centre + rng.uniform(-0.3, 0.3, size=(object_points, 3))
+    tracks = []
+    for t in range(frames):
+        if camera == "forward":
+            angle = 0.004 * t
+            rot = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+            cam = (world - [0, 0, 0.3 * t]) @ rot.T
+            obj = (box + [0.08 * t, 0, 0] - [0, 0, 0.3 * t]) @ rot.T
+        else:
+            cam = world
+            obj = box + [0.08 * t, 0, 0]
+        tracks.append(_project(np.r_[cam, obj]))
+    xy = np.stack(tracks, axis=1) + rng.normal(scale=noise_px, size=(background + object_points, frames, 2))
+    labels = np.r_[np.zeros(background, np.int64), np.ones(object_points, np.int64)]
+    return xy.reshape(len(xy), -1), labels
+
+
+@pytest.mark.parametrize("camera", ["forward", "static"])
+def test_split_off_an_object_left_in_the_background_cluster(camera: str) -> None:
+    points, truth = scene(camera)
+    labels, split = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
+    assert split == 1
+    assert labels.max() == 1
+    # The new cluster is the object, but for object points that the background's model explains
+    # as well (forward camera: those near their epipolar lines; 22 of 25 are found).
+    found = labels == 1
+    assert (found & (truth == 1)).sum() >= 20
+    assert (found & (truth == 0)).sum() <= 1
+
+
+def test_a_moving_camera_over_a_deep_scene_is_one_motion() -> None:
+    # Parallax is not a second motion: the fundamental matrix explains it, no homography does.
+    points, _ = scene("forward", object_points=0)
+    xy = points.reshape(len(points), -1, 2)
+    forced_h = replace(RigidCheckConfig(), homography_ratio=0.0)  # the homography whatever it keeps
+    assert np.mean(rigid_residuals_px(xy, forced_h) > 1.5) > 0.3  # type: ignore[operator]
+    assert np.mean(rigid_residuals_px(xy) > 1.5) < 0.05  # type: ignore[operator]
+    labels, split = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
+    assert split == 0
+    assert np.all(labels == 0)
+
+
+def test_scattered_outlier_tracks_stay_where_they_are() -> None:
+    points, _ = scene("forward", object_points=0)
+    rng = np.random.default_rng(1)
+    bad = rng.choice(len(points), 40, replace=False)
+    xy = points.reshape(len(points), -1, 2).copy()
+    xy[bad, 1:] += rng.normal(scale=6.0, size=(40, xy.shape[1] - 1, 2))  # each its own wrong motion
+    labels, split = split_by_rigid_motion(xy.reshape(len(xy), -1), np.zeros(len(xy), np.int64), SIZE_HW)
+    assert split == 0
+    assert np.all(labels == 0)
+
+
+def test_small_groups_and_small_clusters_are_not_split() -> None:
+    points, _ = scene("static", object_points=8)  # fewer than min_tracks
+    _, split = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
+    assert split == 0
+    points, truth = scene("static")
+    strict = replace(RigidCheckConfig(), min_host=len(points))  # the split would leave too few behind
+    _, split = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW, strict)
+    assert split == 0
+
+
+def test_each_cluster_is_checked_and_labels_come_ordered_by_size() -> None:
+    a, truth_a = scene("static", seed=0)
+    b, truth_b = scene("static", seed=1)
+    b = b + np.tile([0.0, 600.0], b.shape[1] // 2)  # a second, separate scene below the first
+    points = np.r_[a, b]
+    given = np.r_[np.zeros(len(a), np.int64), np.ones(len(b), np.int64)]
+    labels, split = split_by_rigid_motion(points, given, (1100, 640))
+    assert split == 2
+    assert np.bincount(labels).tolist() == sorted(np.bincount(labels).tolist(), reverse=True)
+    objects = np.r_[truth_a, truth_b] == 1
+    assert len(np.unique(labels[objects])) == 2  # one object per scene, each its own cluster
+    assert set(np.unique(labels[objects])).isdisjoint(np.unique(labels[~objects]))
+
+
+def test_the_result_is_deterministic() -> None:
+    points, _ = scene("forward", seed=3)
+    first = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
+    second = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
+    assert first[1] == second[1]
+    assert np.array_equal(first[0], second[0])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"residual_px": 0.0}, "residual_px=0.0"),
+        ({"neighbour_frac": -0.1}, "neighbour_frac=-0.1"),
+        ({"consistency": 1.5}, "consistency=1.5"),
+        ({"min_tracks": 0}, "min_tracks=0"),
+    ],
+)
+def test_bad_settings_are_refused(kwargs: dict[str, float], message: str) -> None:
+    with pytest.raises(InputError, match=message):
+        RigidCheckConfig(**kwargs)  # type: ignore[arg-type]
+
+
+def test_check_rigid_in_the_pipeline() -> None:
+    points, truth = scene("static")
+    data = points.astype(np.float32)
+    merged = Clustering(np.zeros(len(points), np.int64), 1, {1: 1.0}, "silhouette", "")
+    checked = check_rigid(merged, data, SIZE_HW, PipelineConfig())
+    assert checked.k == 2
+    assert checked.note == "the rigid-motion check split off 1 group (K = 1 -> 2)"
+    assert checked.scores == merged.scores  # the sweep's evidence is kept as it was
+    assert np.array_equal(checked.labels == 1, truth == 1)
+    # K given, or the check off: the clustering is what automatic K (or the user) said.
+    assert check_rigid(merged, data, SIZE_HW, PipelineConfig(k=1)) is merged
+    off = PipelineConfig(rigid=RigidCheckConfig(enabled=False))
+    assert check_rigid(merged, data, SIZE_HW, off) is merged
+    noted = replace(merged, note="the K choice is ambiguous")
+    assert check_rigid(noted, data, SIZE_HW, PipelineConfig()).note.startswith("the K choice is ambiguous; the rigid")
+
+
+def test_the_config_round_trips_through_summary_json_form() -> None:
+    from dataclasses import asdict
+
+    cfg = PipelineConfig(rigid=RigidCheckConfig(residual_px=2.0, enabled=False))
+    assert PipelineConfig.from_dict(asdict(cfg)) == cfg
+    old = asdict(PipelineConfig())
+    del old["rigid"]  # a summary written before the check existed
+    assert PipelineConfig.from_dict(old).rigid == RigidCheckConfig()
