@@ -18,6 +18,11 @@ first frame and a later one its points obey one fundamental matrix (a camera mov
    every frame to `motion_px` plus `motion_frac` of the larger displacement; a connected group of at
    least `min_tracks` points becomes a new cluster when one rigid model of its own explains at
    least `consistency` of it. Scattered outliers (tracker failures) are left where they are.
+3. Groups of one host that one rigid model explains together (at least `merge_consistency` of their
+   union) are merged: the pieces of one object whose motion varies across it (rotation, depth).
+4. Points of the host next to a group that move like their nearest member and fit the group's model
+   better than the host's join the group (object points that the host's model happens to explain,
+   e.g. near their epipolar lines).
 
 Measured on data that no protocol scores (docs/RESULTS.md, "The rigid-motion check"). Not applied
 when K is given, nor to image pairs (their outliers are their own group).
@@ -60,6 +65,8 @@ class RigidCheckConfig:
             this fraction of it (to residual_px).
         homography_ratio: the homography is the model when it keeps at least this fraction of the
             fundamental matrix's RANSAC inliers.
+        merge_consistency: two groups split off one cluster are merged when one rigid model
+            explains at least this fraction of their union (None: never merged).
     """
 
     enabled: bool = True
@@ -71,11 +78,14 @@ class RigidCheckConfig:
     motion_frac: float = 0.15
     consistency: float = 0.5
     homography_ratio: float = 0.95
+    merge_consistency: float | None = 0.8
 
     def __post_init__(self) -> None:
         for name in ("residual_px", "neighbour_frac", "motion_px"):
             if not getattr(self, name) > 0:
                 raise InputError(f"rigid check: {name}={getattr(self, name)} must be positive")
+        if self.merge_consistency is not None and not 0 <= self.merge_consistency <= 1:
+            raise InputError(f"rigid check: merge_consistency={self.merge_consistency} must lie in [0, 1] (or None)")
         for name in ("motion_frac", "consistency", "homography_ratio"):
             if not 0 <= getattr(self, name) <= 1:
                 raise InputError(f"rigid check: {name}={getattr(self, name)} must lie in [0, 1]")
@@ -181,6 +191,28 @@ def _coherent_groups(xy: npt.NDArray[np.float64], radius: float, cfg: RigidCheck
     return np.asarray(connected_components(graph, directed=False)[1], dtype=np.int64)
 
 
+def _merge_rigid(
+    xy: npt.NDArray[np.float64], groups: list[npt.NDArray[np.int64]], share: float, cfg: RigidCheckConfig
+) -> list[npt.NDArray[np.int64]]:
+    """Groups merged pairwise while one rigid model explains at least `share` of a pair's union."""
+    groups = list(groups)
+    merged = True
+    while merged and len(groups) > 1:
+        merged = False
+        for i in range(len(groups)):
+            for j in range(i + 1, len(groups)):
+                union = np.r_[groups[i], groups[j]]
+                model = fit_rigid_motion(xy[union], cfg)
+                if model is not None and np.mean(model(xy[union]) <= cfg.residual_px) >= share:
+                    groups[i] = union
+                    del groups[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return groups
+
+
 def split_by_rigid_motion(
     points: npt.ArrayLike,
     labels: npt.ArrayLike,
@@ -222,6 +254,7 @@ def split_by_rigid_motion(
         groups = _coherent_groups(xy[far], radius, cfg)
         sizes = np.bincount(groups)
         left = host.size
+        found: list[npt.NDArray[np.int64]] = []
         for g in np.flatnonzero(sizes >= cfg.min_tracks):
             members = far[groups == g]
             if left - members.size < cfg.min_host:
@@ -229,6 +262,13 @@ def split_by_rigid_motion(
             own = fit_rigid_motion(xy[members], cfg)
             if own is None or np.mean(own(xy[members]) <= cfg.residual_px) < cfg.consistency:
                 continue
+            found.append(members)
+            left -= members.size
+        if cfg.merge_consistency is not None:
+            found = _merge_rigid(xy, found, cfg.merge_consistency, cfg)
+        for members in found:
+            own = fit_rigid_motion(xy[members], cfg)
+            assert own is not None
             out[members] = next_label
             # Points of the object that happen to fit the host's model too (e.g. near their epipolar
             # lines) follow when they lie next to a member, move like it and fit the group better.
@@ -244,6 +284,5 @@ def split_by_rigid_motion(
             )
             out[rest[joins]] = next_label
             next_label += 1
-            left -= members.size + int(joins.sum())
     split = next_label - (int(lab.max()) + 1)
     return relabel_by_size(out), split

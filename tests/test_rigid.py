@@ -117,6 +117,22 @@ def test_each_cluster_is_checked_and_labels_come_ordered_by_size() -> None:
     assert set(np.unique(labels[objects])).isdisjoint(np.unique(labels[~objects]))
 
 
+def test_pieces_of_one_rigid_motion_are_merged() -> None:
+    # Two boxes far apart (more than the neighbourhood) that move alike: two coherent groups, one motion.
+    points, truth = scene("static", object_points=20, seed=4)
+    twin, _ = scene("static", object_points=20, seed=4)
+    piece = twin[truth == 1] + np.tile([-400.0, 120.0], twin.shape[1] // 2)  # 420 px away, same motion
+    points = np.r_[points, piece]
+    truth = np.r_[truth, np.ones(len(piece), np.int64)]
+    given = np.zeros(len(points), np.int64)
+    labels, split = split_by_rigid_motion(points, given, SIZE_HW)
+    assert split == 1
+    assert np.array_equal(labels == 1, truth == 1)
+    apart = replace(RigidCheckConfig(), merge_consistency=None)
+    labels, split = split_by_rigid_motion(points, given, SIZE_HW, apart)
+    assert split == 2
+
+
 def test_the_result_is_deterministic() -> None:
     points, _ = scene("forward", seed=3)
     first = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
@@ -132,6 +148,7 @@ def test_the_result_is_deterministic() -> None:
         ({"neighbour_frac": -0.1}, "neighbour_frac=-0.1"),
         ({"consistency": 1.5}, "consistency=1.5"),
         ({"min_tracks": 0}, "min_tracks=0"),
+        ({"merge_consistency": 2.0}, "merge_consistency=2.0"),
     ],
 )
 def test_bad_settings_are_refused(kwargs: dict[str, float], message: str) -> None:
