@@ -95,8 +95,10 @@ class PipelineConfig:
     def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
-        A field left out takes its default (a summary written before the field existed); an unknown
-        field, a value of the wrong type or one the config classes refuse is an error.
+        A field left out takes its default (a summary written before the field existed), except
+        `rigid`: a summary without it was made before the rigid-motion check existed, so the check
+        stays off and a replay segments as that run did. An unknown field, a value of the wrong type
+        or one the config classes refuse is an error.
 
         Args:
             data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
@@ -108,6 +110,8 @@ class PipelineConfig:
         """
         config = _dataclass_from_dict(cls, data, where)
         assert isinstance(config, cls)
+        if isinstance(data, Mapping) and "rigid" not in data:
+            config = replace(config, rigid=RigidCheckConfig(enabled=False))
         return config
 
 
