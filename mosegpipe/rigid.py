@@ -30,6 +30,7 @@ when K is given, nor to image pairs (their outliers are their own group).
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -163,14 +164,6 @@ def fit_rigid_motion(xy: npt.NDArray[np.float64], cfg: RigidCheckConfig = RigidC
     return residuals
 
 
-def rigid_residuals_px(
-    xy: npt.NDArray[np.float64], cfg: RigidCheckConfig = RigidCheckConfig()
-) -> npt.NDArray[np.float64] | None:
-    """Each point's distance to the rigid motion of most points (`fit_rigid_motion`), pixels; None: no fit."""
-    model = fit_rigid_motion(xy, cfg)
-    return None if model is None else model(xy)
-
-
 def _alike(
     disp_a: npt.NDArray[np.float64], disp_b: npt.NDArray[np.float64], cfg: RigidCheckConfig
 ) -> npt.NDArray[np.bool_]:
@@ -192,24 +185,21 @@ def _coherent_groups(xy: npt.NDArray[np.float64], radius: float, cfg: RigidCheck
 
 
 def _merge_rigid(
-    xy: npt.NDArray[np.float64], groups: list[npt.NDArray[np.int64]], share: float, cfg: RigidCheckConfig
-) -> list[npt.NDArray[np.int64]]:
-    """Groups merged pairwise while one rigid model explains at least `share` of a pair's union."""
+    xy: npt.NDArray[np.float64], groups: list[tuple[npt.NDArray[np.int64], Residuals]], cfg: RigidCheckConfig
+) -> list[tuple[npt.NDArray[np.int64], Residuals]]:
+    """(members, model) groups merged pairwise while one rigid model explains cfg.merge_consistency of a union."""
+    share = cfg.merge_consistency
     groups = list(groups)
-    merged = True
-    while merged and len(groups) > 1:
-        merged = False
-        for i in range(len(groups)):
-            for j in range(i + 1, len(groups)):
-                union = np.r_[groups[i], groups[j]]
-                model = fit_rigid_motion(xy[union], cfg)
-                if model is not None and np.mean(model(xy[union]) <= cfg.residual_px) >= share:
-                    groups[i] = union
-                    del groups[j]
-                    merged = True
-                    break
-            if merged:
+    while share is not None and len(groups) > 1:
+        for i, j in itertools.combinations(range(len(groups)), 2):
+            union = np.r_[groups[i][0], groups[j][0]]
+            model = fit_rigid_motion(xy[union], cfg)
+            if model is not None and np.mean(model(xy[union]) <= cfg.residual_px) >= share:
+                groups[i] = (union, model)
+                del groups[j]
                 break
+        else:
+            break
     return groups
 
 
@@ -254,7 +244,7 @@ def split_by_rigid_motion(
         groups = _coherent_groups(xy[far], radius, cfg)
         sizes = np.bincount(groups)
         left = host.size
-        found: list[npt.NDArray[np.int64]] = []
+        found: list[tuple[npt.NDArray[np.int64], Residuals]] = []
         for g in np.flatnonzero(sizes >= cfg.min_tracks):
             members = far[groups == g]
             if left - members.size < cfg.min_host:
@@ -262,13 +252,9 @@ def split_by_rigid_motion(
             own = fit_rigid_motion(xy[members], cfg)
             if own is None or np.mean(own(xy[members]) <= cfg.residual_px) < cfg.consistency:
                 continue
-            found.append(members)
+            found.append((members, own))
             left -= members.size
-        if cfg.merge_consistency is not None:
-            found = _merge_rigid(xy, found, cfg.merge_consistency, cfg)
-        for members in found:
-            own = fit_rigid_motion(xy[members], cfg)
-            assert own is not None
+        for members, own in _merge_rigid(xy, found, cfg):
             out[members] = next_label
             # Points of the object that happen to fit the host's model too (e.g. near their epipolar
             # lines) follow when they lie next to a member, move like it and fit the group better.
