@@ -56,8 +56,8 @@ class RigidCheckConfig:
         residual_px: a point further than this from its cluster's rigid model (pixels, in either of
             the two frame pairs) is a candidate for a motion of its own.
         min_tracks: the smallest group split off.
-        min_host: only clusters of at least this many points are checked, and a split must leave
-            this many behind.
+        min_host: a split must leave at least this many points in the cluster (so only clusters
+            of min_host + min_tracks points or more are checked).
         neighbour_frac: candidates within this fraction of the image diagonal of each other in
             frame 0 may belong to one group.
         motion_px, motion_frac: two candidates move alike when their displacements from frame 0
@@ -111,6 +111,9 @@ def _sampson_px(
 Residuals = Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
 """A fitted rigid motion: (M, F, 2) positions -> (M,) residuals, pixels."""
 
+PairResiduals = Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+"""A fitted two-view model: (M, 2) points a, (M, 2) points b -> (M,) residuals of a -> b, pixels."""
+
 
 def _h_residual_px(
     h_mat: npt.NDArray[np.float64], a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
@@ -121,9 +124,7 @@ def _h_residual_px(
     return np.asarray(np.linalg.norm(p[:, :2] / w - b, axis=1))
 
 
-def _fit_pair(
-    a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cfg: RigidCheckConfig
-) -> Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt.NDArray[np.float64]] | None:
+def _fit_pair(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cfg: RigidCheckConfig) -> PairResiduals | None:
     """The rigid model of most correspondences a -> b as a residual function (None: no model fits)."""
     h_mat, _ = cv2.findHomography(a, b, cv2.RANSAC, cfg.residual_px, maxIters=1000, confidence=0.999)
     if len(a) >= _MIN_FUNDAMENTAL:
@@ -258,15 +259,16 @@ def split_by_rigid_motion(
             out[members] = next_label
             # Points of the object that happen to fit the host's model too (e.g. near their epipolar
             # lines) follow when they lie next to a member, move like it and fit the group better.
-            rest = host[out[host] == c]
+            still = out[host] == c
+            rest, rest_res = host[still], res[still]  # the host's residuals, computed above
             dist, near = cKDTree(xy[members, 0]).query(xy[rest, 0], distance_upper_bound=radius)
             ok = np.isfinite(dist)
-            rest, near = rest[ok], members[near[ok]]
+            rest, rest_res, near = rest[ok], rest_res[ok], members[near[ok]]
             own_res = own(xy[rest])
             joins = (
                 _alike(xy[rest] - xy[rest, :1], xy[near] - xy[near, :1], cfg)
                 & (own_res <= cfg.residual_px)
-                & (own_res < host_model(xy[rest]))
+                & (own_res < rest_res)
             )
             out[rest[joins]] = next_label
             next_label += 1
