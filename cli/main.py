@@ -802,6 +802,14 @@ def run(
     max_frames: Annotated[
         int | None, typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")
     ] = None,
+    shot_cuts: Annotated[
+        bool,
+        typer.Option(
+            "--shot-cuts/--no-shot-cuts",
+            help="With --whole: a frame into which fewer than a quarter of the tracks survive is a shot cut; "
+            "tracking and windows start afresh there.",
+        ),
+    ] = True,
     k: KOpt = None,
     k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
@@ -835,6 +843,8 @@ def run(
         raise InputError(f"{clip}: no such file or folder")
     if max_frames is not None and not whole:
         raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
+    if not shot_cuts and not whole:
+        raise InputError("--no-shot-cuts only applies with --whole (a clip of --frames frames is one shot)")
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.inference import load_embedder
@@ -851,6 +861,8 @@ def run(
         track=_tracker(max_corners, min_distance, quality, win_size),
         mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
     )
+    if not shot_cuts:
+        cfg = replace(cfg, video_cut_survival=None)
     out = out or _default_out(clip, "_moseg")
     check_output_dir(out, overwrite)
     net = load_embedder(frames, model)

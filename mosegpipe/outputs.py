@@ -302,6 +302,7 @@ def video_summary(
         "num_windows_labelled": sum(w.is_labelled for w in windows),
         "num_motions": last.num_motions,
         "num_labels_reused": last.num_labels_reused,
+        "shot_cuts": [w.start for w in windows if w.shot_start],
         "k_method": "fixed" if cfg.k is not None else cfg.cluster.method,
         "windows": [w.record() for w in windows],
         "seconds": round(seconds, 3),

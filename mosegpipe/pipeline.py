@@ -73,6 +73,9 @@ class PipelineConfig:
             most cluster.k_max), so K rises by at most this much every F - 1 frames; None = the full
             sweep in every window. The sweep's larger K cost the most K-means time; on the long
             rendered clips the limit changed no segmentation (docs/RESULTS.md, "Speed").
+        video_cut_survival: whole videos: a frame into which fewer than this fraction of the previous
+            frame's tracks survive (of at least 2 * min_tracks) is a shot cut: the window ends on the
+            frame before it, and tracking and clustering start afresh on it. None = no cut detection.
     """
 
     frames: int = 5
@@ -86,19 +89,24 @@ class PipelineConfig:
     mask: MaskConfig = field(default_factory=MaskConfig)
     outlier_inlier_ratio: float = 0.5
     video_k_step: int | None = 2
+    video_cut_survival: float | None = 0.25
 
     def __post_init__(self) -> None:
         if self.video_k_step is not None and self.video_k_step < 1:
             raise InputError(f"video_k_step={self.video_k_step} must be at least 1 (or None: no limit)")
+        if self.video_cut_survival is not None and not 0 < self.video_cut_survival < 1:
+            raise InputError(
+                f"video_cut_survival={self.video_cut_survival} must lie in (0, 1) (or None: no cut detection)"
+            )
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid`: a summary without it was made before the rigid-motion check existed, so the check
-        stays off and a replay segments as that run did. An unknown field, a value of the wrong type
-        or one the config classes refuse is an error.
+        `rigid` and `video_cut_survival`: a summary without them was made before the rigid-motion
+        check (the shot-cut test) existed, so it stays off and a replay segments as that run did. An
+        unknown field, a value of the wrong type or one the config classes refuse is an error.
 
         Args:
             data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
@@ -112,6 +120,8 @@ class PipelineConfig:
         assert isinstance(config, cls)
         if isinstance(data, Mapping) and "rigid" not in data:
             config = replace(config, rigid=RigidCheckConfig(enabled=False))
+        if isinstance(data, Mapping) and "video_cut_survival" not in data:
+            config = replace(config, video_cut_survival=None)
         return config
 
 
@@ -672,6 +682,8 @@ class WindowResult:
             ambiguous); "" when none.
         k_scores: automatic K's score per candidate K in this window (Clustering.scores); empty
             when K was forced or the window was left unlabelled.
+        shot_start: the window starts on a shot cut (PipelineConfig.video_cut_survival): its
+            tracks were detected afresh there, and it shares no frame with the window before.
     """
 
     start: int
@@ -686,6 +698,7 @@ class WindowResult:
     num_frames_read: int
     k_note: str = ""
     k_scores: Mapping[int, float] = field(default_factory=dict)
+    shot_start: bool = False
 
     @property
     def is_labelled(self) -> bool:
@@ -705,6 +718,7 @@ class WindowResult:
             "num_tracks": self.num_tracks,
             "k": self.k,
             "k_ambiguous": self.is_k_ambiguous,
+            "shot_start": self.shot_start,
         }
 
 
@@ -794,6 +808,11 @@ def segment_video(
         TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
             the video is exhausted).
 
+    A shot cut (fewer than cfg.video_cut_survival of a frame's tracks survive into the next frame)
+    ends the window on the frame before it, however short; tracking restarts on the cut frame
+    (`KLTTracker.restart`), which starts the next window (WindowResult.shot_start), so no track and
+    no window spans two shots. The motions of the new shot get labels of their own, the dominant one 0.
+
     Automatic K keeps the previous window's K when that K scores within cfg.cluster.ambiguity_margin
     of the best (`cluster_auto_k`'s prefer_k): a change of K needs clear evidence; and it tries K only
     up to the previous window's K + cfg.video_k_step. Automatic K's
@@ -828,7 +847,7 @@ def segment_video(
         labels_by_id: dict[int, int] = {}
         glob = np.zeros(0, dtype=np.int64)
         labelled_ids = np.zeros(0, dtype=np.int64)
-        if common.size >= max(cfg.min_tracks, 2):
+        if len(window) >= 2 and common.size >= max(cfg.min_tracks, 2):
             emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
             forced = None if cfg.k is None else min(cfg.k, common.size)
             with _warnings_held(cluster_log):
@@ -846,6 +865,8 @@ def segment_video(
             labels_by_id = {int(i): int(g) for i, g in zip(labelled_ids, glob)}
             prev, prev_k = labels_by_id, sweep_k
             num_labelled += 1
+        elif len(window) < 2:
+            log.info("frame %d: a shot of one frame; left unlabelled", window[0][0])
         else:
             log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
         log.info("frames %d-%d: %d tracks, K = %d%s", window[0][0], window[-1][0], common.size, k, note and f"; {note}")
@@ -868,12 +889,15 @@ def segment_video(
             num_frames_read=num_frames,
             k_note=note,
             k_scores=scores,
+            shot_start=window[0][0] in cuts,
         )
         if result.is_k_ambiguous:
             ambiguous.append((window[0][0], window[-1][0]))
         return result
 
     window: list[_Frame] = []
+    first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
+    cuts: set[int] = set()  # frames that start a new shot
     frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames)
     while True:
         with decode_errors(path):
@@ -882,16 +906,27 @@ def segment_video(
             break
         t, frame = item
         ids, xy = tracker.step(frame)
-        window.append((t, frame, ids, xy))
         num_frames += 1
+        if window and _is_cut(window[-1][2], ids, cfg):
+            # A shot cut: the window ends on the frame before, a new one starts on this frame with
+            # tracks detected afresh (the few that survived the cut landed on unrelated content).
+            cuts.add(t)
+            ids, xy = tracker.restart(frame)
+            if not first_done or len(window) > 1:
+                yield label_window(window, window[1:] if first_done else window)
+            window, first_done = [], False
+        window.append((t, frame, ids, xy))
         if len(window) == f:
             # Later windows start on the previous one's last frame, already labelled there.
-            yield label_window(window, window if num_windows == 0 else window[1:])
-            window = [window[-1]]
-    if num_windows == 0:
+            yield label_window(window, window[1:] if first_done else window)
+            window, first_done = [window[-1]], True
+    if num_frames < f:
         raise InputError(f"{path}: only {_frames(num_frames)} could be read; --frames needs {f}")
-    if len(window) > 1:
-        yield label_window(window, window[1:])
+    if not first_done or len(window) > 1:
+        yield label_window(window, window[1:] if first_done else window)
+    if cuts:
+        shown = ", ".join(str(c) for c in sorted(cuts)[:5]) + (f" and {len(cuts) - 5} more" if len(cuts) > 5 else "")
+        log.info("shot cuts at frames %s: tracking started afresh there", shown)
     if num_labelled == 0:
         raise TooFewTracksError(
             f"{path}: no window had at least {cfg.min_tracks} tracks through its {f} frames (textureless video?)"
@@ -910,6 +945,14 @@ def segment_video(
             _ranges(ambiguous),
             cfg.cluster.ambiguity_margin,
         )
+
+
+def _is_cut(before: npt.NDArray[np.int64], after: npt.NDArray[np.int64], cfg: PipelineConfig) -> bool:
+    """Whether fewer than cfg.video_cut_survival of the track ids `before` (one frame) live on `after`."""
+    if cfg.video_cut_survival is None or before.size < 2 * cfg.min_tracks:
+        return False
+    survived = np.count_nonzero(np.isin(before, after, assume_unique=True))
+    return bool(survived < cfg.video_cut_survival * before.size)
 
 
 @dataclass(frozen=True)

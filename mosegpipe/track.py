@@ -119,7 +119,35 @@ class KLTTracker:
         self._ids = np.zeros(0, dtype=np.int64)
         self._xy = np.zeros((0, 2), dtype=np.float32)
         self._next_id = 0
+        self._seeded_at = 0  # frame index the re-seeding period counts from
         self.frame_index = -1
+
+    def restart(self, frame: npt.NDArray[np.uint8]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
+        """Forgets the live points and detects corners afresh in `frame`, the frame of the last step.
+
+        For a shot cut: the few points tracked across it landed on unrelated image content. Ids keep
+        growing (an id is never reused), and re-seeding counts its period from this frame.
+
+        Returns:
+            ids, xy: the new points, as `step` returns them.
+        """
+        gray = _to_gray(frame)
+        if self._prev_gray is None or gray.shape != self._prev_gray.shape:
+            raise ValueError("restart() takes the frame of the last step")
+        self._ids = np.zeros(0, dtype=np.int64)
+        self._xy = np.zeros((0, 2), dtype=np.float32)
+        self._prev_gray = gray
+        self._seeded_at = self.frame_index
+        self._seed(gray)
+        return self._ids.copy(), self._xy.copy()
+
+    def _seed(self, gray: npt.NDArray[np.uint8]) -> None:
+        new_xy = self._detect(gray, self.cfg.max_corners - len(self._xy))
+        if len(new_xy):
+            new_ids = np.arange(self._next_id, self._next_id + len(new_xy), dtype=np.int64)
+            self._next_id += len(new_xy)
+            self._ids = np.concatenate([self._ids, new_ids])
+            self._xy = np.concatenate([self._xy, new_xy])
 
     @property
     def num_ids(self) -> int:
@@ -205,14 +233,9 @@ class KLTTracker:
         if self._prev_gray is not None and len(self._xy):
             self._track(gray)
         self._prev_gray = gray
-        due = self.frame_index == 0 or (self.cfg.reseed and self.frame_index % self.cfg.reseed_every == 0)
-        if due:
-            new_xy = self._detect(gray, self.cfg.max_corners - len(self._xy))
-            if len(new_xy):
-                new_ids = np.arange(self._next_id, self._next_id + len(new_xy), dtype=np.int64)
-                self._next_id += len(new_xy)
-                self._ids = np.concatenate([self._ids, new_ids])
-                self._xy = np.concatenate([self._xy, new_xy])
+        since = self.frame_index - self._seeded_at
+        if self.frame_index == 0 or (self.cfg.reseed and since % self.cfg.reseed_every == 0):
+            self._seed(gray)
         return self._ids.copy(), self._xy.copy()
 
     def _track(self, gray: npt.NDArray[np.uint8]) -> None:

@@ -221,6 +221,10 @@ BAD_INPUTS: dict[str, BadCase] = {
         ["run", clip, "--model", m[5], "--max-frames", "3"],
         "--max-frames only applies with --whole",
     ),
+    "--no-shot-cuts without --whole": lambda tmp, m, clip: (
+        ["run", clip, "--model", m[5], "--no-shot-cuts"],
+        "--no-shot-cuts only applies with --whole",
+    ),
 }
 
 

@@ -157,12 +157,14 @@ def test_replay_a_whole_video_and_external_tracks(tmp_path: Path, long_avi: Path
     out = tmp_path / "video"
     code, _, stderr = moseg(
         "run", long_avi, "--whole", "--frames", "3", "--start", "2", "--max-frames", "9", "--k", "3",
-        "--model", models[3], "-o", out, "--no-rrd",
+        "--model", models[3], "-o", out, "--no-rrd", "--no-shot-cuts",
     )  # fmt: skip
     assert code == 0, stderr
     code, stdout, stderr = moseg("replay", out / "summary.json", "-o", tmp_path / "again", "--no-rrd")
     assert code == 0 and "K as recorded in all 4 windows" in stdout, stderr
     before, after = summary_of(out), summary_of(tmp_path / "again")
+    assert before["config"]["video_cut_survival"] is None and after["config"] == before["config"]
+    assert before["shot_cuts"] == []
     assert after["windows"] == before["windows"] and after["frames"] == 9 and before["windows"][0]["start"] == 2
     for name in sorted(p.name for p in (out / "masks").iterdir()):
         assert np.array_equal(

@@ -133,6 +133,28 @@ def test_tracker_reseeds_only_where_tracks_are_missing() -> None:
     assert tracker.num_ids == int(ids2.max()) + 1
 
 
+def test_restart_forgets_the_points_keeps_ids_growing_and_restarts_the_reseed_period() -> None:
+    base = _texture(3)
+    cfg = TrackConfig(max_corners=400, min_distance_px=8, reseed=True, reseed_every=3)
+    tracker = KLTTracker(cfg)
+    ids0, _ = tracker.step(_view(base, 0, 0))
+    tracker.step(_view(base, 1, 0))
+    other = _view(_texture(4), 0, 0)
+    tracker.step(other)  # frame 2: a cut; a few points may survive on the new content
+    ids, xy = tracker.restart(other)
+    assert len(ids) > 50 and ids.min() > ids0.max()  # all detected afresh, no id reused
+    assert tracker.num_ids == int(ids.max()) + 1
+    last = ids
+    for dx in (4, 8):  # frames 3 and 4: no re-seed any more, the period counts from the restart (frame 2)
+        step_ids, _ = tracker.step(_view(_texture(4), dx, 0))
+        assert set(step_ids) <= set(last) and len(step_ids) < len(ids)  # points leave, none come
+        last = step_ids
+    step_ids, _ = tracker.step(_view(_texture(4), 12, 0))  # frame 5 = restart + 3: re-seed
+    assert (step_ids > last.max()).sum() > 5
+    with pytest.raises(ValueError, match="frame of the last step"):
+        KLTTracker().restart(other)
+
+
 def test_track_klt_with_reseed_marks_late_tracks_invisible_before_birth() -> None:
     base = _texture(2)
     first = _view(base, 0, 0).copy()

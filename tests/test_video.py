@@ -228,3 +228,34 @@ def test_whole_video_k_rises_by_at_most_video_k_step(frames_dir: Path, model_pat
         assert max(window.k_scores) <= max(before.k + 1, 2) and window.k <= before.k + 1
     with pytest.raises(InputError, match="video_k_step=0 must be at least 1"):
         PipelineConfig(video_k_step=0)
+
+
+def test_a_shot_cut_restarts_tracking_and_windows(tmp_path: Path, model_path: Path) -> None:
+    from mosegpipe.pipeline import segment_video
+
+    # Two independent renders: shot A is frames 0-10, shot B frames 11-19.
+    frames = np.concatenate([render_scene(11, seed=0).frames, render_scene(9, seed=1).frames])
+    folder = write_frames(tmp_path / "cut", frames)
+    model = SubspaceNet.from_checkpoint(model_path)
+    windows = list(segment_video(folder, PipelineConfig(frames=5), model))
+    # The window before the cut ends on frame 10 (a short one), the next starts on the cut itself.
+    assert [(w.start, w.num_frames) for w in windows] == [(0, 5), (4, 5), (8, 3), (11, 5), (15, 5)]
+    assert [w.shot_start for w in windows] == [False, False, False, True, False]
+    assert sorted(fr.index for w in windows for fr in w.frames) == list(range(20))  # every frame once
+    assert all(w.is_labelled for w in windows)
+    # No track crosses the cut: every track of the new shot was detected on or after frame 11.
+    before = {int(i) for w in windows[:3] for i in w.track_ids}
+    assert before and not before & {int(i) for w in windows[3:] for i in w.track_ids}
+    assert windows[3].record()["shot_start"] is True
+    # Without cut detection the windows run across it as if it were one shot.
+    plain = list(segment_video(folder, PipelineConfig(frames=5, video_cut_survival=None), model))
+    assert [(w.start, w.num_frames) for w in plain] == [(0, 5), (4, 5), (8, 5), (12, 5), (16, 4)]
+    assert not any(w.shot_start for w in plain)
+    summary = write_video_outputs(folder, tmp_path / "out", PipelineConfig(frames=5), model, rrd=False)
+    assert summary["shot_cuts"] == [11]
+    with pytest.raises(InputError, match="video_cut_survival=1.5 must lie in"):
+        PipelineConfig(video_cut_survival=1.5)
+    recorded = summary["config"]
+    assert PipelineConfig.from_dict(recorded) == PipelineConfig(frames=5)
+    del recorded["video_cut_survival"]  # a summary written before the test existed: replayed without it
+    assert PipelineConfig.from_dict(recorded).video_cut_survival is None
