@@ -637,7 +637,9 @@ class VideoFrame:
         image: (H, W, 3) uint8 RGB.
         track_ids: (N,) int64 ids of the tracks live in this frame.
         xy: (N, 2) float32 pixel positions of those tracks.
-        labels: (N,) int64 global motion label of each track, -1 = unlabelled.
+        labels: (N,) int64 global motion label of each track, -1 = unlabelled. A track that ends
+            inside its window (lost before the window's last frame, so not clustered there) keeps
+            the label the window before gave it.
         mask: (H, W) uint8, label = motion, 255 = unknown; None when segment_video was asked for
             no masks (see `frame_mask`).
     """
@@ -808,6 +810,10 @@ def segment_video(
         TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
             the video is exhausted).
 
+    Only the tracks live through a whole window are clustered; one that ends inside it (leaving the
+    view, occluded) keeps the label it had in the window before for its last frames, so an object
+    leaving the view keeps its label while its tracks last.
+
     A shot cut (fewer than cfg.video_cut_survival of a frame's tracks survive into the next frame)
     ends the window on the frame before it, however short; tracking restarts on the cut frame
     (`KLTTracker.restart`), which starts the next window (WindowResult.shot_start), so no track and
@@ -838,6 +844,7 @@ def segment_video(
     def label_window(window: list[_Frame], new: list[_Frame]) -> WindowResult:
         """Clusters the tracks live through the whole window and labels the frames in `new`."""
         nonlocal prev, prev_k, num_windows, num_labelled
+        before = prev  # the last labelled window's labels: tracks that end inside this window keep theirs
         tracks, row_ids = tracks_from_steps([(ids, xy) for _, _, ids, xy in window], window[0][1].shape[:2])
         traj = build_trajectories(tracks)
         common = row_ids[traj.track_ids]  # tracker ids of the tracks live through the whole window
@@ -872,7 +879,7 @@ def segment_video(
         log.info("frames %d-%d: %d tracks, K = %d%s", window[0][0], window[-1][0], common.size, k, note and f"; {note}")
         labelled = []
         for t, img, ids, xy in new:
-            lab = np.array([labels_by_id.get(int(i), -1) for i in ids], dtype=np.int64)
+            lab = np.array([labels_by_id.get(int(i), before.get(int(i), -1)) for i in ids], dtype=np.int64)
             fr = VideoFrame(t, img, ids, xy, lab, None)
             labelled.append(replace(fr, mask=frame_mask(fr, cfg.mask)) if masks else fr)
         num_windows += 1
