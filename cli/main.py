@@ -477,6 +477,16 @@ MaskScale = Annotated[
         rich_help_panel=_MASKS,
     ),
 ]
+MaskExtraTracks = Annotated[
+    int,
+    typer.Option(
+        "--mask-extra-tracks",
+        min=0,
+        help="Clips: up to this many more corners, spread over the image, tracked and labelled by motion "
+        "for the masks only (0 = off; not used by --whole).",
+        rich_help_panel=_MASKS,
+    ),
+]
 
 TRACKER_DEFAULTS = {"max_corners": 1000, "min_distance_px": 7.0, "quality_level": 0.01, "win_size_px": 21}
 """TrackConfig fields set by --max-corners, --min-distance, --quality, --win-size, with their defaults."""
@@ -823,6 +833,7 @@ def run(
     mask_min_agree: MaskMinAgree = 1,
     mask_median: MaskMedian = 0,
     mask_scale: MaskScale = 1.0,
+    mask_extra_tracks: MaskExtraTracks = 1000,
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     no_rrd: NoRrd = False,
@@ -859,7 +870,10 @@ def run(
         start=start,
         rigid_check=rigid_check,
         track=_tracker(max_corners, min_distance, quality, win_size),
-        mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
+        mask={
+            **_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
+            "extra_tracks": mask_extra_tracks,
+        },
     )
     if not shot_cuts:
         cfg = replace(cfg, video_cut_survival=None)
@@ -1036,6 +1050,7 @@ def batch(
     mask_min_agree: MaskMinAgree = 1,
     mask_median: MaskMedian = 0,
     mask_scale: MaskScale = 1.0,
+    mask_extra_tracks: MaskExtraTracks = 1000,
     model: ModelOpt = None,
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")
@@ -1106,7 +1121,10 @@ def batch(
         start=start,
         rigid_check=rigid_check,
         track=_tracker(max_corners, min_distance, quality, win_size),
-        mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
+        mask={
+            **_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
+            "extra_tracks": mask_extra_tracks,
+        },
     )
     engine = _value(engine)
     if engine not in ENGINES:

@@ -66,6 +66,11 @@ class MaskConfig:
             to 0.331 (it blurs the very edges the flood should stop at).
         scale: "watershed" floods an image resized by this factor (0 < scale <= 1) and resizes the
             labels back (nearest); 0.5 costs a quarter of the time.
+        extra_tracks: clips (not whole videos, not pairs): up to this many more corners, spread over
+            the image away from the clustered tracks (`track.spread_corners`), are tracked through
+            the clip and labelled by motion (`rigid.label_by_rigid_motion`), for the masks only: a
+            weakly textured object that got few of the tracker's corners gets more evidence.
+            0 = off.
     """
 
     max_distance_px: float = 40.0
@@ -76,6 +81,7 @@ class MaskConfig:
     min_agree: int = 1
     blur_px: int = 0
     scale: float = 1.0
+    extra_tracks: int = 1000
 
     def __post_init__(self) -> None:
         if self.method not in MASK_METHODS:
@@ -90,6 +96,8 @@ class MaskConfig:
                 raise ValueError(f"{name}={v} must be 0, 1 or an odd number >= 3")
         if not 0 < self.scale <= 1:
             raise ValueError(f"scale={self.scale} must be in (0, 1]")
+        if self.extra_tracks < 0:
+            raise ValueError(f"extra_tracks={self.extra_tracks} must be >= 0 (0 = off)")
         if not 1 <= self.min_agree <= self.vote_k:
             raise ValueError(f"min_agree={self.min_agree} must be in 1..vote_k ({self.vote_k})")
 

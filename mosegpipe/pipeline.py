@@ -37,8 +37,8 @@ from mosegpipe.errors import CheckpointError, InputError, TooFewTracksError
 from mosegpipe.io import check_images, iter_video, read_image, read_video, video_info
 from mosegpipe.masks import MAX_LABEL, MaskConfig, labels_to_mask, labels_to_masks
 from mosegpipe.match import MatchConfig, match_sift
-from mosegpipe.rigid import RigidCheckConfig, split_by_rigid_motion
-from mosegpipe.track import KLTTracker, TrackConfig, track_klt, tracks_from_steps
+from mosegpipe.rigid import RigidCheckConfig, label_by_rigid_motion, split_by_rigid_motion
+from mosegpipe.track import KLTTracker, TrackConfig, spread_corners, track_klt, track_points, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories, trajectories_from_matches
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
 
@@ -104,8 +104,9 @@ class PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid` and `video_cut_survival`: a summary without them was made before the rigid-motion
-        check (the shot-cut test) existed, so it stays off and a replay segments as that run did. An
+        `rigid`, `video_cut_survival` and `mask.extra_tracks`: a summary without them was made before
+        the rigid-motion check (the shot-cut test, the extra mask tracks) existed, so it stays off and
+        a replay segments as that run did. An
         unknown field, a value of the wrong type or one the config classes refuse is an error.
 
         Args:
@@ -122,6 +123,8 @@ class PipelineConfig:
             config = replace(config, rigid=RigidCheckConfig(enabled=False))
         if isinstance(data, Mapping) and "video_cut_survival" not in data:
             config = replace(config, video_cut_survival=None)
+        if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:
+            config = replace(config, mask=replace(config.mask, extra_tracks=0))
         return config
 
 
@@ -369,9 +372,51 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
     timings["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    masks = labels_to_masks(tracks, traj.track_ids, clustering.labels, cfg.mask, frames.images)
+    masks = clip_masks(frames.images, tracks, traj.track_ids, clustering.labels, cfg)
     timings["masks"] = time.perf_counter() - t0
     return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, model_info(model))
+
+
+def clip_masks(
+    images: npt.NDArray[np.uint8],
+    tracks: Tracks,
+    track_ids: npt.NDArray[np.int64],
+    labels: npt.NDArray[np.int64],
+    cfg: PipelineConfig = PipelineConfig(),
+) -> npt.NDArray[np.uint8]:
+    """The dense masks of a clip from its labelled tracks (segment_frames' mask stage).
+
+    With cfg.mask.extra_tracks, more corners spread over the first image away from the tracks are
+    tracked through the clip and labelled by motion (`label_by_rigid_motion`); those with a label
+    join the labelled tracks for the masks only.
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB frames.
+        tracks: the clip's tracks (N rows over the T frames).
+        track_ids: (M,) rows of `tracks` that carry labels (live through the whole clip).
+        labels: (M,) their labels.
+        cfg: mask settings (and the rigid-motion settings that label the extra tracks).
+
+    Returns:
+        (T, H, W) uint8 masks, 255 = unknown.
+    """
+    budget = cfg.mask.extra_tracks
+    if budget > 0 and len(track_ids) and images.shape[0] >= 2:
+        corners = spread_corners(images[0], budget, tracks.xy[tracks.visible[:, 0], 0], cfg.track)
+        extra = track_points(images, corners, cfg.track)
+        full = np.flatnonzero(extra.visible.all(axis=1))
+        data = extra.xy[full].reshape(len(full), 2 * len(images))
+        known = tracks.xy[track_ids].reshape(len(track_ids), 2 * len(images))
+        found = label_by_rigid_motion(data, known, labels, cfg.rigid)
+        keep = found >= 0
+        tracks = Tracks(
+            xy=np.concatenate([tracks.xy, extra.xy[full[keep]]]),
+            visible=np.concatenate([tracks.visible, extra.visible[full[keep]]]),
+            size_hw=tracks.size_hw,
+        )
+        track_ids = np.concatenate([track_ids, tracks.num_tracks - int(keep.sum()) + np.arange(int(keep.sum()))])
+        labels = np.concatenate([labels, found[keep]])
+    return labels_to_masks(tracks, track_ids, labels, cfg.mask, images)
 
 
 def _frames(n: int) -> str:

@@ -274,3 +274,52 @@ def split_by_rigid_motion(
             next_label += 1
     split = next_label - (int(lab.max()) + 1)
     return relabel_by_size(out), split
+
+
+def label_by_rigid_motion(
+    points: npt.ArrayLike,
+    labelled: npt.ArrayLike,
+    labels: npt.ArrayLike,
+    cfg: RigidCheckConfig = RigidCheckConfig(),
+    neighbours: int = 5,
+) -> npt.NDArray[np.int64]:
+    """Labels for more trajectories from labelled ones, by motion: each takes, among the labels of its
+    `neighbours` nearest labelled trajectories (in frame 0), the one whose cluster's rigid model
+    (`fit_rigid_motion` on that cluster) fits it best, if within cfg.residual_px; -1 when none does
+    (it moves like none of its neighbours: another object, or a tracking error).
+
+    Args:
+        points: (M, 2F) trajectories to label, pixels.
+        labelled: (N, 2F) labelled trajectories over the same frames.
+        labels: (N,) their labels, >= 0. A cluster of fewer than cfg.min_tracks trajectories gets no
+            model and labels nothing.
+        cfg: residual_px and the model choice.
+        neighbours: labelled trajectories consulted per trajectory.
+
+    Returns:
+        (M,) int64 labels, -1 = none.
+    """
+    new = np.asarray(points, dtype=np.float64)
+    old = np.asarray(labelled, dtype=np.float64)
+    lab = np.asarray(labels, dtype=np.int64)
+    out = np.full(len(new), -1, dtype=np.int64)
+    if len(new) == 0 or len(old) == 0:
+        return out
+    new_xy = new.reshape(len(new), -1, 2)
+    old_xy = old.reshape(len(old), -1, 2)
+    values = np.unique(lab)
+    residual = np.full((len(new), values.size), np.inf)
+    for j, value in enumerate(values):
+        members = old_xy[lab == value]
+        if len(members) >= cfg.min_tracks:
+            model = fit_rigid_motion(members, cfg)
+            if model is not None:
+                residual[:, j] = model(new_xy)
+    _, near = cKDTree(old_xy[:, 0]).query(new_xy[:, 0], k=min(neighbours, len(old)))
+    near = np.asarray(near).reshape(len(new), -1)
+    columns = np.searchsorted(values, lab[near])  # (M, neighbours) candidate label columns
+    candidate = np.take_along_axis(residual, columns, axis=1)
+    best = candidate.argmin(axis=1)
+    fits = candidate[np.arange(len(new)), best] <= cfg.residual_px
+    out[fits] = values[columns[np.arange(len(new)), best]][fits]
+    return out

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -139,6 +139,25 @@ class KLTTracker:
         self._prev_gray = gray
         self._seeded_at = self.frame_index
         self._seed(gray)
+        return self._ids.copy(), self._xy.copy()
+
+    def start(
+        self, frame: npt.NDArray[np.uint8], xy: npt.NDArray[np.float32]
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
+        """The first step with given points instead of detected corners (ids 0..N-1, in order).
+
+        Raises:
+            ValueError: the tracker has already stepped.
+        """
+        if self.frame_index >= 0:
+            raise ValueError("start() must be the first call")
+        gray = _to_gray(frame)
+        self._size_hw = (int(gray.shape[0]), int(gray.shape[1]))
+        self.frame_index = 0
+        self._prev_gray = gray
+        self._xy = np.asarray(xy, dtype=np.float32).reshape(-1, 2).copy()
+        self._ids = np.arange(len(self._xy), dtype=np.int64)
+        self._next_id = len(self._xy)
         return self._ids.copy(), self._xy.copy()
 
     def _seed(self, gray: npt.NDArray[np.uint8]) -> None:
@@ -283,6 +302,85 @@ def tracks_from_steps(
         xy[rows, t] = pts
         visible[rows, t] = True
     return Tracks(xy=xy, visible=visible, size_hw=(int(size_hw[0]), int(size_hw[1]))), row_ids
+
+
+def spread_corners(
+    image: npt.NDArray[np.uint8],
+    budget: int,
+    avoid_xy: npt.NDArray[np.float32] | None = None,
+    cfg: TrackConfig = TrackConfig(),
+    grid: int = 16,
+) -> npt.NDArray[np.float32]:
+    """Up to `budget` corners spread over the image: taken in turn from the cells of a grid x grid
+    partition (the strongest corner of every cell, then the second, ...), away from `avoid_xy`.
+
+    goodFeaturesToTrack alone hands its budget out strongest first, so a high-contrast background can
+    take every corner and leave a weakly textured object without any; here every textured cell gets
+    its share. Same quality level, spacing and border as the tracker's own detection.
+
+    Args:
+        image: (H, W) gray or (H, W, 3) RGB uint8.
+        budget: the most corners returned.
+        avoid_xy: (M, 2) points (e.g. tracks already there): no corner within cfg.min_distance_px.
+        cfg: detection settings (quality_level, min_distance_px, block_size, border_px).
+        grid: cells per side.
+
+    Returns:
+        (K, 2) float32 corner positions, K <= budget.
+    """
+    gray = _to_gray(image)
+    mask = None
+    if avoid_xy is not None and len(avoid_xy):
+        mask = np.full(gray.shape, 255, dtype=np.uint8)
+        radius = max(1, int(round(cfg.min_distance_px)))
+        for x, y in np.round(avoid_xy[np.isfinite(avoid_xy).all(axis=1)]).astype(int):
+            cv2.circle(mask, (int(x), int(y)), radius, 0, -1)
+    found = cv2.goodFeaturesToTrack(
+        gray, maxCorners=0, qualityLevel=cfg.quality_level, minDistance=cfg.min_distance_px, mask=mask,
+        blockSize=cfg.block_size,
+    )  # fmt: skip
+    if found is None or budget <= 0:
+        return np.zeros((0, 2), dtype=np.float32)
+    corners = found.reshape(-1, 2).astype(np.float32)
+    height, width = gray.shape
+    b = cfg.border_px
+    inside = (
+        (corners[:, 0] >= b)
+        & (corners[:, 1] >= b)
+        & (corners[:, 0] <= width - 1 - b)
+        & (corners[:, 1] <= height - 1 - b)
+    )
+    corners = corners[inside]
+    if len(corners) <= budget:
+        return corners
+    col = np.minimum((corners[:, 0] * grid / width).astype(np.int64), grid - 1)
+    row = np.minimum((corners[:, 1] * grid / height).astype(np.int64), grid - 1)
+    cell = row * grid + col
+    order = np.argsort(cell, kind="stable")  # by cell, strongest first within a cell
+    first = np.searchsorted(cell[order], cell[order], side="left")
+    rank = np.empty(len(corners), dtype=np.int64)
+    rank[order] = np.arange(len(corners)) - first  # 0 = the strongest of its cell
+    keep = np.lexsort((np.arange(len(corners)), rank))[:budget]
+    return corners[np.sort(keep)]
+
+
+def track_points(
+    images: npt.NDArray[np.uint8], xy: npt.NDArray[np.float32], cfg: TrackConfig = TrackConfig()
+) -> Tracks:
+    """Track given points of the first image through the others (as track_klt tracks its corners).
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB (or (T, H, W) gray).
+        xy: (N, 2) float32 positions in images[0].
+        cfg: tracker settings (detection ones unused; no re-seeding).
+
+    Returns:
+        Tracks of the N points in the order given (visible until lost).
+    """
+    tracker = KLTTracker(replace(cfg, reseed=False))
+    steps = [tracker.start(images[0], xy)] + [tracker.step(image) for image in images[1:]]
+    tracks, _ = tracks_from_steps(steps, (int(images.shape[1]), int(images.shape[2])))
+    return tracks  # every id is live in the first step, so row n is point n
 
 
 def track_klt(frames: Frames, cfg: TrackConfig = TrackConfig()) -> Tracks:

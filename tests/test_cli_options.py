@@ -247,6 +247,7 @@ def test_tracker_and_mask_options_reach_the_pipeline(tmp_path: Path, long_avi: P
     assert code == 0, stderr
     tracker = ["--max-corners", "80", "--min-distance", "12", "--quality", "0.05", "--win-size", "15"]
     masks = ["--mask-method", "nearest", "--mask-max-distance", "8", "--mask-median", "3", "--mask-scale", "0.5"]
+    masks += ["--mask-extra-tracks", "0"]
     code, _, stderr = moseg(*base, *tracker, *masks, "--mask-min-agree", "2", "-o", tmp_path / "set")
     assert code == 0, stderr
     summary = summary_of(tmp_path / "set")
@@ -260,6 +261,7 @@ def test_tracker_and_mask_options_reach_the_pipeline(tmp_path: Path, long_avi: P
     assert (mask["method"], mask["max_distance_px"], mask["median_px"], mask["scale"], mask["min_agree"]) == (
         "nearest", 8, 3, 0.5, 2
     )  # fmt: skip
+    assert mask["extra_tracks"] == 0 and summary_of(tmp_path / "default")["config"]["mask"]["extra_tracks"] == 1000
     assert summary["num_tracks_detected"] <= 80 < summary_of(tmp_path / "default")["num_tracks_detected"]
 
     def unknown(name: str) -> int:
@@ -317,6 +319,7 @@ def test_cli_defaults_are_the_library_defaults() -> None:
         for field, option in options.items():
             expected = {**cli.TRACKER_DEFAULTS, **cli.MASK_DEFAULTS}[field]
             assert cli._value(defaults[option]) == expected, (command, option)
+        assert defaults["mask_extra_tracks"] == MaskConfig().extra_tracks, command
 
 
 # ---------------------------------------------------------------------------------------------

@@ -11,8 +11,10 @@ from typer.testing import CliRunner
 from mosegpipe.cli.main import app
 from mosegpipe.evaluation.e2e import mask_scores
 from mosegpipe.masks import UNKNOWN, MaskConfig, labels_to_masks
+from mosegpipe.pipeline import PipelineConfig, clip_masks
 from mosegpipe.track import track_klt
 from mosegpipe.trajectories import build_trajectories
+from mosegpipe.types import Tracks
 
 from helpers import render_scene, write_frames
 
@@ -64,3 +66,38 @@ def test_watershed_with_one_label_fills_everything_near_a_track() -> None:
     seeds[np.round(xy[:, 1]).astype(int), np.round(xy[:, 0]).astype(int)] = 0
     near = cv2.distanceTransform(seeds, cv2.DIST_L2, 5) <= 40
     assert np.array_equal(mask, np.where(near, 3, UNKNOWN)) and not near.all()
+
+
+def test_extra_tracks_fill_in_an_object_with_few_tracks() -> None:
+    scene = render_scene(5)
+    tracks = track_klt(scene.to_frames())
+    traj = build_trajectories(tracks)
+    gt = scene.label_at(0, tracks.xy[traj.track_ids, 0])
+    on_one = np.flatnonzero(gt == 1)
+    keep = np.sort(np.r_[np.flatnonzero(gt != 1), on_one[:: max(1, len(on_one) // 12)][:12]])
+    rows = traj.track_ids[keep]  # object 1 left with 12 tracks, as a weakly textured one would be
+    few = Tracks(tracks.xy[rows], tracks.visible[rows], tracks.size_hw)
+    ids, labels = np.arange(len(rows)), gt[keep]
+    off = PipelineConfig(mask=MaskConfig(extra_tracks=0))
+    without = clip_masks(scene.frames, few, ids, labels, off)
+    assert np.array_equal(without, labels_to_masks(few, ids, labels, off.mask, scene.frames))
+    with_extra = clip_masks(scene.frames, few, ids, labels, PipelineConfig())
+    assert set(np.unique(with_extra)) <= {0, 1, 2, UNKNOWN}
+    j = {}
+    for name, masks in (("without", without), ("with", with_extra)):
+        hit = (masks == 1) & (scene.masks == 1)
+        j[name] = hit.sum() / ((masks == 1) | (scene.masks == 1)).sum()
+    assert j["with"] > j["without"] + 0.05, j
+    scores = mask_scores(with_extra, scene.masks, background=0, unknown=UNKNOWN)
+    assert scores.j >= mask_scores(without, scene.masks, background=0, unknown=UNKNOWN).j
+    with pytest.raises(ValueError, match="extra_tracks=-1"):
+        MaskConfig(extra_tracks=-1)
+
+
+def test_a_summary_without_extra_tracks_replays_without_them() -> None:
+    from dataclasses import asdict
+
+    recorded = asdict(PipelineConfig())
+    assert PipelineConfig.from_dict(recorded).mask.extra_tracks == 1000
+    del recorded["mask"]["extra_tracks"]  # written before the extra mask tracks existed
+    assert PipelineConfig.from_dict(recorded).mask.extra_tracks == 0

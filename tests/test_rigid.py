@@ -8,7 +8,7 @@ import pytest
 
 from mosegpipe.errors import InputError
 from mosegpipe.pipeline import PipelineConfig, check_rigid
-from mosegpipe.rigid import RigidCheckConfig, fit_rigid_motion, split_by_rigid_motion
+from mosegpipe.rigid import RigidCheckConfig, fit_rigid_motion, label_by_rigid_motion, split_by_rigid_motion
 from mosegpipe.types import Clustering
 
 SIZE_HW = (480, 640)
@@ -183,3 +183,22 @@ def test_the_config_round_trips_through_summary_json_form() -> None:
     old = asdict(PipelineConfig())
     del old["rigid"]  # a summary written before the check existed: replayed as it ran, without it
     assert PipelineConfig.from_dict(old).rigid == RigidCheckConfig(enabled=False)
+
+
+def test_label_by_rigid_motion_gives_each_track_the_motion_it_follows() -> None:
+    points, truth = scene("forward", object_points=40, seed=5)
+    known = np.arange(len(points)) % 2 == 0
+    labels = label_by_rigid_motion(points[~known], points[known], truth[known])
+    assert np.mean(labels == truth[~known]) > 0.9
+    assert np.mean(labels[truth[~known] == 1] == 1) > 0.8  # the object's own tracks, not the wall's
+    # Tracks that move like none of their neighbours get no label.
+    rng = np.random.default_rng(2)
+    wild = points[~known][:20].reshape(20, -1, 2).copy()
+    wild[:, 1:] += rng.normal(scale=8.0, size=(20, wild.shape[1] - 1, 2))
+    # (a fundamental matrix only constrains motion across epipolar lines: a few pass by chance)
+    assert np.mean(label_by_rigid_motion(wild.reshape(20, -1), points[known], truth[known]) == -1) >= 0.8
+    # A cluster of fewer than min_tracks tracks has no model: its label is never given.
+    few = truth[known].copy()
+    few[np.flatnonzero(few == 1)[5:]] = 0
+    assert not np.any(label_by_rigid_motion(points[~known], points[known], few) == 1)
+    assert label_by_rigid_motion(points[:0], points[known], truth[known]).shape == (0,)

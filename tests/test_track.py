@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.track import KLTTracker, TrackConfig, track_klt
+from mosegpipe.track import KLTTracker, TrackConfig, spread_corners, track_klt, track_points
 from mosegpipe.types import Frames
 
 H, W = 160, 240
@@ -202,3 +202,34 @@ def test_tracks_from_steps_maps_ids_to_rows() -> None:
     np.testing.assert_array_equal(tracks.visible, [[True, False], [True, True], [False, True]])
     np.testing.assert_array_equal(tracks.xy[1], [[2, 2], [3, 3]])
     assert np.isnan(tracks.xy[0, 1]).all() and tracks.size_hw == (10, 20)
+
+
+def test_spread_corners_give_a_weakly_textured_half_its_share() -> None:
+    base = _view(_texture(5), 0, 0).astype(np.float32)
+    image = base.copy()
+    image[:, W // 2 :] = 128 + 0.15 * (base[:, W // 2 :] - 128)  # the same texture at 15 % contrast
+    image = image.astype(np.uint8)
+    strongest = cv2.goodFeaturesToTrack(image, 150, 0.01, 7.0, blockSize=7).reshape(-1, 2)
+    assert (strongest[:, 0] > W // 2).mean() < 0.05  # strongest first: the bright half takes them
+    spread = spread_corners(image, 150)
+    assert len(spread) == 150
+    assert (spread[:, 0] > W // 2 + 5).mean() > 0.2  # its cells get their turn (24 % here)
+    avoid = spread[:40]
+    again = spread_corners(image, 150, avoid_xy=avoid)
+    gaps = np.linalg.norm(again[:, None] - avoid[None], axis=2).min(axis=1)
+    assert gaps.min() >= TrackConfig().min_distance_px - 1
+    assert len(spread_corners(np.full((H, W), 128, np.uint8), 50)) == 0  # nothing to find
+
+
+def test_track_points_follows_given_points_in_order() -> None:
+    base = _texture(6)
+    frames = np.stack([_rgb(_view(base, 2.0 * t, 1.0 * t)) for t in range(4)])
+    xy = np.array([[60.0, 50.0], [150.0, 90.0], [200.0, 40.0]], dtype=np.float32)
+    tracks = track_points(frames, xy)
+    assert tracks.xy.shape == (3, 4, 2) and tracks.visible.all()
+    expected = xy[:, None] + np.arange(4)[None, :, None] * np.array([2.0, 1.0])
+    np.testing.assert_allclose(tracks.xy, expected, atol=0.1)
+    tracker = KLTTracker()
+    tracker.step(frames[0])
+    with pytest.raises(ValueError, match="first call"):
+        tracker.start(frames[0], xy)

@@ -46,9 +46,9 @@ from scipy.optimize import linear_sum_assignment
 from mosegpipe.errors import MosegError
 from mosegpipe.evaluation.label_transfer import nearest_within
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.masks import UNKNOWN, labels_to_masks
+from mosegpipe.masks import UNKNOWN
 from mosegpipe.model import SubspaceNet
-from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair
+from mosegpipe.pipeline import PipelineConfig, clip_masks, segment_frames, segment_pair
 from mosegpipe.trajectories import trajectories_from_matches
 from mosegpipe.types import Frames
 
@@ -585,7 +585,7 @@ def rendered_rows(
         if oracle:
             # The ground-truth track labels through the same densification: the best J / F that
             # these tracks and mask settings allow.
-            best = labels_to_masks(result.tracks, ids, gt_tracks, cfg.mask, clip.frames)
+            best = clip_masks(clip.frames, result.tracks, ids, gt_tracks, cfg)
             best_scores = mask_scores(best, clip.masks, background=0, unknown=UNKNOWN, tolerance=tolerance)
             row.update(J_oracle=best_scores.j, F_oracle=best_scores.f)
         rows.append({**row, "seconds": seconds})
