@@ -78,6 +78,29 @@ class TrackConfig:
             raise ValueError(f"reseed_every={self.reseed_every} must be >= 1")
 
 
+def _inside(xy: npt.NDArray[np.float32], size_hw: tuple[int, int], border_px: float) -> npt.NDArray[np.bool_]:
+    """Which points lie at least border_px inside an image of size_hw (and are finite)."""
+    height, width = size_hw
+    return np.asarray(
+        np.isfinite(xy).all(axis=1)
+        & (xy[:, 0] >= border_px)
+        & (xy[:, 1] >= border_px)
+        & (xy[:, 0] <= width - 1 - border_px)
+        & (xy[:, 1] <= height - 1 - border_px)
+    )
+
+
+def _away_from(shape: tuple[int, ...], xy: npt.NDArray[np.float32], distance_px: float) -> npt.NDArray[np.uint8] | None:
+    """A detection mask that forbids the discs of radius distance_px around `xy` (None: no points)."""
+    if not len(xy):
+        return None
+    mask = np.full(shape[:2], 255, dtype=np.uint8)
+    radius = max(1, int(round(distance_px)))
+    for x, y in np.round(xy).astype(int):
+        cv2.circle(mask, (int(x), int(y)), radius, 0, -1)
+    return mask
+
+
 def _to_gray(frame: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
     frame = np.asarray(frame)
     if frame.ndim == 2:
@@ -193,27 +216,14 @@ class KLTTracker:
 
     def _inside(self, xy: npt.NDArray[np.float32]) -> npt.NDArray[np.bool_]:
         assert self._size_hw is not None
-        height, width = self._size_hw
-        b = self.cfg.border_px
-        return (
-            np.isfinite(xy).all(axis=1)
-            & (xy[:, 0] >= b)
-            & (xy[:, 1] >= b)
-            & (xy[:, 0] <= width - 1 - b)
-            & (xy[:, 1] <= height - 1 - b)
-        )
+        return _inside(xy, self._size_hw, self.cfg.border_px)
 
     def _detect(self, gray: npt.NDArray[np.uint8], budget: int) -> npt.NDArray[np.float32]:
         if budget <= 0:
             return np.zeros((0, 2), dtype=np.float32)
-        mask = None
-        if len(self._xy):
-            # Forbid detection within min_distance_px of a live point, so re-seeded corners fill
-            # only the areas that lost their tracks.
-            mask = np.full(gray.shape, 255, dtype=np.uint8)
-            radius = max(1, int(round(self.cfg.min_distance_px)))
-            for x, y in np.round(self._xy).astype(int):
-                cv2.circle(mask, (int(x), int(y)), radius, 0, -1)
+        # Forbid detection within min_distance_px of a live point, so re-seeded corners fill
+        # only the areas that lost their tracks.
+        mask = _away_from(gray.shape, self._xy, self.cfg.min_distance_px)
         corners = cv2.goodFeaturesToTrack(
             gray,
             maxCorners=budget,
@@ -329,28 +339,16 @@ def spread_corners(
         (K, 2) float32 corner positions, K <= budget.
     """
     gray = _to_gray(image)
-    mask = None
-    if avoid_xy is not None and len(avoid_xy):
-        mask = np.full(gray.shape, 255, dtype=np.uint8)
-        radius = max(1, int(round(cfg.min_distance_px)))
-        for x, y in np.round(avoid_xy[np.isfinite(avoid_xy).all(axis=1)]).astype(int):
-            cv2.circle(mask, (int(x), int(y)), radius, 0, -1)
+    avoid = np.zeros((0, 2), np.float32) if avoid_xy is None else avoid_xy[np.isfinite(avoid_xy).all(axis=1)]
     found = cv2.goodFeaturesToTrack(
-        gray, maxCorners=0, qualityLevel=cfg.quality_level, minDistance=cfg.min_distance_px, mask=mask,
-        blockSize=cfg.block_size,
+        gray, maxCorners=0, qualityLevel=cfg.quality_level, minDistance=cfg.min_distance_px,
+        mask=_away_from(gray.shape, avoid, cfg.min_distance_px), blockSize=cfg.block_size,
     )  # fmt: skip
     if found is None or budget <= 0:
         return np.zeros((0, 2), dtype=np.float32)
     corners = found.reshape(-1, 2).astype(np.float32)
     height, width = gray.shape
-    b = cfg.border_px
-    inside = (
-        (corners[:, 0] >= b)
-        & (corners[:, 1] >= b)
-        & (corners[:, 0] <= width - 1 - b)
-        & (corners[:, 1] <= height - 1 - b)
-    )
-    corners = corners[inside]
+    corners = corners[_inside(corners, (height, width), cfg.border_px)]
     if len(corners) <= budget:
         return corners
     col = np.minimum((corners[:, 0] * grid / width).astype(np.int64), grid - 1)
