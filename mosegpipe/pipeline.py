@@ -106,8 +106,8 @@ class PipelineConfig:
         A field left out takes its default (a summary written before the field existed), except
         `rigid`, `video_cut_survival` and `mask.extra_tracks`: a summary without them was made before
         the rigid-motion check (the shot-cut test, the extra mask tracks) existed, so it stays off and
-        a replay segments as that run did. An
-        unknown field, a value of the wrong type or one the config classes refuse is an error.
+        a replay segments as that run did. An unknown field, a value of the wrong type or one the
+        config classes refuse is an error.
 
         Args:
             data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
@@ -409,13 +409,14 @@ def clip_masks(
         known = tracks.xy[track_ids].reshape(len(track_ids), 2 * len(images))
         found = label_by_rigid_motion(data, known, labels, cfg.rigid)
         keep = found >= 0
+        rows = full[keep]
+        track_ids = np.concatenate([track_ids, tracks.num_tracks + np.arange(rows.size)])
+        labels = np.concatenate([labels, found[keep]])
         tracks = Tracks(
-            xy=np.concatenate([tracks.xy, extra.xy[full[keep]]]),
-            visible=np.concatenate([tracks.visible, extra.visible[full[keep]]]),
+            xy=np.concatenate([tracks.xy, extra.xy[rows]]),
+            visible=np.concatenate([tracks.visible, extra.visible[rows]]),
             size_hw=tracks.size_hw,
         )
-        track_ids = np.concatenate([track_ids, tracks.num_tracks - int(keep.sum()) + np.arange(int(keep.sum()))])
-        labels = np.concatenate([labels, found[keep]])
     return labels_to_masks(tracks, track_ids, labels, cfg.mask, images)
 
 
