@@ -499,9 +499,12 @@ def _tracker(max_corners: int, min_distance: float, quality: float, win_size: in
     return dict(zip(TRACKER_DEFAULTS, (max_corners, min_distance, quality, win_size)))
 
 
-def _masks(method: Any, max_distance: float, min_agree: int, median: int, scale: float) -> dict[str, Any]:
-    """The MaskConfig fields of the mask options."""
-    return dict(zip(MASK_DEFAULTS, (_value(method), max_distance, min_agree, median, scale)))
+def _masks(
+    method: Any, max_distance: float, min_agree: int, median: int, scale: float, extra_tracks: int | None = None
+) -> dict[str, Any]:
+    """The MaskConfig fields of the mask options (extra_tracks: `run` and `batch` only; None = not an option)."""
+    fields = dict(zip(MASK_DEFAULTS, (_value(method), max_distance, min_agree, median, scale)))
+    return fields if extra_tracks is None else {**fields, "extra_tracks": extra_tracks}
 
 
 def _protocol_help() -> str:
@@ -870,10 +873,7 @@ def run(
         start=start,
         rigid_check=rigid_check,
         track=_tracker(max_corners, min_distance, quality, win_size),
-        mask={
-            **_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
-            "extra_tracks": mask_extra_tracks,
-        },
+        mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale, mask_extra_tracks),
     )
     if not shot_cuts:
         cfg = replace(cfg, video_cut_survival=None)
@@ -1121,10 +1121,7 @@ def batch(
         start=start,
         rigid_check=rigid_check,
         track=_tracker(max_corners, min_distance, quality, win_size),
-        mask={
-            **_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale),
-            "extra_tracks": mask_extra_tracks,
-        },
+        mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale, mask_extra_tracks),
     )
     engine = _value(engine)
     if engine not in ENGINES:
