@@ -541,6 +541,7 @@ def _pipeline_cfg(
     *,
     start: int = 0,
     rigid_check: bool = True,
+    shot_cuts: bool = True,
     track: dict[str, Any] | None = None,
     mask: dict[str, Any] | None = None,
 ) -> Any:
@@ -570,6 +571,7 @@ def _pipeline_cfg(
         cluster=replace(ClusterConfig(), method=method, k_max=k_max),
         rigid=RigidCheckConfig(enabled=rigid_check),
         mask=mask_cfg,
+        video_cut_survival=PipelineConfig().video_cut_survival if shot_cuts else None,
     )
 
 
@@ -872,11 +874,10 @@ def run(
         k_max,
         start=start,
         rigid_check=rigid_check,
+        shot_cuts=shot_cuts,
         track=_tracker(max_corners, min_distance, quality, win_size),
         mask=_masks(mask_method, mask_max_distance, mask_min_agree, mask_median, mask_scale, mask_extra_tracks),
     )
-    if not shot_cuts:
-        cfg = replace(cfg, video_cut_survival=None)
     out = out or _default_out(clip, "_moseg")
     check_output_dir(out, overwrite)
     net = load_embedder(frames, model)

@@ -887,9 +887,11 @@ def segment_video(
     ambiguous: list[tuple[int, int]] = []  # (first, last) frame of each window whose K was ambiguous
     cluster_log = logging.getLogger(cluster_auto_k.__module__)
 
-    def label_window(window: list[_Frame], new: list[_Frame]) -> WindowResult:
-        """Clusters the tracks live through the whole window and labels the frames in `new`."""
+    def label_window(window: list[_Frame], first_labelled: bool) -> WindowResult:
+        """Clusters the tracks live through the whole window and labels its frames (all but the first
+        when the window before labelled that one: windows share their boundary frame)."""
         nonlocal prev, prev_k, num_windows, num_labelled
+        new = window[1:] if first_labelled else window
         before = prev  # the last labelled window's labels: tracks that end inside this window keep theirs
         tracks, row_ids = tracks_from_steps([(ids, xy) for _, _, ids, xy in window], window[0][1].shape[:2])
         traj = build_trajectories(tracks)
@@ -966,17 +968,17 @@ def segment_video(
             cuts.add(t)
             ids, xy = tracker.restart(frame)
             if not first_done or len(window) > 1:
-                yield label_window(window, window[1:] if first_done else window)
+                yield label_window(window, first_done)
             window, first_done = [], False
         window.append((t, frame, ids, xy))
         if len(window) == f:
             # Later windows start on the previous one's last frame, already labelled there.
-            yield label_window(window, window[1:] if first_done else window)
+            yield label_window(window, first_done)
             window, first_done = [window[-1]], True
     if num_frames < f:
         raise InputError(f"{path}: only {_frames(num_frames)} could be read; --frames needs {f}")
     if not first_done or len(window) > 1:
-        yield label_window(window, window[1:] if first_done else window)
+        yield label_window(window, first_done)
     if cuts:
         shown = ", ".join(str(c) for c in sorted(cuts)[:5]) + (f" and {len(cuts) - 5} more" if len(cuts) > 5 else "")
         log.info("shot cuts at frames %s: tracking started afresh there", shown)

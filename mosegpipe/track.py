@@ -339,12 +339,14 @@ def spread_corners(
         (K, 2) float32 corner positions, K <= budget.
     """
     gray = _to_gray(image)
+    if budget <= 0:
+        return np.zeros((0, 2), dtype=np.float32)
     avoid = np.zeros((0, 2), np.float32) if avoid_xy is None else avoid_xy[np.isfinite(avoid_xy).all(axis=1)]
     found = cv2.goodFeaturesToTrack(
         gray, maxCorners=0, qualityLevel=cfg.quality_level, minDistance=cfg.min_distance_px,
         mask=_away_from(gray.shape, avoid, cfg.min_distance_px), blockSize=cfg.block_size,
     )  # fmt: skip
-    if found is None or budget <= 0:
+    if found is None:
         return np.zeros((0, 2), dtype=np.float32)
     corners = found.reshape(-1, 2).astype(np.float32)
     height, width = gray.shape
