@@ -1,0 +1,500 @@
+"""DAVIS-2016 protocol: dense motion masks scored against the main moving object's human masks.
+
+Usage (from the repository root, data in ../shared/data)::
+
+    from mosegpipe.evaluation.davis import run_davis, format_table
+    report = run_davis("../shared/data/davis2016-train", mode="clip5", method="flow-homography")
+    print(format_table(report))
+
+Modes (`MODES`): "clip5" runs a method on the first 5 frames of each clip and scores those 5;
+"whole" runs it on all frames of the clip (25 here; the pipeline's whole-video mode) and scores all.
+Every frame a method is given is scored, the first included: this is unsupervised motion
+segmentation, there is no first-frame annotation to exclude (the semi-supervised DAVIS protocol
+drops it).
+
+Scores are DAVIS's (Perazzi et al., CVPR 2016): region similarity J (IoU, 1 when both masks are
+empty) and boundary F (tolerance 0.008 of the image diagonal), reused from `evaluation.e2e`; per
+clip each is summarised by its mean, recall (fraction of frames scoring above 0.5) and decay (the
+DAVIS code's four overlapping bins over the frames, bin 0 minus bin 3: `clip_statistics`).
+
+A method returns labels, not a foreground: (T, H, W) uint8, label k = motion k, 255 = unknown. The
+headline foreground uses no oracle: every pixel not in the background motion, the background being
+the label that covers most pixels over the clip's frames (255 pixels are not candidates and count as
+background; `foreground_from_labels`). Beside it, "best single label" picks per clip the one label
+whose mask scores the best mean J against the truth (an oracle, for reference only).
+
+Methods (`MaskMethod`): "pipeline" (segment_clip for clip5, segment_video for whole, with the given
+or default PipelineConfig) and "flow-homography", the classical reference (`flow_homography_labels`):
+DIS optical flow, the camera's motion as a robust homography, foreground where the flow departs from
+it. A clip on which a method raises a MosegError (too few tracks, ...) is scored as an empty
+prediction (J = F = 0: DAVIS masks are never empty) and the error is kept in its row.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
+from mosegpipe.errors import MosegError, check_choice
+from mosegpipe.evaluation.e2e import BOUNDARY_TOLERANCE, boundary_f, jaccard
+from mosegpipe.masks import UNKNOWN
+from mosegpipe.pipeline import PipelineConfig, frame_mask, segment_clip, segment_video
+from mosegpipe.runtime import set_threads
+
+log = logging.getLogger(__name__)
+
+MODES: dict[str, int | None] = {"clip5": 5, "whole": None}
+"""Mode -> frames read from each clip's start (None = all)."""
+
+MaskMethod = Callable[[DavisClip, str], npt.NDArray[np.uint8]]
+"""A mask method: (clip, mode) -> (T, H, W) uint8 labels for clip.images, k = motion k, 255 = unknown.
+
+The clip holds the frames to segment (images (T, H, W, 3) uint8 RGB, and frames_dir / start for
+methods that read the frames themselves); it must not look at clip.gt.
+"""
+
+
+# ---------------------------------------------------------------------------------------------
+# Scores
+
+
+def clip_statistics(per_frame: npt.ArrayLike) -> tuple[float, float, float]:
+    """DAVIS's per-clip statistics of a per-frame score: mean, recall and decay.
+
+    Decay follows the DAVIS evaluation code (`db_statistics`): bin edges
+    ids = round(linspace(1, T, 5)) - 1 and bin i = frames ids[i] .. ids[i + 1] (inclusive, so
+    neighbouring bins share an edge frame); decay = mean(bin 0) - mean(bin 3). For T = 5 that is
+    mean(x0, x1) - mean(x3, x4); for T = 25, mean(x0..x6) - mean(x18..x24).
+
+    Args:
+        per_frame: (T,) scores in [0, 1], T >= 1.
+
+    Returns:
+        (mean, recall = fraction of frames scoring > 0.5, decay).
+
+    Raises:
+        ValueError: no scores.
+    """
+    x = np.asarray(per_frame, dtype=np.float64).ravel()
+    if x.size == 0:
+        raise ValueError("no per-frame scores")
+    ids = (np.round(np.linspace(1, x.size, 5) + 1e-10) - 1).astype(np.int64)
+    bins = [x[ids[i] : ids[i + 1] + 1] for i in range(4)]
+    return float(x.mean()), float(np.mean(x > 0.5)), float(bins[0].mean() - bins[3].mean())
+
+
+def background_label(labels: npt.ArrayLike) -> int | None:
+    """The label covering the most pixels over all frames (UNKNOWN excluded); None when all are UNKNOWN.
+
+    Args:
+        labels: (T, H, W) or (H, W) uint8 labels.
+    """
+    counts = np.bincount(np.asarray(labels, dtype=np.uint8).ravel(), minlength=256)[:UNKNOWN]
+    return int(np.argmax(counts)) if counts.any() else None
+
+
+def foreground_from_labels(labels: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """The no-oracle foreground of a label mask: every known pixel outside the background motion.
+
+    Args:
+        labels: (T, H, W) uint8 labels of one clip, 255 = unknown (counted as background).
+
+    Returns:
+        (T, H, W) bool.
+    """
+    lab = np.asarray(labels, dtype=np.uint8)
+    bg = background_label(lab)
+    if bg is None:
+        return np.zeros(lab.shape, dtype=bool)
+    return (lab != bg) & (lab != UNKNOWN)
+
+
+def per_frame_scores(
+    pred: npt.ArrayLike, gt: npt.ArrayLike, tolerance: float = BOUNDARY_TOLERANCE
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """J and boundary F of every frame.
+
+    Args:
+        pred: (T, H, W) bool predicted foreground.
+        gt: (T, H, W) bool ground truth.
+        tolerance: boundary tolerance (see e2e.boundary_f).
+
+    Returns:
+        (J, F), each (T,) float64.
+
+    Raises:
+        ValueError: shapes differ.
+    """
+    p, g = np.asarray(pred, dtype=bool), np.asarray(gt, dtype=bool)
+    if p.shape != g.shape or p.ndim != 3:
+        raise ValueError(f"pred has shape {p.shape} but gt has shape {g.shape} (need equal (T, H, W))")
+    j = np.array([jaccard(a, b) for a, b in zip(p, g)])
+    f = np.array([boundary_f(a, b, tolerance)[2] for a, b in zip(p, g)])
+    return j, f
+
+
+def best_single_label(labels: npt.ArrayLike, gt: npt.ArrayLike) -> tuple[int | None, float]:
+    """Oracle: the one label whose mask has the best mean J against the truth over the clip's frames.
+
+    Args:
+        labels: (T, H, W) uint8 labels, 255 = unknown (never chosen).
+        gt: (T, H, W) bool ground truth.
+
+    Returns:
+        (label, its mean J); (None, mean J of an empty prediction) when every pixel is unknown.
+    """
+    lab, g = np.asarray(labels, dtype=np.uint8), np.asarray(gt, dtype=bool)
+    best: tuple[int | None, float] = (None, float(np.mean([jaccard(np.zeros_like(f), f) for f in g])))
+    for k in np.unique(lab):
+        if k == UNKNOWN:
+            continue
+        j = float(np.mean([jaccard(a, b) for a, b in zip(lab == k, g)]))
+        if best[0] is None or j > best[1]:
+            best = (int(k), j)
+    return best
+
+
+# ---------------------------------------------------------------------------------------------
+# Methods
+
+
+@dataclass(frozen=True)
+class FlowHomographyConfig:
+    """Settings of the flow-homography baseline, chosen on the 20 DEV clips only (all 25 frames).
+
+    Measured there (mean J, no-oracle foreground): DIS "medium" 0.465 vs "fast" 0.411 at their best
+    thresholds, at 1.4 s vs 0.6 s per 25-frame clip (flow + fit, one core): medium is kept. Over
+    threshold_px 1-4 x noise_factor 0-5, 1.5 px / 3 scored best (1.0-2.0 px with 3: within 0.005).
+    Medium underestimates the flow on tiny images (under ~100 px a side): use "fast" there.
+
+    Attributes:
+        preset: DIS preset, "medium" or "fast".
+        grid_step_px: spacing of the flow samples the homography is fitted to, pixels.
+        ransac_px: reprojection threshold of the robust fit (USAC MAGSAC), pixels.
+        threshold_px: a pixel is foreground where |flow - homography flow| exceeds this, pixels ...
+        noise_factor: ... or this many robust noise scales (1.4826 x median residual), whichever is larger.
+        open_px: side of the square opening that removes isolated specks, pixels (0 = none).
+        close_px: side of the square closing that fills small holes, pixels (0 = none).
+    """
+
+    preset: str = "medium"
+    grid_step_px: int = 8
+    ransac_px: float = 1.0
+    threshold_px: float = 1.5
+    noise_factor: float = 3.0
+    open_px: int = 5
+    close_px: int = 9
+
+
+_DIS_PRESETS = {"fast": cv2.DISOPTICAL_FLOW_PRESET_FAST, "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
+
+
+def _residual_foreground(
+    dis: Any, a: npt.NDArray[np.uint8], b: npt.NDArray[np.uint8], cfg: FlowHomographyConfig
+) -> npt.NDArray[np.bool_]:
+    """(H, W) pixels of gray image `a` whose flow to `b` the best homography does not explain."""
+    flow = dis.calc(a, b, None)
+    h, w = a.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    xy = np.stack([xs, ys], axis=-1)
+    s = cfg.grid_step_px
+    src = xy[s // 2 :: s, s // 2 :: s].reshape(-1, 2)
+    hom, _ = cv2.findHomography(
+        src, src + flow[s // 2 :: s, s // 2 :: s].reshape(-1, 2), cv2.USAC_MAGSAC, cfg.ransac_px
+    )
+    if hom is None:
+        return np.zeros((h, w), dtype=bool)
+    predicted = cv2.perspectiveTransform(xy.reshape(1, -1, 2), hom).reshape(h, w, 2) - xy
+    residual = np.linalg.norm(flow - predicted, axis=-1)
+    fg = (residual > max(cfg.threshold_px, cfg.noise_factor * 1.4826 * float(np.median(residual)))).astype(np.uint8)
+    if cfg.open_px:
+        fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((cfg.open_px, cfg.open_px), np.uint8))
+    if cfg.close_px:
+        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, np.ones((cfg.close_px, cfg.close_px), np.uint8))
+    return fg > 0
+
+
+def flow_homography_labels(
+    images: npt.NDArray[np.uint8], cfg: FlowHomographyConfig = FlowHomographyConfig()
+) -> npt.NDArray[np.uint8]:
+    """What geometry alone gets: foreground = flow that the camera's homography does not explain.
+
+    Per consecutive frame pair: DIS optical flow on grayscale, a homography fitted robustly to the
+    flow on a grid of pixels (the dominant, i.e. camera, motion), residual = |flow - homography
+    flow| per pixel, foreground = residual above a threshold, then a morphological opening and
+    closing. Frame t uses the flow t -> t + 1; the last frame the backward flow T-1 -> T-2.
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB.
+        cfg: settings.
+
+    Returns:
+        (T, H, W) uint8: 0 = background (camera motion), 1 = foreground. A single frame is all 0.
+    """
+    gray = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in images]
+    dis = cv2.DISOpticalFlow.create(_DIS_PRESETS[check_choice("preset", cfg.preset, _DIS_PRESETS)])
+    out = np.zeros(np.asarray(images).shape[:3], dtype=np.uint8)
+    if len(gray) < 2:
+        return out
+    for t in range(len(gray)):
+        nxt = t + 1 if t + 1 < len(gray) else t - 1
+        out[t] = _residual_foreground(dis, gray[t], gray[nxt], cfg)
+    return out
+
+
+def pipeline_method(cfg: PipelineConfig | None = None) -> MaskMethod:
+    """The pipeline as a mask method: segment_clip on the frames folder for "clip5", segment_video
+    for "whole" (window length cfg.frames), both from clip.start over clip.num_frames frames.
+
+    The model is loaded once per method (as the CLI does: `inference.load_embedder`), so a row's
+    seconds are the segmentation's, not the model loading's.
+
+    Args:
+        cfg: pipeline settings (None = the defaults). For "clip5" cfg.frames and cfg.start are set
+            from the clip.
+    """
+    from mosegpipe.inference import Embedder, load_embedder
+
+    base = cfg if cfg is not None else PipelineConfig()
+    models: dict[int, Embedder] = {}
+
+    def model_for(frames: int) -> Embedder:
+        if frames not in models:
+            models[frames] = load_embedder(frames)
+        return models[frames]
+
+    def run(clip: DavisClip, mode: str) -> npt.NDArray[np.uint8]:
+        if mode == "clip5":
+            clip_cfg = replace(base, frames=clip.num_frames, start=clip.start)
+            return segment_clip(clip.frames_dir, clip_cfg, model_for(clip.num_frames)).masks
+        out = np.full(clip.gt.shape, UNKNOWN, dtype=np.uint8)
+        video_cfg = replace(base, start=clip.start)
+        for window in segment_video(clip.frames_dir, video_cfg, model_for(base.frames), max_frames=clip.num_frames):
+            for frame in window.frames:
+                out[frame.index - clip.start] = frame_mask(frame, base.mask)
+        return out
+
+    return run
+
+
+def _flow_homography_method(clip: DavisClip, mode: str) -> npt.NDArray[np.uint8]:
+    return flow_homography_labels(clip.images)
+
+
+METHODS = ("pipeline", "flow-homography")
+
+
+def get_method(method: str | MaskMethod, cfg: PipelineConfig | None = None) -> MaskMethod:
+    """A built-in method by name ("pipeline" with `cfg`, "flow-homography"), or `method` itself.
+
+    Raises:
+        ConfigError: an unknown name.
+    """
+    if callable(method):
+        return method
+    if check_choice("method", method, METHODS) == "pipeline":
+        return pipeline_method(cfg)
+    return _flow_homography_method
+
+
+# ---------------------------------------------------------------------------------------------
+# Protocol
+
+
+@dataclass(frozen=True)
+class DavisRow:
+    """One clip's scores.
+
+    Attributes:
+        clip: clip name.
+        part: "dev" or "val" (data.davis split).
+        frames: frames scored.
+        j_mean, j_recall, j_decay: region similarity statistics (no-oracle foreground).
+        f_mean, f_recall, f_decay: boundary F statistics (no-oracle foreground).
+        best_label_j: mean J of the best single label (oracle).
+        k: labels found over the clip (255 excluded); 0 on failure.
+        seconds: wall time of the method on the clip (reading and scoring excluded).
+        error: the MosegError's message when the method failed ("" otherwise).
+    """
+
+    clip: str
+    part: str
+    frames: int
+    j_mean: float
+    j_recall: float
+    j_decay: float
+    f_mean: float
+    f_recall: float
+    f_decay: float
+    best_label_j: float
+    k: int
+    seconds: float
+    error: str = ""
+
+
+SCORE_FIELDS = ("j_mean", "j_recall", "j_decay", "f_mean", "f_recall", "f_decay", "best_label_j", "k", "seconds")
+"""The DavisRow fields averaged in a report's means."""
+
+
+@dataclass(frozen=True)
+class DavisReport:
+    """Scores of one method in one mode over some clips.
+
+    Attributes:
+        mode: "clip5" or "whole".
+        method: the method's name.
+        rows: one per clip, in clip order.
+        means: part ("dev", "val", "all") -> field -> mean over that part's rows (failed clips
+            included, as scored), plus "clips" and "failed" counts; parts without rows are left out.
+    """
+
+    mode: str
+    method: str
+    rows: list[DavisRow]
+    means: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form: mode, method, rows (dicts) and means."""
+        return {"mode": self.mode, "method": self.method, "rows": [asdict(r) for r in self.rows], "means": self.means}
+
+
+def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
+    """The DavisRow scores of one clip's labels.
+
+    Args:
+        labels: (T, H, W) uint8 labels, 255 = unknown.
+        gt: (T, H, W) bool ground truth.
+
+    Returns:
+        dict with the j_*, f_*, best_label_j and k fields of DavisRow.
+    """
+    lab = np.asarray(labels, dtype=np.uint8)
+    j, f = per_frame_scores(foreground_from_labels(lab), gt)
+    jm, jr, jd = clip_statistics(j)
+    fm, fr, fd = clip_statistics(f)
+    present = np.unique(lab)
+    return {
+        "j_mean": jm,
+        "j_recall": jr,
+        "j_decay": jd,
+        "f_mean": fm,
+        "f_recall": fr,
+        "f_decay": fd,
+        "best_label_j": best_single_label(lab, gt)[1],
+        "k": int(np.count_nonzero(present != UNKNOWN)),
+    }
+
+
+def summarize_rows(rows: Sequence[DavisRow]) -> dict[str, dict[str, float]]:
+    """Means of SCORE_FIELDS per part ("dev", "val") and over all rows, with clip and failure counts."""
+    means: dict[str, dict[str, float]] = {}
+    for part in ("dev", "val", "all"):
+        chosen = [r for r in rows if part == "all" or r.part == part]
+        if chosen:
+            means[part] = {name: float(np.mean([getattr(r, name) for r in chosen])) for name in SCORE_FIELDS}
+            means[part].update(clips=len(chosen), failed=sum(bool(r.error) for r in chosen))
+    return means
+
+
+def run_davis(
+    root: str | Path,
+    mode: str = "clip5",
+    method: str | MaskMethod = "pipeline",
+    clips: Sequence[str] | None = None,
+    part: str = "all",
+    cfg: PipelineConfig | None = None,
+    threads: int | None = 1,
+) -> DavisReport:
+    """Runs a mask method on DAVIS clips and scores it.
+
+    Args:
+        root: the ``davis2016-train`` folder (or a data root holding it).
+        mode: "clip5" (first 5 frames) or "whole" (all frames).
+        method: "pipeline", "flow-homography" or a MaskMethod callable.
+        clips: clip names (None = every clip under root); then filtered by `part`.
+        part: "dev", "val" or "all" (data.davis.DAVIS_VAL).
+        cfg: pipeline settings for method "pipeline" (None = defaults).
+        threads: set torch / OpenCV / BLAS threads to this first (runtime.set_threads; one is fastest
+            on the 2-core machines); None leaves them as they are.
+
+    Returns:
+        DavisReport, rows in clip order.
+
+    Raises:
+        ConfigError: unknown mode, method or part.
+        DatasetError: a clip cannot be read (data errors are not scored as failures).
+    """
+    max_frames = MODES[check_choice("mode", mode, MODES)]
+    run = get_method(method, cfg)
+    name = method if isinstance(method, str) else getattr(method, "__name__", "custom")
+    if threads is not None:
+        set_threads(threads)
+    names = davis_split(list(clips) if clips is not None else list_davis_clips(root), part)
+    rows = []
+    for clip_name in names:
+        clip = read_davis_clip(root, clip_name, max_frames=max_frames)
+        error = ""
+        t0 = time.perf_counter()
+        try:
+            labels = run(clip, mode)
+        except MosegError as exc:
+            error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            labels = np.full(clip.gt.shape, UNKNOWN, dtype=np.uint8)
+            log.warning("%s: %s", clip_name, error)
+        seconds = time.perf_counter() - t0
+        if labels.shape != clip.gt.shape:
+            raise ValueError(f"method {name!r} gave labels {labels.shape} for {clip_name} {clip.gt.shape}")
+        scores = score_clip(labels, clip.gt)
+        row = DavisRow(
+            clip=clip_name,
+            part=davis_part(clip_name),
+            frames=clip.num_frames,
+            j_mean=scores["j_mean"],
+            j_recall=scores["j_recall"],
+            j_decay=scores["j_decay"],
+            f_mean=scores["f_mean"],
+            f_recall=scores["f_recall"],
+            f_decay=scores["f_decay"],
+            best_label_j=scores["best_label_j"],
+            k=int(scores["k"]),
+            seconds=seconds,
+            error=error,
+        )
+        log.info("%s: J %.3f F %.3f (%.1f s)", clip_name, row.j_mean, row.f_mean, seconds)
+        rows.append(row)
+    return DavisReport(mode=mode, method=name, rows=rows, means=summarize_rows(rows))
+
+
+def _fmt(value: float | int | str) -> str:
+    if isinstance(value, float):
+        return "nan" if math.isnan(value) else f"{value:.3f}"
+    return str(value)
+
+
+def format_table(report: DavisReport) -> str:
+    """A plain-text table: one line per clip, then the dev / val / all means; failures listed below."""
+    head = ["clip", "part", "T", "J", "J rec", "J dec", "F", "F rec", "F dec", "best-lbl J", "K", "s"]
+    lines = [[r.clip, r.part, str(r.frames)] + [_fmt(getattr(r, n)) for n in SCORE_FIELDS] for r in report.rows]
+    for part, m in report.means.items():
+        label = f"mean {part} ({int(m['clips'])})"
+        lines.append([label, "", ""] + [f"{m[n]:.3f}" if n != "k" else f"{m[n]:.1f}" for n in SCORE_FIELDS])
+    widths = [max(len(h), *(len(row[i]) for row in lines)) for i, h in enumerate(head)]
+    out = [f"DAVIS-2016 {report.mode}, method {report.method}"]
+    out.append("  ".join(h.ljust(w) if i < 2 else h.rjust(w) for i, (h, w) in enumerate(zip(head, widths))))
+    n_clips = len(report.rows)
+    for i, row in enumerate(lines):
+        if i == n_clips:
+            out.append("-" * len(out[1]))
+        out.append("  ".join(c.ljust(w) if j < 2 else c.rjust(w) for j, (c, w) in enumerate(zip(row, widths))))
+    out += [f"failed: {r.clip}: {r.error}" for r in report.rows if r.error]
+    return "\n".join(out)

@@ -1,0 +1,223 @@
+"""DAVIS reader, split, scores and protocol on a tiny fake DAVIS folder; one test on the real clips."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mosegpipe.data.davis import (
+    DAVIS2016_TRAIN,
+    DAVIS_DEV,
+    DAVIS_VAL,
+    DavisClip,
+    davis_split,
+    list_davis_clips,
+    read_davis_clip,
+)
+from mosegpipe.errors import ConfigError, DatasetError, TooFewTracksError
+from mosegpipe.evaluation.davis import (
+    background_label,
+    best_single_label,
+    clip_statistics,
+    flow_homography_labels,
+    foreground_from_labels,
+    format_table,
+    per_frame_scores,
+    run_davis,
+    score_clip,
+)
+
+H, W, T = 48, 64, 6
+SIDE = 20
+
+
+def _scene(num_frames: int = T, step_px: int = 4, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A textured square moving right over a textured static background: images (T,H,W,3), gt (T,H,W)."""
+    rng = np.random.default_rng(seed)
+    background = cv2.GaussianBlur(rng.integers(0, 256, (H, W), dtype=np.uint8), (5, 5), 0)
+    patch = cv2.GaussianBlur(rng.integers(0, 256, (SIDE, SIDE), dtype=np.uint8), (5, 5), 0)
+    images = np.zeros((num_frames, H, W, 3), np.uint8)
+    gt = np.zeros((num_frames, H, W), bool)
+    for t in range(num_frames):
+        img = background.copy()
+        x, y = 8 + step_px * t, 14
+        img[y : y + SIDE, x : x + SIDE] = patch
+        images[t] = np.repeat(img[..., None], 3, axis=2)
+        gt[t, y : y + SIDE, x : x + SIDE] = True
+    return images, gt
+
+
+@pytest.fixture()
+def fake_davis(tmp_path: Path) -> Path:
+    """Three clips, alpha / beta / gamma, of T 64x48 frames with masks."""
+    root = tmp_path / "davis2016-train"
+    for i, name in enumerate(("alpha", "beta", "gamma")):
+        images, gt = _scene(seed=i)
+        (root / name / "frames").mkdir(parents=True)
+        (root / name / "masks").mkdir()
+        for t in range(T):
+            cv2.imwrite(
+                str(root / name / "frames" / f"{t:05d}.jpg"), images[t][..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 98]
+            )
+            cv2.imwrite(str(root / name / "masks" / f"{t:05d}.png"), gt[t].astype(np.uint8) * 255)
+    return root
+
+
+# ---------------------------------------------------------------------------------------------
+# Reader and split
+
+
+def test_reader_shapes(fake_davis: Path) -> None:
+    assert list_davis_clips(fake_davis) == ["alpha", "beta", "gamma"]
+    assert list_davis_clips(fake_davis.parent) == ["alpha", "beta", "gamma"]  # a data root holding it
+    clip = read_davis_clip(fake_davis, "beta", start=1, max_frames=3)
+    assert clip.images.shape == (3, H, W, 3) and clip.images.dtype == np.uint8
+    assert clip.gt.shape == (3, H, W) and clip.gt.dtype == bool
+    assert clip.start == 1 and clip.num_frames == 3 and clip.frames_dir == fake_davis / "beta" / "frames"
+    assert np.array_equal(clip.gt, _scene(seed=1)[1][1:4])
+    assert read_davis_clip(fake_davis, "alpha").num_frames == T
+
+
+def test_reader_errors_name_the_path(fake_davis: Path) -> None:
+    with pytest.raises(DatasetError, match="nowhere"):
+        list_davis_clips(fake_davis / "nowhere")
+    with pytest.raises(DatasetError, match="delta"):
+        read_davis_clip(fake_davis, "delta")
+    for f in (fake_davis / "alpha" / "masks").iterdir():
+        f.unlink()
+    (fake_davis / "alpha" / "masks").rmdir()
+    with pytest.raises(DatasetError, match=r"alpha[/\\]masks"):
+        read_davis_clip(fake_davis, "alpha")
+    (fake_davis / "beta" / "masks" / "00003.png").unlink()
+    with pytest.raises(DatasetError, match=rf"beta: {T} frames but {T - 1} masks"):
+        read_davis_clip(fake_davis, "beta")
+    with pytest.raises(DatasetError, match="start 9"):
+        read_davis_clip(fake_davis, "gamma", start=9)
+
+
+def test_split_fixed_disjoint_and_deterministic() -> None:
+    assert DAVIS_VAL == DAVIS2016_TRAIN[2::3] and len(DAVIS_VAL) == 10 and len(DAVIS_DEV) == 20
+    dev, val = davis_split(DAVIS2016_TRAIN, "dev"), davis_split(DAVIS2016_TRAIN, "val")
+    assert not set(dev) & set(val) and sorted(dev + val) == sorted(DAVIS2016_TRAIN)
+    assert davis_split(reversed(DAVIS2016_TRAIN), "val") == list(reversed(DAVIS_VAL))  # order kept, same set
+    assert davis_split(["bear", "boat", "mine"], "all") == ["bear", "boat", "mine"]
+    assert davis_split(["bear", "boat", "mine"], "dev") == ["bear", "mine"]  # unknown clips are dev
+    with pytest.raises(ConfigError, match="test"):
+        davis_split(DAVIS2016_TRAIN, "test")
+
+
+# ---------------------------------------------------------------------------------------------
+# Scores
+
+
+def test_clip_statistics_hand_computed() -> None:
+    mean, recall, decay = clip_statistics([1.0, 1.0, 0.0, 0.0, 0.0])
+    assert (mean, recall, decay) == pytest.approx((0.4, 0.4, 1.0))  # bins 0 = frames 0-1, 3 = frames 3-4
+    assert clip_statistics([0.5, 0.6])[1] == 0.5  # recall counts scores strictly above 0.5
+    x = np.zeros(25)
+    x[6] = 0.7  # frame 6 ends bin 0 (frames 0-6); bin 3 is frames 18-24
+    x[18] = 0.35
+    assert clip_statistics(x)[2] == pytest.approx(0.1 - 0.05)
+    assert clip_statistics([0.3]) == pytest.approx((0.3, 0.0, 0.0))
+    with pytest.raises(ValueError):
+        clip_statistics([])
+
+
+def test_per_frame_scores_j_and_f() -> None:
+    gt = np.zeros((2, 20, 20), bool)
+    gt[:, 5:15, 5:15] = True
+    pred = gt.copy()
+    pred[1] = False
+    pred[1, 5:15, 5:10] = True  # half the square
+    j, f = per_frame_scores(pred, gt)
+    assert j == pytest.approx([1.0, 0.5])
+    assert f[0] == 1.0 and 0 < f[1] < 1
+    j, f = per_frame_scores(np.zeros((1, 4, 4), bool), np.zeros((1, 4, 4), bool))
+    assert (j[0], f[0]) == (1.0, 1.0)  # both empty
+
+
+def test_foreground_from_labels_background_is_the_largest_label() -> None:
+    labels = np.full((2, 3, 3), 255, np.uint8)  # 255 covers the most pixels but is never background
+    labels[0, 0, :] = 0  # label 0: 3 + 2 pixels over the clip
+    labels[1, 0, :2] = 0
+    labels[0, 1, :2] = 1  # label 1: 2 + 2 pixels
+    labels[1, 1, :2] = 1
+    labels[1, 2, 2] = 4  # label 4: 1 pixel
+    assert background_label(labels) == 0
+    fg = foreground_from_labels(labels)
+    assert np.array_equal(fg, (labels == 1) | (labels == 4))
+    assert not foreground_from_labels(np.full((1, 2, 2), 255, np.uint8)).any()
+    assert background_label(np.full((1, 2, 2), 255, np.uint8)) is None
+
+
+def test_best_single_label_oracle() -> None:
+    gt = np.zeros((2, 4, 4), bool)
+    gt[:, :2, :2] = True
+    labels = np.zeros((2, 4, 4), np.uint8)
+    labels[0, :2, :] = 1  # frame 0: twice the object, J 1/2
+    labels[1, :3, :] = 1  # frame 1: three times the object, J 1/3
+    labels[1, 3, :3] = 2  # beside the object: J 0
+    labels[:, 3, 3] = 255
+    assert best_single_label(labels, gt) == (1, pytest.approx((1 / 2 + 1 / 3) / 2))
+    labels[:, :2, :2] = 2
+    assert best_single_label(labels, gt) == (2, pytest.approx((1 + 4 / 7) / 2))  # row 3 stays label 2 in frame 1
+    assert best_single_label(np.full((2, 4, 4), 255, np.uint8), gt) == (None, 0.0)
+    scores = score_clip(labels, gt)
+    assert scores["k"] == 3 and scores["best_label_j"] == pytest.approx((1 + 4 / 7) / 2)
+
+
+# ---------------------------------------------------------------------------------------------
+# Baseline and protocol
+
+
+def test_flow_homography_finds_a_moving_square() -> None:
+    images, gt = _scene(num_frames=4)
+    labels = flow_homography_labels(images)
+    assert labels.shape == gt.shape and labels.dtype == np.uint8
+    j, _ = per_frame_scores(foreground_from_labels(labels), gt)
+    assert j.mean() > 0.5, j
+    assert not flow_homography_labels(images[:1]).any()  # one frame: no flow, no foreground
+
+
+def _oracle(clip: DavisClip, mode: str) -> np.ndarray:
+    return clip.gt.astype(np.uint8) * 3
+
+
+def _fails(clip: DavisClip, mode: str) -> np.ndarray:
+    raise TooFewTracksError(f"{clip.frames_dir}: only 2 tracks\nsecond line")
+
+
+def test_run_davis_scores_rows_and_isolates_failures(fake_davis: Path) -> None:
+    report = run_davis(fake_davis, mode="clip5", method=_oracle, threads=None)
+    assert [r.clip for r in report.rows] == ["alpha", "beta", "gamma"]
+    assert all(r.frames == 5 and r.j_mean == 1.0 and r.f_mean == 1.0 and r.k == 2 for r in report.rows)
+    assert set(report.means) == {"dev", "all"} and report.means["all"]["clips"] == 3
+    report = run_davis(fake_davis, mode="whole", method=_fails, clips=["beta"], threads=None)
+    row = report.rows[0]
+    assert row.frames == T and row.j_mean == 0.0 and row.f_mean == 0.0 and row.k == 0
+    assert row.error.endswith("only 2 tracks") and report.means["all"]["failed"] == 1
+    table = format_table(report)
+    assert "beta" in table and "mean all (1)" in table and "failed: beta" in table
+    assert report.to_dict()["rows"][0]["error"] == row.error
+    with pytest.raises(ConfigError):
+        run_davis(fake_davis, mode="clip7", method=_oracle)
+    with pytest.raises(ConfigError):
+        run_davis(fake_davis, method="nothing")
+
+
+def test_run_davis_baseline_by_name(fake_davis: Path) -> None:
+    report = run_davis(fake_davis, mode="clip5", method="flow-homography", clips=["alpha"], threads=None)
+    assert report.method == "flow-homography" and report.rows[0].j_mean > 0.5
+
+
+def test_baseline_on_a_real_clip(data_root: Path) -> None:
+    root = data_root / "davis2016-train"
+    if not root.is_dir():
+        pytest.skip(f"DAVIS-2016 clips not found at {root}")
+    report = run_davis(root, mode="clip5", method="flow-homography", clips=["bear"])
+    row = report.rows[0]
+    assert row.frames == 5 and not row.error
+    assert row.j_mean > 0.3, row
