@@ -154,8 +154,8 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
 
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import EvalConfig, run_protocol
+    from mosegpipe.inference import load_model
     from mosegpipe.model import SubspaceNet
-    from mosegpipe.pipeline import load_model
     from mosegpipe.training.loop import TrainConfig, with_overrides
 
     variant = cast(Variant, check_choice("--variant", req.variant, get_args(Variant)))
@@ -205,7 +205,7 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
 
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
-    from mosegpipe.pipeline import load_model
+    from mosegpipe.inference import load_model
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
     f = req.frames or protocol.default_frames

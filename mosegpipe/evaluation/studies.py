@@ -161,7 +161,7 @@ def _data_root(req: StudyRequest, study: Study) -> Path:
 
 def _models(req: StudyRequest) -> tuple[SubspaceNet, SubspaceNet]:
     """(5-frame model, two-view model): the request's checkpoints or the shipped weights."""
-    from mosegpipe.pipeline import load_model
+    from mosegpipe.inference import load_model
 
     return load_model(5, req.model), load_model(2, req.pair_model)
 
