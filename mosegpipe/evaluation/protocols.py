@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 
 from mosegpipe.errors import ConfigError, check_choice, lookup
+from mosegpipe.evaluation.folds import sequence_of
 from mosegpipe.types import KMethodName
 
 if TYPE_CHECKING:
@@ -181,7 +182,7 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
         net = SubspaceNet.from_checkpoint(req.model)
     start = SubspaceNet.from_checkpoint(req.init) if req.init else None
     root = req.data_root if req.data_root is not None else Path(".")
-    rows, summary, table = run_protocol(cfg, root, req.out_dir, model=net, init=start, progress=req.progress)
+    rows, summary, table = run_protocol(protocol, cfg, root, req.out_dir, model=net, init=start, progress=req.progress)
     return EvalResult(rows, summary, table)
 
 
@@ -347,11 +348,6 @@ def _lce_clips(data_root: Path, frames: int) -> list[LabeledClip]:
     from mosegpipe.synth.lce import lce_splits
 
     return list(lce_splits()["test"])
-
-
-def sequence_of(clip: LabeledClip) -> str:
-    """The sequence a clip was cut from (KT3DMoSeg folds hold out a whole sequence)."""
-    return str(clip.meta.get("sequence", clip.name.split("/")[0]))
 
 
 def _clip_name(clip: LabeledClip) -> str:
