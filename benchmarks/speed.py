@@ -200,7 +200,7 @@ def video_table(runs: list[tuple[str, Path, bool]], model: Embedder, work: Path)
     return "\n".join(lines)
 
 
-# The steps of `moseg run CLIP --frames 5` (cli/main.py `run`) in a fresh interpreter, each stamped
+# The steps of `moseg run CLIP --frames 5` (cli/clip.py `run`) in a fresh interpreter, each stamped
 # with the wall clock (time.time(), comparable with the parent's): the breakdown of table (d).
 _STARTUP_PROBE = """
 import json, sys, time

@@ -769,7 +769,7 @@ def run_batch(
         raise InputError(f"{out}: exists and is not a folder; choose another --out")
     out.mkdir(parents=True, exist_ok=True)
     if model is None:
-        from mosegpipe.pipeline import load_model
+        from mosegpipe.inference import load_model
 
         model = load_model(cfg.frames, checkpoint)
     job = _Job(cfg, rrd, config_hash(cfg, model, rrd), segment_fn or segment_clip)

@@ -9,7 +9,8 @@ SHA-256 of the checkpoint file, so every later run of the same weights reads the
 changed checkpoint has another digest; a cache copy that does not fit is ignored and rewritten.
 
 `load_embedder` is what the single-clip commands use; training, evaluation and batch processing keep
-the torch model (they import torch anyway and need its weights).
+the torch model of `load_model` (they import torch anyway and need its weights; mosegpipe.pipeline
+re-exports it).
 """
 
 from __future__ import annotations
@@ -203,17 +204,52 @@ def file_digest(path: Path) -> str:
     return digest.hexdigest()
 
 
+def _shipped_frames(frames: int) -> int:
+    """The frame count of the shipped model that serves `frames` (2 = pairs; a count without its own model: 5)."""
+    return 2 if frames == 2 else frames if frames in available_default_frames() else 5
+
+
+def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet:
+    """The shipped default model for `frames` (or a checkpoint file).
+
+    Clips whose frame count has no shipped model are served by the 5-frame model after temporal
+    resampling of each trajectory (see trajectories.resample_frames).
+
+    Args:
+        frames: F, the trajectory length the model will see (2 = image pairs).
+        checkpoint: a checkpoint file to load instead of the shipped weights.
+
+    Returns:
+        The model in eval mode. A model loaded from `checkpoint` carries the file's resolved path as
+        `checkpoint_path` (recorded by model_info in summary.json, so that a run can be replayed
+        with the same weights; it travels with the model to batch workers).
+
+    Raises:
+        CheckpointError: the checkpoint is missing, corrupt or not a SubspaceNet, or no weights are shipped.
+    """
+    from mosegpipe.model import SubspaceNet
+
+    if checkpoint is not None:
+        model = SubspaceNet.from_checkpoint(checkpoint)
+        # object.__setattr__: nn.Module's own __setattr__ is typed for tensors and modules only.
+        object.__setattr__(model, "checkpoint_path", str(Path(checkpoint).resolve()))
+        return model
+    try:
+        return SubspaceNet.default(frames=_shipped_frames(frames))
+    except CheckpointError as exc:
+        raise CheckpointError(f"{exc}; pass --model CHECKPOINT to use other weights") from exc
+
+
 def shipped_path(frames: int) -> Path:
     """The shipped checkpoint that serves `frames` (2 = pairs; a count without its own model: the 5-frame one)."""
-    shipped = 2 if frames == 2 else frames if frames in available_default_frames() else 5
-    return weights_dir() / f"subspacenet_f{shipped}.pt"
+    return weights_dir() / f"subspacenet_f{_shipped_frames(frames)}.pt"
 
 
 def load_embedder(frames: int, checkpoint: str | Path | None = None, cache_dir: Path | None = None) -> Embedder:
-    """The model for `frames` (the shipped weights, or `checkpoint`), as pipeline.load_model gives it,
+    """The model for `frames` (the shipped weights, or `checkpoint`), as load_model gives it,
     but served by NumPy when the checkpoint's inference copy is in the cache.
 
-    On a cache miss the checkpoint is loaded with torch (pipeline.load_model, same checks and
+    On a cache miss the checkpoint is loaded with torch (load_model, same checks and
     errors), and for the "subspacenet" architecture its copy is written for the next run (a cache
     folder that cannot be written is skipped silently: the run itself needs no cache).
 
@@ -223,7 +259,7 @@ def load_embedder(frames: int, checkpoint: str | Path | None = None, cache_dir: 
         cache_dir: where copies live (None = io.default_cache_dir() / "inference").
 
     Raises:
-        CheckpointError: as pipeline.load_model.
+        CheckpointError: as load_model.
     """
     path = Path(checkpoint) if checkpoint is not None else shipped_path(frames)
     folder = cache_dir if cache_dir is not None else default_cache_dir() / "inference"
@@ -240,7 +276,6 @@ def load_embedder(frames: int, checkpoint: str | Path | None = None, cache_dir: 
                 if checkpoint is not None:
                     model.checkpoint_path = str(path.resolve())  # type: ignore[attr-defined]
                 return model
-    from mosegpipe.pipeline import load_model
     from mosegpipe.runtime import collector_paused
 
     with collector_paused("torch"):

@@ -15,7 +15,9 @@ import pytest
 from typer.testing import CliRunner
 
 from mosegpipe import __version__
-from mosegpipe.cli import main as cli
+from mosegpipe.cli import batch as cli_batch
+from mosegpipe.cli import options as cli_options
+from mosegpipe.cli import view as cli_view
 from mosegpipe.cli.main import app
 from mosegpipe.io import read_palette_png
 from mosegpipe.model import available_default_frames
@@ -293,7 +295,7 @@ def test_decoder_noise_is_kept_off_stderr(tmp_path: Path) -> None:
     bad = _garbage(tmp_path / "x.mp4")
     script = (
         "import sys, cv2\n"
-        "from mosegpipe.cli.main import _quiet_native_logs\n"
+        "from mosegpipe.cli.app import _quiet_native_logs\n"
         "if sys.argv[2] == 'quiet': _quiet_native_logs()\n"
         "assert not cv2.VideoCapture(sys.argv[1]).isOpened()\n"
     )
@@ -327,11 +329,11 @@ def test_view_reports_missing_recording_viewer_and_display(tmp_path: Path, monke
     code, _, stderr = moseg("view", rec)
     assert code == 1 and stderr == f"moseg: error: {rec}: no such recording\n"
     rec.write_bytes(b"")
-    monkeypatch.setattr(cli, "_find_viewer", lambda: None)
+    monkeypatch.setattr(cli_view, "_find_viewer", lambda: None)
     code, _, stderr = moseg("view", rec)
     assert code == 1 and "the Rerun viewer ('rerun') was not found" in stderr and stderr.count("\n") == 1
-    monkeypatch.setattr(cli, "_find_viewer", lambda: "/opt/rerun")
-    monkeypatch.setattr(cli, "_has_display", lambda: False)
+    monkeypatch.setattr(cli_view, "_find_viewer", lambda: "/opt/rerun")
+    monkeypatch.setattr(cli_view, "_has_display", lambda: False)
     code, _, stderr = moseg("view", rec)
     assert code == 1 and f"try 'moseg view --web {rec}'" in stderr
 
@@ -345,9 +347,9 @@ def test_view_starts_the_viewer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
         calls.append([exe, *args])
         raise SystemExit(0)
 
-    monkeypatch.setattr(cli, "_find_viewer", lambda: "/opt/rerun")
-    monkeypatch.setattr(cli, "_has_display", lambda: True)
-    monkeypatch.setattr(cli.os, "execv", fake_execv)
+    monkeypatch.setattr(cli_view, "_find_viewer", lambda: "/opt/rerun")
+    monkeypatch.setattr(cli_view, "_has_display", lambda: True)
+    monkeypatch.setattr(cli_view.os, "execv", fake_execv)
     assert moseg("view", rec)[0] == 0
     assert moseg("view", "--web", rec)[0] == 0
     assert moseg("view", "--web", "--bind", "0.0.0.0", "--web-port", "8000", rec)[0] == 0
@@ -366,8 +368,8 @@ def test_choices_are_enums_listed_in_help() -> None:
     from mosegpipe.batch import ENGINES
     from mosegpipe.types import KMethodName
 
-    assert sorted(c.value for c in cli.KMethodChoice) == sorted(get_args(KMethodName))
-    assert [c.value for c in cli.EngineChoice] == list(ENGINES)
+    assert sorted(c.value for c in cli_options.KMethodChoice) == sorted(get_args(KMethodName))
+    assert [c.value for c in cli_batch.EngineChoice] == list(ENGINES)
     code, out, _ = moseg("run", "--help")
     assert code == 0 and "silhouette|residual" in out
     code, out, _ = moseg("batch", "--help")

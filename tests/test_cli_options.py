@@ -19,7 +19,9 @@ import numpy as np
 import pytest
 import typer.main
 
-from mosegpipe.cli import main as cli
+from mosegpipe.cli import config as cli_config
+from mosegpipe.cli import evaluate as cli_evaluate
+from mosegpipe.cli import options as cli_options
 from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig
 from mosegpipe.io import read_palette_png
@@ -308,8 +310,8 @@ def test_bad_tracker_and_mask_values(
 
 def test_cli_defaults_are_the_library_defaults() -> None:
     """The tracker and mask defaults are written out in the CLI (no OpenCV import for --help): the same values."""
-    assert cli.TRACKER_DEFAULTS == {name: getattr(TrackConfig(), name) for name in cli.TRACKER_DEFAULTS}
-    assert cli.MASK_DEFAULTS == {name: getattr(MaskConfig(), name) for name in cli.MASK_DEFAULTS}
+    assert cli_options.TRACKER_DEFAULTS == {name: getattr(TrackConfig(), name) for name in cli_options.TRACKER_DEFAULTS}
+    assert cli_options.MASK_DEFAULTS == {name: getattr(MaskConfig(), name) for name in cli_options.MASK_DEFAULTS}
     options = {"max_corners": "max_corners", "min_distance_px": "min_distance", "quality_level": "quality"}
     options |= {"win_size_px": "win_size", "method": "mask_method", "max_distance_px": "mask_max_distance"}
     options |= {"min_agree": "mask_min_agree", "median_px": "mask_median", "scale": "mask_scale"}
@@ -317,8 +319,8 @@ def test_cli_defaults_are_the_library_defaults() -> None:
     for command in ("run", "batch"):
         defaults = {p.name: p.default for p in group.commands[command].params}
         for field, option in options.items():
-            expected = {**cli.TRACKER_DEFAULTS, **cli.MASK_DEFAULTS}[field]
-            assert cli._value(defaults[option]) == expected, (command, option)
+            expected = {**cli_options.TRACKER_DEFAULTS, **cli_options.MASK_DEFAULTS}[field]
+            assert cli_options._value(defaults[option]) == expected, (command, option)
         assert defaults["mask_extra_tracks"] == MaskConfig().extra_tracks, command
 
 
@@ -337,7 +339,7 @@ def test_every_option_has_help_and_every_choice_is_an_enum() -> None:
         ["run", "pair", "tracks", "batch", "replay", "view", "train", "eval", "study"]
     )
     for name, command in group.commands.items():
-        hints = cli._option_hints(name)
+        hints = cli_config._option_hints(name)
         for param in command.params:
             assert getattr(param, "help", None), f"moseg {name}: {param.name} has no help text"
             if hints[param.name] is str:
@@ -351,14 +353,14 @@ def test_enums_hold_the_library_names() -> None:
     from mosegpipe.training.losses import LOSSES
     from mosegpipe.training.recipes import RECIPES
 
-    assert [c.value for c in cli.MaskMethodChoice] == list(MASK_METHODS)
-    assert [c.value for c in cli.PresetChoice] == list(RECIPES)
-    assert [c.value for c in cli.LossChoice] == list(LOSSES)
-    assert [c.value for c in cli.ProtocolChoice] == list(PROTOCOLS)
-    assert [c.value for c in cli.StudyChoice] == list(STUDIES)
-    assert [c.value for c in cli.VariantChoice] == list(typing.get_args(Variant))
-    assert [c.value for c in cli.BudgetChoice] == list(typing.get_args(Budget))
-    assert list(cli.BASELINE_NAMES) == list(BASELINES)
+    assert [c.value for c in cli_options.MaskMethodChoice] == list(MASK_METHODS)
+    assert [c.value for c in cli_evaluate.PresetChoice] == list(RECIPES)
+    assert [c.value for c in cli_evaluate.LossChoice] == list(LOSSES)
+    assert [c.value for c in cli_evaluate.ProtocolChoice] == list(PROTOCOLS)
+    assert [c.value for c in cli_evaluate.StudyChoice] == list(STUDIES)
+    assert [c.value for c in cli_evaluate.VariantChoice] == list(typing.get_args(Variant))
+    assert [c.value for c in cli_evaluate.BudgetChoice] == list(typing.get_args(Budget))
+    assert list(cli_evaluate.BASELINE_NAMES) == list(BASELINES)
 
 
 def test_train_help_lists_every_loss_and_recipe() -> None:

@@ -17,7 +17,7 @@ from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.evaluation.benchmark import EvalConfig, embed_clip, evaluate_clips, run_protocol
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.evaluation.protocols import PROTOCOLS
+from mosegpipe.evaluation.protocols import PROTOCOLS, get_protocol
 from mosegpipe.evaluation.report import format_table, summarize, write_results
 from mosegpipe.model import SubspaceNet
 from mosegpipe.training.loop import TrainConfig
@@ -234,6 +234,11 @@ def fake_data(monkeypatch: pytest.MonkeyPatch) -> list[tuple[tuple[Any, ...], tu
     return calls
 
 
+def run_named(cfg: EvalConfig, *args: Any, **kwargs: Any) -> Any:
+    """run_protocol with the registry's record of cfg.protocol, as protocols.run_benchmark passes it."""
+    return run_protocol(get_protocol(cfg.protocol), cfg, *args, **kwargs)
+
+
 def loo_config(**kw: Any) -> EvalConfig:
     base = EvalConfig(
         protocol="adelaide-loo", frames=2, baselines=(), train=TrainConfig(frames=2, steps=3, batch_size=2, warmup=0)
@@ -256,7 +261,7 @@ def test_run_protocol_loo_saves_folds_and_resumes(
     out = tmp_path / "out"
     init = tiny_model()
     said: list[str] = []
-    rows, summary, table = run_protocol(loo_config(), tmp_path, out, init=init, progress=said.append)
+    rows, summary, table = run_named(loo_config(), tmp_path, out, init=init, progress=said.append)
     assert [r["name"] for r in rows] == ["pairA", "pairB"]
     assert fake_data == [((("adelaide", 1.0),), ("pairA",)), ((("adelaide", 1.0),), ("pairB",))]
     assert (
@@ -274,14 +279,14 @@ def test_run_protocol_loo_saves_folds_and_resumes(
     # Run again: nothing trains, both folds are re-scored from their checkpoints with identical results.
     monkeypatch.setattr(training_run, "train_model", _no_training)
     said.clear()
-    rows2, _, _ = run_protocol(loo_config(), tmp_path, out, init=init, progress=said.append)
+    rows2, _, _ = run_named(loo_config(), tmp_path, out, init=init, progress=said.append)
     assert said == ["pairA: trained earlier, re-scored", "pairB: trained earlier, re-scored"]
     assert _errors(rows2) == _errors(rows)
     assert len(fake_data) == 2
 
     # Other clustering settings and baselines do not invalidate the stored folds.
     said.clear()
-    rows3, _, _ = run_protocol(
+    rows3, _, _ = run_named(
         loo_config(cluster=ClusterConfig(k_max=3), baselines=("kmeans-raw",)),
         tmp_path,
         out,
@@ -297,7 +302,7 @@ def test_run_protocol_loo_retrains_when_training_changes(
 ) -> None:
     out = tmp_path / "out"
     init = tiny_model()
-    run_protocol(loo_config(), tmp_path, out, init=init)
+    run_named(loo_config(), tmp_path, out, init=init)
     trained: list[int] = []
     real = training_run.train_model
 
@@ -308,22 +313,22 @@ def test_run_protocol_loo_retrains_when_training_changes(
     monkeypatch.setattr(training_run, "train_model", counting)
     said: list[str] = []
     cfg = loo_config(train=TrainConfig(frames=2, steps=4, batch_size=2, warmup=0))
-    run_protocol(cfg, tmp_path, out, init=init, progress=said.append)
+    run_named(cfg, tmp_path, out, init=init, progress=said.append)
     assert trained == [4, 4]
     assert len(said) == 2
     assert said[0].startswith("pairA: trained 4 steps") and said[1].startswith("pairB: trained 4 steps")
     assert json.loads((out / "folds" / "pairA.json").read_text())["recipe"]["steps_done"] == 4
     # A different starting point is a different training too.
     trained.clear()
-    run_protocol(cfg, tmp_path, out, init=None)
+    run_named(cfg, tmp_path, out, init=None)
     assert trained == [4, 4]
 
 
 def test_run_protocol_folds_filter(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fake_data: list[Any]) -> None:
-    rows, _, _ = run_protocol(loo_config(folds=("pairB",)), tmp_path, tmp_path / "out", init=tiny_model())
+    rows, _, _ = run_named(loo_config(folds=("pairB",)), tmp_path, tmp_path / "out", init=tiny_model())
     assert [r["name"] for r in rows] == ["pairB"] and [c[1] for c in fake_data] == [("pairB",)]
     with pytest.raises(ValueError, match="no test clip matches --folds"):
-        run_protocol(loo_config(folds=("nope",)), tmp_path, tmp_path / "out")
+        run_named(loo_config(folds=("nope",)), tmp_path, tmp_path / "out")
 
 
 def test_run_protocol_full_run_reuses_folds_of_a_partial_run(
@@ -331,9 +336,9 @@ def test_run_protocol_full_run_reuses_folds_of_a_partial_run(
 ) -> None:
     out = tmp_path / "out"
     init = tiny_model()
-    run_protocol(loo_config(folds=("pairA",)), tmp_path, out, init=init)
+    run_named(loo_config(folds=("pairA",)), tmp_path, out, init=init)
     said: list[str] = []
-    run_protocol(loo_config(), tmp_path, out, init=init, progress=said.append)
+    run_named(loo_config(), tmp_path, out, init=init, progress=said.append)
     assert said[0] == "pairA: trained earlier, re-scored"
 
 
@@ -341,21 +346,23 @@ def test_run_protocol_fold_recipe_records_trained_frames(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fake_data: list[Any]
 ) -> None:
     cfg = loo_config(train=TrainConfig(steps=2, batch_size=2), folds=("pairA",))  # TrainConfig.frames defaults to 5
-    run_protocol(cfg, tmp_path, tmp_path / "out", init=tiny_model())
+    run_named(cfg, tmp_path, tmp_path / "out", init=tiny_model())
     model = SubspaceNet.from_checkpoint(tmp_path / "out" / "folds" / "pairA.pt")
     assert model.recipe["train_config"]["frames"] == model.cfg.in_dim // 2 == 2
 
 
 def test_run_protocol_test_protocol(tmp_path: Path, fake_data: list[Any]) -> None:
     cfg = EvalConfig(protocol="adelaide-test", frames=2, baselines=("kmeans-raw",))
-    rows, summary, _ = run_protocol(cfg, tmp_path, tmp_path / "out", model=tiny_model())
+    rows, summary, _ = run_named(cfg, tmp_path, tmp_path / "out", model=tiny_model())
     assert [r["name"] for r in rows] == ["pairA", "pairB"] and fake_data == []  # no training
     assert not (tmp_path / "out" / "folds").exists()
     assert summary["kmeans-raw@K"] == {"mean": 0.0, "median": 0.0}
     with pytest.raises(ValueError, match="needs a model"):
-        run_protocol(cfg, tmp_path, tmp_path / "out")
+        run_named(cfg, tmp_path, tmp_path / "out")
     with pytest.raises(ValueError, match="unknown protocol 'nope'"):
-        run_protocol(EvalConfig(protocol="nope"), tmp_path, tmp_path / "out")
+        run_named(EvalConfig(protocol="nope"), tmp_path, tmp_path / "out")
+    with pytest.raises(ValueError, match="record of 'adelaide-loo' given for protocol 'adelaide-test'"):
+        run_protocol(get_protocol("adelaide-loo"), cfg, tmp_path, tmp_path / "out", model=tiny_model())
 
 
 # ---------------------------------------------------------------------------------------------

@@ -104,10 +104,10 @@ def test_opencv_exceptions_become_input_errors(
     def broken(*_args: object, **_kwargs: object) -> None:
         raise cv2.error("OpenCV(4.10) error: (-215:Assertion failed) !buf.empty() in function 'imdecode_'")
 
-    monkeypatch.setattr(pipeline, "read_video", broken)
+    monkeypatch.setattr(pipeline.clip, "read_video", broken)
     with pytest.raises(InputError, match=r"clip.avi: cannot read it \(.*imdecode_"):
         segment_clip(tmp_path / "clip.avi", PipelineConfig(), model5)
-    monkeypatch.setattr(pipeline, "read_image", broken)
+    monkeypatch.setattr(pipeline.pair, "read_image", broken)
     with pytest.raises(InputError, match="a.png: cannot read it"):
         segment_pair(tmp_path / "a.png", tmp_path / "b.png", model=model5)
 

@@ -51,8 +51,9 @@ def test_importing_the_cli_loads_no_heavy_library(tmp_path: Path) -> None:
 def test_setup_imports_with_the_collector_paused_and_freezes_them(tmp_path: Path) -> None:
     code = _PROBE + (
         "import gc, sys\n"
-        "from mosegpipe.cli import main\n"
-        "main._setup(1, False, 'mosegpipe.outputs')\n"
+        "import mosegpipe.cli.main\n"
+        "from mosegpipe.cli.app import _setup\n"
+        "_setup(1, False, 'mosegpipe.outputs')\n"
         "print(full[0], gc.isenabled(), gc.get_freeze_count(), 'torch' in sys.modules, 'sklearn' in sys.modules)\n"
         "built_after = [[] for _ in range(20_000)]\n"  # alive at exit (lists are tracked; empty dicts are not)
     )

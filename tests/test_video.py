@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from mosegpipe import pipeline as pipeline_module
 from mosegpipe.cli.main import app
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.io import iter_video, read_palette_png
 from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import _WINDOWS_AHEAD, write_video_outputs
 from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
+from mosegpipe.pipeline import video as video_module
 from mosegpipe.synth.render import RenderedClip
 
 from helpers import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
@@ -159,7 +159,7 @@ def test_memory_holds_one_window_of_frames(
             yield t, frame
             del frame
 
-    monkeypatch.setattr(pipeline_module, "iter_video", tracked)
+    monkeypatch.setattr(video_module, "iter_video", tracked)
     model3 = SubspaceNet.from_checkpoint(motion_checkpoint(tmp_path / "m3.pt", 3))
     write_video_outputs(frames_dir, tmp_path / "out", PipelineConfig(frames=3, k=3), model3, rrd=False)
     assert len(alive) == T

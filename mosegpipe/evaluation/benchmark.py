@@ -16,20 +16,23 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import ConfigError
+from mosegpipe.evaluation.folds import sequence_of
 from mosegpipe.evaluation.metrics import misclassification_error, nmi
-from mosegpipe.evaluation.protocols import Variant, get_protocol, sequence_of
 from mosegpipe.evaluation.report import summarize, write_results
 from mosegpipe.io import atomic_write
 from mosegpipe.model import SubspaceNet
 from mosegpipe.training.loop import TrainConfig
 from mosegpipe.training.run import train_sources
 from mosegpipe.types import LabeledClip
+
+if TYPE_CHECKING:
+    from mosegpipe.evaluation.protocols import Protocol, Variant
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +125,7 @@ def _config_hash(config: dict[str, Any]) -> str:
 
 
 def run_protocol(
+    protocol: Protocol,
     cfg: EvalConfig,
     data_root: Path,
     out_dir: Path,
@@ -132,7 +136,10 @@ def run_protocol(
     """Runs a protocol and writes results.{json,csv,md} under out_dir.
 
     Args:
-        cfg: the protocol and its settings.
+        protocol: the benchmark protocol's record (protocols.get_protocol(cfg.protocol)): its clips,
+            training source and folds. Passed in, not looked up, so that this module does not import
+            the registry that imports it.
+        cfg: the protocol's name and its settings.
         data_root: the benchmark folder.
         out_dir: where results (and per-fold files, for resuming) go.
         model: the model to test for "*-test" protocols (and "lce" without training).
@@ -143,7 +150,8 @@ def run_protocol(
         (rows, summary, markdown table).
     """
     say = progress or (lambda _msg: None)
-    protocol = get_protocol(cfg.protocol)
+    if protocol.name != cfg.protocol:
+        raise ValueError(f"run_protocol: the record of {protocol.name!r} given for protocol {cfg.protocol!r}")
     if protocol.load_clips is None:
         raise ConfigError(f"{cfg.protocol} is an end-to-end protocol; run it with protocols.get_protocol(name).run")
     config = cfg.to_dict()

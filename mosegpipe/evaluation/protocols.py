@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 
 from mosegpipe.errors import ConfigError, check_choice, lookup
+from mosegpipe.evaluation.folds import sequence_of
 from mosegpipe.types import KMethodName
 
 if TYPE_CHECKING:
@@ -154,8 +155,8 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
 
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import EvalConfig, run_protocol
+    from mosegpipe.inference import load_model
     from mosegpipe.model import SubspaceNet
-    from mosegpipe.pipeline import load_model
     from mosegpipe.training.loop import TrainConfig, with_overrides
 
     variant = cast(Variant, check_choice("--variant", req.variant, get_args(Variant)))
@@ -181,7 +182,7 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
         net = SubspaceNet.from_checkpoint(req.model)
     start = SubspaceNet.from_checkpoint(req.init) if req.init else None
     root = req.data_root if req.data_root is not None else Path(".")
-    rows, summary, table = run_protocol(cfg, root, req.out_dir, model=net, init=start, progress=req.progress)
+    rows, summary, table = run_protocol(protocol, cfg, root, req.out_dir, model=net, init=start, progress=req.progress)
     return EvalResult(rows, summary, table)
 
 
@@ -205,7 +206,7 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
 
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
-    from mosegpipe.pipeline import load_model
+    from mosegpipe.inference import load_model
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
     f = req.frames or protocol.default_frames
@@ -347,11 +348,6 @@ def _lce_clips(data_root: Path, frames: int) -> list[LabeledClip]:
     from mosegpipe.synth.lce import lce_splits
 
     return list(lce_splits()["test"])
-
-
-def sequence_of(clip: LabeledClip) -> str:
-    """The sequence a clip was cut from (KT3DMoSeg folds hold out a whole sequence)."""
-    return str(clip.meta.get("sequence", clip.name.split("/")[0]))
 
 
 def _clip_name(clip: LabeledClip) -> str:

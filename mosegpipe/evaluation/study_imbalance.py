@@ -11,7 +11,8 @@ Parts under OUT/parts: one checkpoint per kind (`model__<kind>.pt`, its recipe h
 training depends on) and one JSON per (kind, K) with the per-sample rows (keyed by that model's weights,
 the test settings and the RANSAC settings), so an interrupted run resumes and a re-run reuses both.
 
-Nothing heavy is imported at import time (studies.py reads `IMBALANCE_BUDGETS` when it is imported).
+Nothing heavy is imported at import time (studies.py reads `IMBALANCE_BUDGETS` when it is imported);
+the helpers it shares with the other studies are study_common's.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from mosegpipe.evaluation.ransac_curves import RansacConfig
-    from mosegpipe.evaluation.studies import Study, StudyRequest, StudyResult
+    from mosegpipe.evaluation.study_common import Study, StudyRequest, StudyResult
     from mosegpipe.model import ModelConfig, SubspaceNet
     from mosegpipe.training.loop import TrainConfig
     from mosegpipe.types import LabeledClip
@@ -116,7 +117,7 @@ def _train_kind(
     req: StudyRequest, study: Study, kind: str, budget: ImbalanceBudget, say: Callable[[str], None]
 ) -> tuple[SubspaceNet, dict[str, Any]]:
     """The trained model of one kind: the stored part when its hash matches, else trained and stored."""
-    from mosegpipe.evaluation.studies import _hash, _part_path
+    from mosegpipe.evaluation.study_common import _hash, _part_path
     from mosegpipe.model import SubspaceNet
     from mosegpipe.synth.lce import LCEConfig, single_kind_splits
     from mosegpipe.training.loop import recipe_of, train_model
@@ -271,7 +272,7 @@ def _table(summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) ->
 
 
 def _plot(summary: dict[str, dict[str, dict[str, float]]]) -> Any:
-    from mosegpipe.evaluation.studies import _pyplot
+    from mosegpipe.evaluation.study_common import _pyplot
 
     plt = _pyplot()
     kinds = list(summary)
@@ -303,7 +304,7 @@ def _plot(summary: dict[str, dict[str, dict[str, float]]]) -> Any:
 
 def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
     """Figure 4: error against the number of models for SubspaceNet and sequential RANSAC (see the module docstring)."""
-    from mosegpipe.evaluation.studies import (
+    from mosegpipe.evaluation.study_common import (
         StudyResult,
         _check_budget,
         _hash,

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mosegpipe.errors import ConfigError
-from mosegpipe.evaluation.studies import (
+from mosegpipe.evaluation.study_common import (
     _PARTS_VERSION,
     Study,
     StudyRequest,

@@ -33,7 +33,7 @@ import numpy as np
 from mosegpipe.errors import ConfigError
 
 if TYPE_CHECKING:
-    from mosegpipe.evaluation.studies import Budget, Study, StudyRequest, StudyResult
+    from mosegpipe.evaluation.study_common import Budget, Study, StudyRequest, StudyResult
     from mosegpipe.model import ModelConfig
     from mosegpipe.training.loop import Sampler
     from mosegpipe.types import LabeledClip
@@ -157,7 +157,7 @@ def _need_root(root: Path | None) -> Path:
 
 def fold_key(clip: LabeledClip) -> str:
     """The name a fold holds out: the KT3DMoSeg sequence, or the AdelaideRMF pair's name."""
-    from mosegpipe.evaluation.protocols import sequence_of
+    from mosegpipe.evaluation.folds import sequence_of
 
     return sequence_of(clip)
 
@@ -318,7 +318,7 @@ class TrainingStudy:
 
 def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> StudyResult:
     """Trains and scores every (variant, dataset, fold, trial) of `spec`, then writes the table and plot."""
-    from mosegpipe.evaluation import studies as st
+    from mosegpipe.evaluation import study_common as st
     from mosegpipe.runtime import limited_threads
 
     budget_name: Budget = st._check_budget(req)
@@ -392,7 +392,7 @@ def _slug(label: str) -> str:
 
 
 def _table(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
-    from mosegpipe.evaluation.studies import DATASET_TITLES
+    from mosegpipe.evaluation.study_common import DATASET_TITLES
 
     titles = {**DATASET_TITLES, "lce": "lines/circles/ellipses"}
     head = ["variant"]
@@ -417,7 +417,7 @@ def _table(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]],
 
 
 def _plot(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]]) -> Any:
-    from mosegpipe.evaluation.studies import DATASET_TITLES, _pyplot
+    from mosegpipe.evaluation.study_common import DATASET_TITLES, _pyplot
 
     plt = _pyplot()
     datasets = list(summary)

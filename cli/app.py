@@ -1,0 +1,248 @@
+"""The Typer app and the error policy of every moseg command, in one place.
+
+Only the CLI prints, and only here does a MosegError (or an OS error, Ctrl-C, SIGTERM) become one
+line on stderr and exit code 1 (`_friendly`, `_fail`); usage errors are one line with exit code 2
+(`_MosegGroup`). `_setup` sets logging, native log levels and threads before a command imports the
+library; `--version` is the app's callback. The commands live in the modules beside this one and are
+registered, in the order --help lists them, by cli/main.py.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib
+import logging
+import os
+import re
+import signal
+import sys
+from collections.abc import Callable
+from typing import Annotated, Any, TypeVar
+
+import typer
+from typer.core import TyperGroup
+
+from mosegpipe import __version__
+from mosegpipe.errors import MosegError
+
+try:  # Typer >= 0.26 bundles its own copy of Click; its exceptions are the ones raised
+    from typer import _click
+except ImportError:  # pragma: no cover - older Typer uses the click package
+    import click as _click  # type: ignore[no-redef]
+
+
+EXIT_CODES = {0: "success", 1: "bad input, a failed or interrupted run (one 'moseg: error:' line)", 2: "usage error"}
+"""Exit codes of every moseg command (README, docs/OUTPUTS.md)."""
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _bad_value(exc: Any) -> str:
+    """The reason in a BadParameter, one line, without the validator's "Value error, " prefix."""
+    return _one_line(exc.message).removeprefix("Value error, ").rstrip(".")
+
+
+def _usage_message(exc: Any, args: list[str]) -> str:
+    """One line for a usage error; a bad option value is named with the value given (`--frames 0: ...`)."""
+    param = getattr(exc, "param", None)
+    if isinstance(exc, _click.exceptions.BadParameter) and param is not None and getattr(param, "opts", None):
+        for i, arg in enumerate(args):
+            for opt in param.opts:
+                if arg == opt and i + 1 < len(args):
+                    return f"{opt} {args[i + 1]}: {_bad_value(exc)}"
+                if arg.startswith(f"{opt}="):
+                    return f"{opt} {arg[len(opt) + 1 :]}: {_bad_value(exc)}"
+        missing = isinstance(exc, _click.exceptions.MissingParameter)
+        if not missing and not any(opt.startswith("-") for opt in param.opts):  # PROTOCOL: 'x' is not one of ...
+            return f"{param.name.upper()}: {_bad_value(exc)}"
+    return _one_line(exc.format_message()).replace(": Value error, ", ": ").rstrip(".")
+
+
+class _MosegGroup(TyperGroup):
+    """The moseg command group: usage errors are one line on stderr, not Click's framed box.
+
+    Click's own exit code 2 is kept for usage errors (a bad option value, a missing argument, an
+    unknown option); everything a command reports itself exits with 1 (see EXIT_CODES).
+    """
+
+    def main(
+        self,
+        args: Any = None,
+        prog_name: str | None = None,
+        complete_var: str | None = None,
+        standalone_mode: bool = True,
+        windows_expand_args: bool = True,
+        **extra: Any,
+    ) -> Any:
+        try:
+            rv = super().main(
+                args=args,
+                prog_name=prog_name,
+                complete_var=complete_var,
+                standalone_mode=False,
+                windows_expand_args=windows_expand_args,
+                **extra,
+            )
+            code = rv if isinstance(rv, int) else 0
+        except _click.exceptions.NoArgsIsHelpError as exc:
+            typer.echo(exc.ctx.get_help() if exc.ctx is not None else "")
+            code = exc.exit_code
+        except _click.exceptions.UsageError as exc:
+            where = exc.ctx.command_path if exc.ctx is not None else "moseg"
+            message = _usage_message(exc, sys.argv[1:] if args is None else list(args))
+            typer.echo(f"moseg: error: {message} (see '{where} --help')", err=True)
+            code = exc.exit_code
+        except _click.exceptions.ClickException as exc:
+            typer.echo(f"moseg: error: {_one_line(exc.format_message())}", err=True)
+            code = exc.exit_code
+        except typer.Abort:
+            typer.echo("moseg: error: interrupted", err=True)
+            code = 1
+        if standalone_mode:
+            sys.exit(code)
+        return code
+
+
+app = typer.Typer(
+    name="moseg",
+    cls=_MosegGroup,
+    help="Motion segmentation of tracked points with SubspaceNet: clips, image pairs, folders of clips.",
+    no_args_is_help=True,
+    add_completion=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode="markdown",  # docstring paragraphs wrap to the terminal instead of keeping source line breaks
+)
+
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _fail(message: str) -> None:
+    _WARNINGS.drop()
+    typer.echo(f"moseg: error: {message}", err=True)
+    raise typer.Exit(code=1)
+
+
+def _shown_path(name: object) -> str:
+    """A path as the user knows it: `OUT/file`, not the temporary `.OUT.partial/.file.1a2b3c4d.tmp`."""
+    text = re.sub(r"(^|/)\.([^/]+)\.partial(?=/|$)", r"\1\2", os.fsdecode(name))  # type: ignore[arg-type]
+    return re.sub(r"(^|/)\.([^/]+)\.[0-9a-f]{8}\.tmp(\.[^/.]*)?$", r"\1\2\3", text)
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread like Ctrl-C so that the same clean-up runs (no .partial
+    folder left behind)."""
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
+    raise _Terminated()
+
+
+class _DeferredWarnings(logging.Handler):
+    """Holds the library's warnings until the command ends.
+
+    After a success they are printed (`moseg: warning: ...`, at most `limit`, then a count); after a
+    failure they are dropped, so that stderr holds only the one error line (a blank video in
+    whole-video mode would otherwise print a warning per window before its error).
+    """
+
+    def __init__(self, limit: int = 10) -> None:
+        super().__init__(logging.WARNING)
+        self.limit = limit
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+    def drop(self) -> None:
+        self.records.clear()
+
+    def show(self) -> None:
+        records, self.records = self.records, []
+        for record in records[: self.limit]:
+            typer.echo(f"moseg: warning: {_one_line(record.getMessage())}", err=True)
+        if len(records) > self.limit:
+            typer.echo(f"moseg: warning: ... and {len(records) - self.limit} more warnings (-v shows them)", err=True)
+
+
+_WARNINGS = _DeferredWarnings()
+
+
+def _friendly(fn: F) -> F:
+    """Turns MosegError, OS errors (a full disk, a read-only folder), Ctrl-C and SIGTERM into one
+    line on stderr and exit code 1; the library's warnings are shown after a success only. Anything
+    else is a bug and keeps its traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        _WARNINGS.drop()
+        previous = None
+        with contextlib.suppress(ValueError):  # signals can only be handled in the main thread
+            previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        try:
+            result = fn(*args, **kwargs)
+            _WARNINGS.show()
+            return result
+        except MosegError as exc:
+            _fail(_one_line(str(exc)))
+        except OSError as exc:
+            where = f"{_shown_path(exc.filename)}: " if exc.filename else ""
+            _fail(f"{where}{exc.strerror or exc}")
+        except KeyboardInterrupt as exc:
+            _fail("terminated (SIGTERM)" if isinstance(exc, _Terminated) else "interrupted")
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _quiet_native_logs() -> None:
+    """Keeps FFmpeg's and OpenCV's own messages off stderr (they are read when the first video opens).
+
+    FFmpeg inside OpenCV prints decoder complaints ("moov atom not found", "cinepak_decode failed")
+    straight to file descriptor 2; the failure they lead to is reported once, as a moseg error line.
+    A value the user set in the environment wins.
+    """
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+
+
+def _setup(threads: int, verbose: bool, *preload: str) -> None:
+    """Logging, native log levels and thread counts; then `preload`, the modules the command imports
+    next (names for importlib), imported with the collector paused (see runtime.collector_paused)."""
+    from mosegpipe.runtime import collector_paused, set_threads
+
+    root = logging.getLogger()
+    if root.handlers and all(h is _WARNINGS for h in root.handlers) and verbose:
+        root.removeHandler(_WARNINGS)  # an earlier command in this process deferred its warnings
+    if verbose:
+        logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    else:
+        if _WARNINGS not in root.handlers:
+            root.addHandler(_WARNINGS)
+        root.setLevel(logging.WARNING)
+        _quiet_native_logs()
+    with collector_paused("sklearn"):
+        set_threads(threads)  # imports torch and OpenCV
+        for name in preload:
+            importlib.import_module(name)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"moseg {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """moseg: which tracked points move together, dense masks and a Rerun recording."""

@@ -1,0 +1,170 @@
+"""moseg batch: every clip under a folder, with resume, fault isolation and a choice of engine."""
+
+from __future__ import annotations
+
+import time
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from mosegpipe.cli.app import _fail, _friendly, _setup
+from mosegpipe.cli.common import _check_model_path, _print_total, _progress_columns
+from mosegpipe.cli.config import ConfigOpt
+from mosegpipe.cli.options import (
+    ClusterOptions,
+    MaskExtraTracks,
+    MaskOptions,
+    ModelOpt,
+    NoRrd,
+    Quiet,
+    RigidCheck,
+    Start,
+    Threads,
+    TrackerOptions,
+    Verbose,
+    _pipeline_cfg,
+    _value,
+    option_blocks,
+)
+from mosegpipe.errors import InputError
+
+
+class EngineChoice(StrEnum):
+    """--engine: the values of mosegpipe.batch.ENGINES (a test keeps them equal)."""
+
+    process = "process"
+    ray = "ray"
+    inline = "inline"
+
+
+@_friendly
+@option_blocks
+def batch(
+    folder: Annotated[Path, typer.Argument(help="Folder searched for video files and frame folders.")],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Output folder: one sub-folder per clip plus batch_summary.csv/json.")
+    ],
+    frames: Annotated[int, typer.Option("--frames", "-f", min=2, help="Frames to segment in each clip.")] = 5,
+    start: Start = 0,
+    clustering: ClusterOptions = ClusterOptions(),
+    rigid_check: RigidCheck = True,
+    tracker: TrackerOptions = TrackerOptions(),
+    masks: MaskOptions = MaskOptions(),
+    mask_extra_tracks: MaskExtraTracks = 1000,
+    model: ModelOpt = None,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")
+    ] = False,
+    no_rrd: NoRrd = False,
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            "--jobs",
+            "-j",
+            min=1,
+            help="Clips at once: worker processes (default: the number of cores), or Ray tasks in flight with --engine ray (default: the cluster's CPUs).",
+        ),
+    ] = None,
+    engine: Annotated[
+        EngineChoice,
+        typer.Option(
+            "--engine",
+            help="process (worker processes on this machine), ray (Ray tasks: pip install 'mosegpipe[ray]') or inline (this process, one clip after another).",
+        ),
+    ] = EngineChoice.process,
+    address: Annotated[
+        str | None,
+        typer.Option(
+            "--address",
+            help="With --engine ray: the cluster to use ('auto', 'ray://HEAD:10001', ...); default: a local Ray instance. On a cluster --out must be a shared path.",
+        ),
+    ] = None,
+    clip_timeout: Annotated[
+        float | None,
+        typer.Option(
+            "--clip-timeout",
+            help="Seconds a clip may run before its worker is killed and it is reported failed (default: no limit).",
+        ),
+    ] = None,
+    config: ConfigOpt = None,
+    quiet: Quiet = False,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment every clip under FOLDER (video files and frame folders, searched recursively).
+
+    Each clip gets its own sub-folder of --out (as from 'moseg run'), and batch_summary.csv/json
+    list every clip with its status. --jobs clips run at once, each worker with one thread. A clip
+    that fails, runs past --clip-timeout or kills its worker is reported and the others go on; a
+    re-run skips the clips already done with the same options and weights (resume) and redoes the
+    others.
+
+    Exit code: 0 when every clip was segmented or skipped, 1 when any clip failed (after all the
+    others were processed and the summary written).
+    """
+    started = time.perf_counter()
+    if not folder.exists():
+        raise InputError(f"{folder}: no such file or folder")
+    _check_model_path(model)
+    _setup(threads, verbose)
+    from rich.markup import escape
+    from rich.progress import Progress
+
+    from mosegpipe.batch import ENGINES, plan, run_batch
+    from mosegpipe.inference import load_model
+
+    cfg = _pipeline_cfg(
+        frames,
+        clustering,
+        start=start,
+        rigid_check=rigid_check,
+        tracker=tracker,
+        masks=masks,
+        mask_extra_tracks=mask_extra_tracks,
+    )
+    engine = _value(engine)
+    if engine not in ENGINES:
+        raise InputError(f"--engine {engine!r}: choose {', '.join(map(repr, ENGINES))}")
+    if address is not None and engine != "ray":
+        raise InputError("--address only applies with --engine ray")
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder; choose another --out")
+    items = plan(folder, out)
+    if not items:
+        raise InputError(f"{folder}: no video files or frame folders found")
+    net = load_model(frames, model)
+    with Progress(*_progress_columns(), transient=True, disable=quiet) as bar:
+        task = bar.add_task("segmenting", total=len(items))
+
+        def step(item: Any, row: dict[str, Any]) -> None:
+            bar.update(task, advance=1, description=f"{escape(item.name)} {row['status']}")
+            if row["status"] == "failed":
+                bar.console.print(f"[red]failed[/red] {escape(item.name)}: {escape(row['error'])}")
+
+        rows = run_batch(
+            folder,
+            out,
+            cfg,
+            net,
+            rrd=not no_rrd,
+            overwrite=overwrite,
+            on_item=step,
+            jobs=jobs,
+            engine=engine,
+            address=address,
+            clip_timeout=clip_timeout,
+        )
+    width = max(4, *(len(r["name"]) for r in rows))
+    typer.echo(f"{'clip':<{width}}  status    K  tracks  seconds")
+    for r in rows:
+        typer.echo(f"{r['name']:<{width}}  {r['status']:<7} {r['k']!s:>3}  {r['tracks']!s:>6}  {r['seconds']!s:>7}")
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("ok", "skipped", "failed")}
+    typer.echo(
+        f"{counts['ok']} segmented, {counts['skipped']} skipped (done earlier), {counts['failed']} failed; "
+        f"wrote {out}/batch_summary.csv and batch_summary.json"
+    )
+    _print_total(started)
+    if counts["failed"]:
+        _fail(f"{counts['failed']} of {len(rows)} clips failed (reasons in {out}/batch_summary.csv)")

@@ -1,0 +1,251 @@
+"""moseg run (a clip, or a whole video with --whole), moseg pair (two images) and moseg tracks (point
+tracks made elsewhere): parse the options, one library call, print."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from mosegpipe.cli.app import _friendly, _setup
+from mosegpipe.cli.common import (
+    _check_model_path,
+    _default_out,
+    _frames_progress,
+    _print_summary,
+    _print_total,
+    _print_tracks_summary,
+    _print_video_summary,
+)
+from mosegpipe.cli.config import ConfigOpt
+from mosegpipe.cli.options import (
+    ClusterOptions,
+    MaskExtraTracks,
+    MaskOptions,
+    ModelOpt,
+    NoRrd,
+    Overwrite,
+    Quiet,
+    RigidCheck,
+    Start,
+    Threads,
+    TrackerOptions,
+    Verbose,
+    _pipeline_cfg,
+    option_blocks,
+)
+from mosegpipe.errors import InputError
+
+
+@_friendly
+@option_blocks
+def run(
+    clip: Annotated[Path, typer.Argument(help="A video file OpenCV can read, or a folder of frames.")],
+    frames: Annotated[
+        int,
+        typer.Option(
+            "--frames", "-f", min=2, help="Frames to segment (the paper uses 5); with --whole, the window length."
+        ),
+    ] = 5,
+    start: Start = 0,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder (default: beside the clip, named after it + '_moseg')."),
+    ] = None,
+    whole: Annotated[
+        bool,
+        typer.Option(
+            "--whole", help="Segment the whole video (from --start) in consecutive windows of --frames frames."
+        ),
+    ] = False,
+    max_frames: Annotated[
+        int | None, typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")
+    ] = None,
+    shot_cuts: Annotated[
+        bool,
+        typer.Option(
+            "--shot-cuts/--no-shot-cuts",
+            help="With --whole: a frame into which fewer than a quarter of the tracks survive is a shot cut; "
+            "tracking and windows start afresh there.",
+        ),
+    ] = True,
+    clustering: ClusterOptions = ClusterOptions(),
+    rigid_check: RigidCheck = True,
+    tracker: TrackerOptions = TrackerOptions(),
+    masks: MaskOptions = MaskOptions(),
+    mask_extra_tracks: MaskExtraTracks = 1000,
+    model: ModelOpt = None,
+    overwrite: Overwrite = False,
+    no_rrd: NoRrd = False,
+    config: ConfigOpt = None,
+    quiet: Quiet = False,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment the motions in --frames frames of CLIP from --start (or the whole video with --whole).
+
+    Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ and recording.rrd into the
+    output folder; see docs/OUTPUTS.md. With --whole a progress bar with the time left is drawn on
+    stderr when it is a terminal. Exit code 1 with one 'moseg: error:' line on failure.
+    """
+    started = time.perf_counter()
+    # Paths and option combinations first: torch and scikit-learn take seconds to import.
+    if not clip.exists():
+        raise InputError(f"{clip}: no such file or folder")
+    if max_frames is not None and not whole:
+        raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
+    if not shot_cuts and not whole:
+        raise InputError("--no-shot-cuts only applies with --whole (a clip of --frames frames is one shot)")
+    _check_model_path(model)
+    _setup(threads, verbose, "mosegpipe.outputs")
+    from mosegpipe.inference import load_embedder
+    from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
+    from mosegpipe.pipeline import segment_clip
+
+    cfg = _pipeline_cfg(
+        frames,
+        clustering,
+        start=start,
+        rigid_check=rigid_check,
+        shot_cuts=shot_cuts,
+        tracker=tracker,
+        masks=masks,
+        mask_extra_tracks=mask_extra_tracks,
+    )
+    out = out or _default_out(clip, "_moseg")
+    check_output_dir(out, overwrite)
+    net = load_embedder(frames, model)
+    if whole:
+        with _frames_progress(clip, cfg, max_frames, quiet) as on_window:
+            summary = write_video_outputs(
+                clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=max_frames, on_window=on_window
+            )
+        _print_video_summary(summary, out, not no_rrd)
+        _print_total(started)
+        return
+    result = segment_clip(clip, cfg, net)
+    summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
+    _print_summary(summary, out)
+    _print_total(started)
+
+
+@_friendly
+@option_blocks
+def pair(
+    img1: Annotated[Path, typer.Argument(help="First image.")],
+    img2: Annotated[Path, typer.Argument(help="Second image (may differ in size).")],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg')."),
+    ] = None,
+    clustering: ClusterOptions = ClusterOptions(),
+    masks: MaskOptions = MaskOptions(),
+    model: ModelOpt = None,
+    overwrite: Overwrite = False,
+    no_rrd: NoRrd = False,
+    config: ConfigOpt = None,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment the motions between two images from SIFT matches; outliers get their own label."""
+    started = time.perf_counter()
+    for p in (img1, img2):
+        if not p.is_file():
+            raise InputError(f"{p}: no such image file")
+    _check_model_path(model)
+    _setup(threads, verbose, "mosegpipe.outputs")
+    from mosegpipe.inference import load_embedder
+    from mosegpipe.outputs import check_output_dir, write_pair_outputs
+    from mosegpipe.pipeline import segment_pair
+
+    cfg = _pipeline_cfg(2, clustering, masks=masks)
+    out = out or _default_out(img1, "_pair_moseg")
+    check_output_dir(out, overwrite)
+    result = segment_pair(img1, img2, cfg, load_embedder(2, model))
+    summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
+    _print_summary(summary, out)
+    _print_total(started)
+
+
+def read_tracks_file(path: Path) -> tuple[Any, Any]:
+    """(N, T, 2) positions and (N, T) visibility from a .npz of point tracks.
+
+    Accepted layouts (arrays by name): `xy` (N, T, 2) with optional `visible` (N, T) (ours);
+    `tracks` (T, N, 2) or (1, T, N, 2) with optional `visibility` (T, N) or (1, T, N) (CoTracker's
+    time-first output); `tracks` (N, T, 2) with `occluded` (N, T) (TAPIR: visible = not occluded).
+
+    Raises:
+        InputError: not a readable .npz, or none of the layouts.
+    """
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputError(f"{path}: not a readable .npz file (numpy.savez, no pickled objects)") from exc
+    if "xy" in arrays:
+        return arrays["xy"], arrays.get("visible")
+    if "tracks" in arrays and "occluded" in arrays:
+        return arrays["tracks"], ~np.asarray(arrays["occluded"]).astype(bool)
+    if "tracks" in arrays:
+        tracks, vis = arrays["tracks"], arrays.get("visibility")
+        if tracks.ndim == 4 and tracks.shape[0] == 1:
+            tracks, vis = tracks[0], None if vis is None else vis[0]
+        if tracks.ndim != 3:
+            raise InputError(f"{path}: 'tracks' has shape {tracks.shape}; expected (T, N, 2) or (1, T, N, 2)")
+        return np.swapaxes(tracks, 0, 1), None if vis is None else np.swapaxes(np.asarray(vis), 0, 1)
+    raise InputError(
+        f"{path}: holds {sorted(arrays)}; expected 'xy' (N, T, 2) [+ 'visible'], 'tracks' (T, N, 2) "
+        "[+ 'visibility'] (CoTracker) or 'tracks' (N, T, 2) + 'occluded' (TAPIR)"
+    )
+
+
+@_friendly
+@option_blocks
+def tracks(
+    file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: README).")],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder (default: beside FILE, named after it + '_moseg')."),
+    ] = None,
+    start: Start = 0,
+    frames: Annotated[
+        int | None,
+        typer.Option("--frames", "-f", min=2, help="Window length (default: from --start to the last frame)."),
+    ] = None,
+    clustering: ClusterOptions = ClusterOptions(),
+    rigid_check: RigidCheck = True,
+    model: ModelOpt = None,
+    overwrite: Overwrite = False,
+    config: ConfigOpt = None,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Segment point tracks made elsewhere (CoTracker, TAPIR, ...) with our embedding and clustering.
+
+    Tracks visible in every frame of the window (--frames frames from --start) are segmented;
+    summary.json and labels.npz (label of every track, -1 = not visible throughout) go into the
+    output folder.
+    """
+    started = time.perf_counter()
+    if not file.is_file():
+        raise InputError(f"{file}: no such file")
+    _check_model_path(model)
+    _setup(threads, verbose, "mosegpipe.outputs")
+    from mosegpipe.inference import load_embedder
+    from mosegpipe.outputs import check_output_dir, write_tracks_outputs
+    from mosegpipe.pipeline import segment_tracks
+
+    xy, visible = read_tracks_file(file)
+    window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
+    cfg = _pipeline_cfg(max(2, window), clustering, start=start, rigid_check=rigid_check)
+    out = out or _default_out(file, "_moseg")
+    check_output_dir(out, overwrite)
+    net = load_embedder(max(2, window), model)
+    result = segment_tracks(xy, visible, cfg, net, start=start, frames=frames)
+    summary = write_tracks_outputs(result, out, cfg, source=str(file), overwrite=overwrite)
+    _print_tracks_summary(summary, out)
+    _print_total(started)

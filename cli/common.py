@@ -1,0 +1,114 @@
+"""What the segmenting commands share: the default output folder, the --model check, the progress
+bar of whole-video runs and the summaries they print."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from mosegpipe.errors import InputError
+
+
+def _default_out(path: Path, suffix: str) -> Path:
+    """<name><suffix> beside the input (resolved, so that "." or "clip/" still have a name)."""
+    path = path.resolve()
+    return path.with_name(f"{path.stem}{suffix}")
+
+
+def _check_model_path(model: Path | None) -> None:
+    if model is not None and not model.is_file():
+        raise InputError(f"{model}: checkpoint file not found (--model)")
+
+
+def _progress_columns() -> tuple[Any, ...]:
+    """Description, bar, n/N done, elapsed and remaining time (rich.progress)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    return (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("ETA"),
+        TimeRemainingColumn(),
+    )
+
+
+@contextlib.contextmanager
+def _frames_progress(clip: Path, cfg: Any, max_frames: int | None, quiet: bool) -> Any:
+    """A progress bar over the frames of a whole-video run, on stderr; yields write_video_outputs' on_window.
+
+    Only on a terminal: with --quiet, or when stderr is a file or a pipe (scripts, CI), nothing is
+    drawn and stderr keeps only the error line or the warnings. Transient: the bar is erased when
+    the run ends, so the results that follow on stdout stand alone.
+    """
+    if quiet or not sys.stderr.isatty():
+        yield None
+        return
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import Progress
+
+    from mosegpipe.pipeline import video_frames_to_read
+
+    total = video_frames_to_read(clip, cfg, max_frames)
+    with Progress(*_progress_columns(), console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task(f"{escape(clip.name)} frames", total=total)
+        yield lambda window: bar.update(task, completed=window.num_frames_read)
+
+
+def _print_total(started: float) -> None:
+    typer.echo(f"total {time.perf_counter() - started:.1f} s")
+
+
+def _plural(n: int, word: str, plural: str = "") -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {plural or word + 's'}"
+
+
+def _print_summary(summary: dict[str, Any], out: Path) -> None:
+    """Three or four lines: what was found, the evidence for K, where the time went, what was written."""
+    if summary["kind"] == "clip":
+        typer.echo(
+            f"{_plural(summary['num_tracks_segmented'], 'track')} over {summary['frames']} frames -> K = {summary['k']} "
+            f"({summary['k_method']}) · tracks per motion {summary['tracks_per_motion']}"
+        )
+    else:
+        typer.echo(
+            f"{_plural(summary['num_matches'], 'match', 'matches')} -> {_plural(summary['num_motions'], 'motion')} + "
+            f"{_plural(summary['num_outliers'], 'outlier')} (K = {summary['k']}, {summary['k_method']}) · "
+            f"matches per motion {summary['matches_per_motion']}"
+        )
+    scores = ", ".join(f"K={k}: {v:.3g}" for k, v in summary["k_scores"].items())
+    if scores:
+        typer.echo(f"scores per K: {scores}")
+    if summary.get("k_note"):
+        typer.echo(f"note: {summary['k_note']}")
+    typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in summary["timings_s"].items()))
+    files = "summary.json, labels.npz, masks/, overlay/" + (
+        ", recording.rrd" if (out / "recording.rrd").exists() else ""
+    )
+    typer.echo(f"wrote {out}/ ({files})")
+
+
+def _print_video_summary(summary: dict[str, Any], out: Path, rrd: bool) -> None:
+    typer.echo(
+        f"{summary['frames']} frames in {summary['num_windows']} windows of {summary['window_frames']} "
+        f"({summary['num_windows_labelled']} labelled) -> {summary['num_motions']} motion labels"
+    )
+    typer.echo(f"{summary['seconds']:.1f} s, {summary['processing_fps']:.1f} frames/s")
+    typer.echo(f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.mp4" + (", recording.rrd)" if rrd else ")"))
+
+
+def _print_tracks_summary(summary: dict[str, Any], out: Path) -> None:
+    typer.echo(
+        f"{_plural(summary['num_tracks_segmented'], 'track')} of {summary['num_tracks']} over {summary['frames']} "
+        f"frames -> K = {summary['k']} ({summary['k_method']}) · tracks per motion {summary['tracks_per_motion']}"
+    )
+    if summary["k_note"]:
+        typer.echo(f"note: {summary['k_note']}")
+    typer.echo(f"wrote {out}/ (summary.json, labels.npz)")

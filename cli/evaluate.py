@@ -1,0 +1,315 @@
+"""moseg train (a checkpoint from a named recipe), moseg eval (a benchmark protocol) and moseg study (a
+study of the paper), with the choices they offer (each kept equal to its library registry by a test)."""
+
+from __future__ import annotations
+
+import sys
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, get_args
+
+import typer
+
+from mosegpipe.cli.app import _friendly, _setup
+from mosegpipe.cli.common import _check_model_path
+from mosegpipe.cli.options import (
+    DataRoot,
+    KMax,
+    KMethod,
+    KMethodChoice,
+    ModelOpt,
+    RigidCheck,
+    Verbose,
+    _data_root,
+    _value,
+)
+from mosegpipe.errors import InputError, check_choice
+from mosegpipe.types import KMethodName
+
+
+class PresetChoice(StrEnum):
+    """train --preset: the names of mosegpipe.training.recipes.RECIPES (a test keeps them equal)."""
+
+    clip_f5 = "clip-f5"
+    clip_f5_rendered = "clip-f5-rendered"
+    base_f5 = "base-f5"
+    synthetic_f5 = "synthetic-f5"
+    pair_f2 = "pair-f2"
+    synthetic_f2 = "synthetic-f2"
+    lce = "lce"
+
+
+class LossChoice(StrEnum):
+    """--loss: the names of mosegpipe.training.losses.LOSSES (a test keeps them equal)."""
+
+    mimi = "mimi"
+    l2 = "l2"
+    l2_balanced = "l2-balanced"
+    ce = "ce"
+    triplet = "triplet"
+    lifted = "lifted"
+    facility = "facility"
+
+
+class ProtocolChoice(StrEnum):
+    """eval PROTOCOL: the names of mosegpipe.evaluation.protocols.PROTOCOLS (a test keeps them equal)."""
+
+    kt3d_test = "kt3d-test"
+    kt3d_loo = "kt3d-loo"
+    adelaide_test = "adelaide-test"
+    adelaide_loo = "adelaide-loo"
+    hopkins_test = "hopkins-test"
+    lce = "lce"
+    kt3d_video = "kt3d-video"
+    adelaide_pairs = "adelaide-pairs"
+    kt3d_video_loo = "kt3d-video-loo"
+    adelaide_pairs_loo = "adelaide-pairs-loo"
+    rendered = "rendered"
+    rendered_long = "rendered-long"
+
+
+class VariantChoice(StrEnum):
+    """eval --variant: the values of mosegpipe.evaluation.protocols.Variant (a test keeps them equal)."""
+
+    vanilla = "vanilla"
+    augment = "augment"
+
+
+class StudyChoice(StrEnum):
+    """study NAME: the names of mosegpipe.evaluation.studies.STUDIES (a test keeps them equal)."""
+
+    model_selection = "model-selection"
+    tsne = "tsne"
+    sampling_imbalance = "sampling-imbalance"
+    lce_curve = "lce-curve"
+    losses = "losses"
+    weak_supervision = "weak-supervision"
+    embedding_dim = "embedding-dim"
+    networks = "networks"
+    depth = "depth"
+
+
+class BudgetChoice(StrEnum):
+    """study --budget: the values of mosegpipe.evaluation.studies.Budget (a test keeps them equal)."""
+
+    cpu = "cpu"
+    full = "full"
+
+
+BASELINE_NAMES = ("kmeans-raw", "spectral-raw", "ssc")
+"""eval --baselines: the names of mosegpipe.evaluation.baselines.BASELINES (a test keeps them equal)."""
+
+
+def _protocol_help() -> str:
+    """The protocol names from the registry: benchmark ones, then end-to-end ones."""
+    from mosegpipe.evaluation.protocols import PROTOCOLS
+
+    bench = [p.name for p in PROTOCOLS.values() if p.kind == "benchmark"]
+    e2e = [p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"]
+    return f"{', '.join(bench)}; end to end: {', '.join(e2e)}."
+
+
+@_friendly
+def train(
+    preset: Annotated[
+        PresetChoice,
+        typer.Option(
+            "--preset",
+            help="Named recipe: clip-f5 (the shipped 5-frame model), base-f5 (its starting point), synthetic-f5, "
+            "pair-f2 (the shipped two-view model), synthetic-f2, lce (the paper's LCE study).",
+        ),
+    ] = PresetChoice.clip_f5,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Checkpoint file to write.")] = Path("runs/model.pt"),
+    steps: Annotated[int | None, typer.Option("--steps", min=1, help="Override the recipe's step count.")] = None,
+    batch_size: Annotated[
+        int | None, typer.Option("--batch-size", min=1, help="Override the recipe's clips per training step.")
+    ] = None,
+    lr: Annotated[float | None, typer.Option("--lr", help="Override the recipe's learning rate.")] = None,
+    loss: Annotated[
+        LossChoice | None,
+        typer.Option(
+            "--loss",
+            help="Override the recipe's loss: mimi (the paper's MaxInterMinIntra), l2, l2-balanced (every pair of groups "
+            "weighted alike) or ce (affinity losses), "
+            "triplet, lifted or facility (the metric-learning baselines of the paper's Table 2).",
+        ),
+    ] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the recipe's random seed.")] = None,
+    init: Annotated[Path | None, typer.Option("--init", help="Fine-tune from this checkpoint.")] = None,
+    exclude: Annotated[
+        str | None, typer.Option("--exclude", help="Comma-separated source names to leave out (leave-one-dataset-out).")
+    ] = None,
+    time_budget: Annotated[float | None, typer.Option("--time-budget", help="Stop after this many seconds.")] = None,
+    data_root: DataRoot = None,
+    threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads for torch.")] = 2,
+    verbose: Verbose = False,
+) -> None:
+    """Train a SubspaceNet checkpoint from a named recipe (synthetic data generated on the fly).
+
+    Without --init a recipe starts from its own starting recipe (clip-f5 from base-f5, pair-f2 from
+    synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
+    """
+    _setup(threads, verbose)
+    from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
+
+    preset = _value(preset)
+    dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
+    root = _data_root(data_root) if needs_data(preset, dropped) else data_root
+    result = train_recipe(
+        preset,
+        out,
+        root,
+        init=init,
+        overrides=TrainOverrides(
+            steps=steps, batch_size=batch_size, lr=lr, loss=_value(loss), seed=seed, time_budget_s=time_budget
+        ),
+        exclude_sources=dropped,
+        command=" ".join(["moseg", *sys.argv[1:]]),
+        on_start=lambda recipe, cfg, described: typer.echo(
+            f"training {recipe.name}: {cfg.steps} steps × {cfg.batch_size} clips, sources {described}"
+        ),
+        on_log=lambda e: typer.echo(
+            f"step {int(e['step']):>6}  loss {e['loss']:.4f}  lr {e['lr']:.2e}  {e['seconds']:.0f} s"
+        ),
+    )
+    typer.echo(f"wrote {out} ({result.steps_done} steps, {result.seconds:.0f} s)")
+
+
+@_friendly
+def eval_(
+    protocol: Annotated[ProtocolChoice, typer.Argument(help=_protocol_help())],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Results folder (results.md/csv/json; per-fold files to resume).")
+    ],
+    model: ModelOpt = None,
+    variant: Annotated[
+        VariantChoice,
+        typer.Option(
+            "--variant", help="kt3d-loo: vanilla (the paper's protocol) or augment (with track augmentation)."
+        ),
+    ] = VariantChoice.vanilla,
+    frames: Annotated[
+        int | None,
+        typer.Option(
+            "--frames",
+            "-f",
+            help="Trajectory length (default: 5; 2 for adelaide; hopkins-test 0 = all frames, resampled to the model's).",
+        ),
+    ] = None,
+    init: Annotated[Path | None, typer.Option("--init", help="LOO folds start from this checkpoint.")] = None,
+    recipe: Annotated[
+        PresetChoice | None,
+        typer.Option(
+            "--recipe",
+            help="kt3d-video-loo / adelaide-pairs-loo: the recipe each fold trains (default: the shipped one).",
+        ),
+    ] = None,
+    steps: Annotated[int | None, typer.Option("--steps", min=1, help="Training steps per fold.")] = None,
+    batch_size: Annotated[
+        int | None, typer.Option("--batch-size", min=1, help="Clips per training step of each fold.")
+    ] = None,
+    lr: Annotated[float | None, typer.Option("--lr", help="Learning rate of each fold.")] = None,
+    loss: Annotated[
+        LossChoice | None,
+        typer.Option("--loss", help="Per-fold training loss (default: l2); the losses of 'moseg train --loss'."),
+    ] = None,
+    synthetic_weight: Annotated[
+        float, typer.Option("--synthetic-weight", help="LOO: weight of synthetic clips mixed into each fold.")
+    ] = 0.0,
+    baselines: Annotated[
+        str,
+        typer.Option("--baselines", help=f"Comma-separated baselines from {', '.join(BASELINE_NAMES)} ('' for none)."),
+    ] = ",".join(BASELINE_NAMES),
+    folds: Annotated[str | None, typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
+    k_method: KMethod = KMethodChoice.silhouette,
+    k_max: KMax = 8,
+    rigid_check: RigidCheck = True,
+    data_root: DataRoot = None,
+    threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Run a benchmark protocol: per-clip table, mean/median error, NMI, correct K, time, baselines."""
+    _setup(threads, verbose)
+    from mosegpipe.evaluation.protocols import EvalRequest, get_protocol
+
+    proto = get_protocol(_value(protocol))
+    k_method = _value(k_method)
+    check_choice("--k-method", k_method, get_args(KMethodName))
+    request = EvalRequest(
+        out_dir=out,
+        data_root=_data_root(data_root) if proto.data else data_root,
+        model=model,
+        init=init,
+        frames=frames,
+        variant=_value(variant),
+        recipe=_value(recipe),
+        steps=steps,
+        batch_size=batch_size,
+        lr=lr,
+        loss=_value(loss),
+        synthetic_weight=synthetic_weight,
+        baselines=tuple(b for b in baselines.split(",") if b),
+        folds=tuple(folds.split(",")) if folds else None,
+        k_method=k_method,
+        k_max=k_max,
+        rigid_check=rigid_check,
+        progress=typer.echo,
+    )
+    result = proto.run(proto, request)
+    typer.echo(result.table)
+    typer.echo(f"wrote {out}/results.md, results.csv, results.json")
+
+
+def _study_help() -> str:
+    """The study names from the registry, each with the part of the paper it reproduces."""
+    from mosegpipe.evaluation.studies import STUDIES
+
+    return "; ".join(f"{s.name} ({s.paper})" for s in STUDIES.values()) + "."
+
+
+@_friendly
+def study(
+    name: Annotated[StudyChoice, typer.Argument(help=_study_help())],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Results folder (table.md, results.json, plot.png; parts/ to resume).")
+    ],
+    budget: Annotated[
+        BudgetChoice, typer.Option("--budget", help="cpu (fits a small CPU machine) or full (the paper's scale).")
+    ] = BudgetChoice.cpu,
+    model: Annotated[
+        Path | None, typer.Option("--model", help="A 5-frame checkpoint for the KT3DMoSeg clips (default: shipped).")
+    ] = None,
+    pair_model: Annotated[
+        Path | None,
+        typer.Option("--pair-model", help="A two-view checkpoint for the AdelaideRMF pairs (default: shipped)."),
+    ] = None,
+    clips: Annotated[
+        str | None,
+        typer.Option("--clips", help="tsne: comma-separated KT3DMoSeg sequences / AdelaideRMF pairs."),
+    ] = None,
+    k_max: KMax = 8,
+    data_root: DataRoot = None,
+    threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Run a study of the paper: prints and writes a table, results.json and a plot; a re-run skips finished parts."""
+    _setup(threads, verbose)
+    from mosegpipe.evaluation.studies import StudyRequest, get_study
+
+    chosen = get_study(_value(name))
+    _check_model_path(model)
+    if pair_model is not None and not pair_model.is_file():
+        raise InputError(f"{pair_model}: checkpoint file not found (--pair-model)")
+    request = StudyRequest(
+        out_dir=out,
+        data_root=_data_root(data_root) if chosen.needs_data else data_root,
+        budget=_value(budget),
+        model=model,
+        pair_model=pair_model,
+        clips=tuple(c.strip() for c in clips.split(",") if c.strip()) if clips else None,
+        k_max=k_max,
+        progress=typer.echo if verbose else None,
+    )
+    result = chosen.run(chosen, request)
+    typer.echo(result.table)
+    typer.echo(f"wrote {', '.join(str(p) for p in result.files)}")

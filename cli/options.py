@@ -1,0 +1,385 @@
+"""The options the commands share, each defined once: Annotated aliases for single options and option
+blocks (dataclasses of them) for the groups several commands take alike.
+
+An option block (`ClusterOptions`, `TrackerOptions`, `MaskOptions`) is a frozen dataclass whose fields
+are Annotated Typer options with their defaults. A command decorated with `option_blocks` declares one
+parameter typed with the block; Typer sees the block's options in that parameter's place (so --help
+lists them where they stand), and the command receives the one dataclass. `_pipeline_cfg` turns the
+blocks into a PipelineConfig.
+
+The tracker and mask defaults are the library's (TrackConfig, MaskConfig; a test keeps them equal),
+written out here so that --help shows them without importing OpenCV.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import inspect
+import os
+import typing
+from dataclasses import dataclass, field, replace
+from enum import Enum, StrEnum
+from pathlib import Path
+from typing import Annotated, Any, cast, get_args
+
+import typer
+
+from mosegpipe.cli.app import F, _one_line
+from mosegpipe.errors import InputError, check_choice
+from mosegpipe.types import KMethodName
+
+Threads = Annotated[
+    int, typer.Option("--threads", min=1, help="CPU threads (1 is fastest for one clip on small machines).")
+]
+
+
+Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Log progress.")]
+
+
+Quiet = Annotated[
+    bool,
+    typer.Option(
+        "--quiet", "-q", help="No progress bar (it is drawn on stderr only when stderr is a terminal anyway)."
+    ),
+]
+
+
+KOpt = Annotated[int | None, typer.Option("--k", min=1, help="Force this many motions (default: automatic K).")]
+
+
+class KMethodChoice(StrEnum):
+    """--k-method: the values of mosegpipe.types.KMethodName (a test keeps them equal)."""
+
+    silhouette = "silhouette"
+    residual = "residual"
+
+
+class MaskMethodChoice(StrEnum):
+    """--mask-method: the values of mosegpipe.masks.MASK_METHODS (a test keeps them equal)."""
+
+    watershed = "watershed"
+    nearest = "nearest"
+    vote = "vote"
+
+
+def _value(choice: Any) -> Any:
+    """The plain value of an Enum choice (what the library and summary.json take)."""
+    return choice.value if isinstance(choice, Enum) else choice
+
+
+KMethod = Annotated[
+    KMethodChoice,
+    typer.Option("--k-method", help="Automatic K: silhouette (default, more often right) or residual (faster)."),
+]
+
+
+KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered by automatic K.")]
+
+
+RigidCheck = Annotated[
+    bool,
+    typer.Option(
+        "--rigid-check/--no-rigid-check",
+        help="After automatic K, split off groups of tracks that their cluster's rigid motion does not explain.",
+    ),
+]
+
+
+ModelOpt = Annotated[Path | None, typer.Option("--model", help="A checkpoint instead of the shipped weights.")]
+
+
+Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results already in the output folder.")]
+
+
+NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
+
+
+Start = Annotated[
+    int,
+    typer.Option(
+        "--start",
+        min=0,
+        help="First frame to segment: its 0-based index in the video or frame folder (masks keep the source's frame numbers).",
+    ),
+]
+
+
+# Tracker and mask settings. The defaults are the library's (TrackConfig, MaskConfig; a test keeps them
+# equal), written out here so that --help shows them without importing OpenCV.
+_TRACKER = "Tracker (KLT)"
+
+
+_MASKS = "Dense masks"
+
+
+MaxCorners = Annotated[
+    int,
+    typer.Option(
+        "--max-corners",
+        min=1,
+        help="Corners detected and tracked (Shi-Tomasi); more tracks cost more time.",
+        rich_help_panel=_TRACKER,
+    ),
+]
+
+
+MinDistance = Annotated[
+    float,
+    typer.Option(
+        "--min-distance",
+        min=0.0,
+        help="Minimum spacing between corners, pixels: a coarser grid of tracks over the whole image.",
+        rich_help_panel=_TRACKER,
+    ),
+]
+
+
+Quality = Annotated[
+    float,
+    typer.Option(
+        "--quality",
+        min=0.0,
+        max=1.0,
+        help="Corner quality threshold relative to the strongest corner, in (0, 1]; lower keeps weakly textured areas.",
+        rich_help_panel=_TRACKER,
+    ),
+]
+
+
+WinSize = Annotated[
+    int,
+    typer.Option(
+        "--win-size",
+        min=3,
+        help="Lucas-Kanade window, pixels: larger follows faster motion and blur, smaller is more precise.",
+        rich_help_panel=_TRACKER,
+    ),
+]
+
+
+MaskMethod = Annotated[
+    MaskMethodChoice,
+    typer.Option(
+        "--mask-method",
+        help="Dense masks from track labels: watershed (default: follows image edges), nearest (nearest track) or vote.",
+        rich_help_panel=_MASKS,
+    ),
+]
+
+
+MaskMaxDistance = Annotated[
+    float,
+    typer.Option(
+        "--mask-max-distance",
+        min=0.0,
+        help="Pixels farther than this from every labelled track stay unknown (255); must be > 0.",
+        rich_help_panel=_MASKS,
+    ),
+]
+
+
+MaskMinAgree = Annotated[
+    int,
+    typer.Option(
+        "--mask-min-agree",
+        min=1,
+        help="Watershed: a track seeds its label only when this many of its 5 nearest tracks (itself included) carry it (1 = every track).",
+        rich_help_panel=_MASKS,
+    ),
+]
+
+
+MaskMedian = Annotated[
+    int,
+    typer.Option(
+        "--mask-median",
+        min=0,
+        help="Median filter over the label image, pixels (odd, >= 3; 0 = off): smoother borders, no specks.",
+        rich_help_panel=_MASKS,
+    ),
+]
+
+
+MaskScale = Annotated[
+    float,
+    typer.Option(
+        "--mask-scale",
+        min=0.0,
+        max=1.0,
+        help="Watershed floods the image scaled by this, in (0, 1] (0.5 costs a quarter of the time).",
+        rich_help_panel=_MASKS,
+    ),
+]
+
+
+MaskExtraTracks = Annotated[
+    int,
+    typer.Option(
+        "--mask-extra-tracks",
+        min=0,
+        help="Clips: up to this many more corners, spread over the image, tracked and labelled by motion "
+        "for the masks only (0 = off; not used by --whole).",
+        rich_help_panel=_MASKS,
+    ),
+]
+
+
+@dataclass(frozen=True)
+class ClusterOptions:
+    """--k, --k-method, --k-max: how many motions (run, pair, tracks, batch)."""
+
+    k: KOpt = None
+    k_method: KMethod = KMethodChoice.silhouette
+    k_max: KMax = 8
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """--max-corners, --min-distance, --quality, --win-size: the KLT tracker (run, batch). Each field's
+    metadata names the TrackConfig field it sets."""
+
+    max_corners: MaxCorners = field(default=1000, metadata={"config": "max_corners"})
+    min_distance: MinDistance = field(default=7.0, metadata={"config": "min_distance_px"})
+    quality: Quality = field(default=0.01, metadata={"config": "quality_level"})
+    win_size: WinSize = field(default=21, metadata={"config": "win_size_px"})
+
+    def config_fields(self) -> dict[str, Any]:
+        """The TrackConfig fields these options set."""
+        return _config_fields(self)
+
+
+@dataclass(frozen=True)
+class MaskOptions:
+    """--mask-method, --mask-max-distance, --mask-min-agree, --mask-median, --mask-scale: the dense masks
+    (run, pair, batch; --mask-extra-tracks is an option of run and batch only). Each field's metadata
+    names the MaskConfig field it sets."""
+
+    mask_method: MaskMethod = field(default=MaskMethodChoice.watershed, metadata={"config": "method"})
+    mask_max_distance: MaskMaxDistance = field(default=40.0, metadata={"config": "max_distance_px"})
+    mask_min_agree: MaskMinAgree = field(default=1, metadata={"config": "min_agree"})
+    mask_median: MaskMedian = field(default=0, metadata={"config": "median_px"})
+    mask_scale: MaskScale = field(default=1.0, metadata={"config": "scale"})
+
+    def config_fields(self) -> dict[str, Any]:
+        """The MaskConfig fields these options set."""
+        return _config_fields(self)
+
+
+def _config_fields(block: TrackerOptions | MaskOptions) -> dict[str, Any]:
+    return {f.metadata["config"]: _value(getattr(block, f.name)) for f in dataclasses.fields(block)}
+
+
+OPTION_BLOCKS: tuple[type, ...] = (ClusterOptions, TrackerOptions, MaskOptions)
+"""The dataclasses `option_blocks` expands into options."""
+
+TRACKER_DEFAULTS = {f.metadata["config"]: f.default for f in dataclasses.fields(TrackerOptions)}
+"""TrackConfig fields set by --max-corners, --min-distance, --quality, --win-size, with their defaults."""
+MASK_DEFAULTS = {f.metadata["config"]: _value(f.default) for f in dataclasses.fields(MaskOptions)}
+"""MaskConfig fields set by --mask-method, --mask-max-distance, --mask-min-agree, --mask-median, --mask-scale."""
+
+
+def option_blocks(fn: F) -> F:
+    """A command whose option-block parameters (OPTION_BLOCKS) stand for the block's options, in place.
+
+    Typer reads the signature (`__signature__`) and the type hints (`__annotations__`) of what it is
+    given: both list each block's fields as options where the block parameter stood; the command is
+    called with the block built from them.
+    """
+    hints = typing.get_type_hints(fn, include_extras=True)
+    params: list[inspect.Parameter] = []
+    blocks: dict[str, type] = {}
+    for param in inspect.signature(fn).parameters.values():
+        hint = hints[param.name]
+        if hint not in OPTION_BLOCKS:
+            params.append(param.replace(annotation=hint))
+            continue
+        blocks[param.name] = hint
+        block_hints = typing.get_type_hints(hint, include_extras=True)
+        params += [
+            inspect.Parameter(f.name, param.kind, default=f.default, annotation=block_hints[f.name])
+            for f in dataclasses.fields(hint)
+        ]
+
+    @functools.wraps(fn)
+    def wrapper(**kwargs: Any) -> Any:
+        for name, block in blocks.items():
+            kwargs[name] = block(**{f.name: kwargs.pop(f.name) for f in dataclasses.fields(block)})
+        return fn(**kwargs)
+
+    wrapper.__signature__ = inspect.Signature(params, return_annotation=None)  # type: ignore[attr-defined]
+    wrapper.__annotations__ = {p.name: p.annotation for p in params} | {"return": None}
+    return cast(F, wrapper)
+
+
+def _check_settings(track: dict[str, Any], mask: dict[str, Any], vote_k: int) -> None:
+    """What the option ranges cannot say, as one error line naming the option."""
+    quality, scale = track.get("quality_level"), mask.get("scale")
+    if quality is not None and not 0 < quality <= 1:
+        raise InputError(f"--quality {quality:g}: must be in (0, 1]")
+    if mask.get("max_distance_px") is not None and mask["max_distance_px"] <= 0:
+        raise InputError(f"--mask-max-distance {mask['max_distance_px']:g}: must be > 0")
+    if scale is not None and not 0 < scale <= 1:
+        raise InputError(f"--mask-scale {scale:g}: must be in (0, 1]")
+    median = mask.get("median_px")
+    if median is not None and median not in (0, 1) and (median < 3 or median % 2 == 0):
+        raise InputError(f"--mask-median {median}: must be 0 (off) or an odd number >= 3")
+    agree = mask.get("min_agree")
+    if agree is not None and not 1 <= agree <= vote_k:
+        raise InputError(f"--mask-min-agree {agree}: must be in 1..{vote_k} (the nearest tracks consulted)")
+
+
+def _pipeline_cfg(
+    frames: int,
+    clustering: ClusterOptions,
+    *,
+    start: int = 0,
+    rigid_check: bool = True,
+    shot_cuts: bool = True,
+    tracker: TrackerOptions | None = None,
+    masks: MaskOptions | None = None,
+    mask_extra_tracks: int | None = None,
+) -> Any:
+    """The PipelineConfig of a command's options (tracker / masks None: the library's defaults;
+    mask_extra_tracks None: not an option of the command)."""
+    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.masks import MASK_METHODS, MaskConfig
+    from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.rigid import RigidCheckConfig
+    from mosegpipe.track import TrackConfig
+
+    method = cast(KMethodName, check_choice("--k-method", _value(clustering.k_method), get_args(KMethodName)))
+    track = tracker.config_fields() if tracker is not None else {}
+    mask = masks.config_fields() if masks is not None else {}
+    if mask_extra_tracks is not None:
+        mask["extra_tracks"] = mask_extra_tracks
+    if mask.get("method", "watershed") not in MASK_METHODS:
+        raise InputError(f"--mask-method {mask['method']!r}: choose {', '.join(map(repr, MASK_METHODS))}")
+    _check_settings(track, mask, MaskConfig().vote_k)
+    try:
+        track_cfg = replace(TrackConfig(), **track)
+        mask_cfg = replace(MaskConfig(), **mask)
+    except ValueError as exc:  # the checks above should have caught it; still one line, not a traceback
+        raise InputError(_one_line(str(exc))) from exc
+    return PipelineConfig(
+        frames=frames,
+        start=start,
+        k=clustering.k,
+        track=track_cfg,
+        cluster=replace(ClusterConfig(), method=method, k_max=clustering.k_max),
+        rigid=RigidCheckConfig(enabled=rigid_check),
+        mask=mask_cfg,
+        video_cut_survival=PipelineConfig().video_cut_survival if shot_cuts else None,
+    )
+
+
+def _data_root(data_root: Path | None) -> Path:
+    root = data_root or Path(os.environ.get("MOSEG_DATA", "../shared/data"))
+    if not root.is_dir():
+        raise InputError(f"{root}: benchmark data folder not found (use --data-root or MOSEG_DATA)")
+    return root
+
+
+DataRoot = Annotated[
+    Path | None, typer.Option("--data-root", help="Benchmark folder (default: $MOSEG_DATA or ../shared/data).")
+]

@@ -1,0 +1,229 @@
+"""moseg replay (an earlier run again, from its summary.json) and moseg view (a recording in the Rerun
+viewer)."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from mosegpipe.cli.app import _friendly, _one_line, _setup
+from mosegpipe.cli.clip import read_tracks_file
+from mosegpipe.cli.common import (
+    _default_out,
+    _frames_progress,
+    _print_summary,
+    _print_total,
+    _print_tracks_summary,
+    _print_video_summary,
+)
+from mosegpipe.cli.options import NoRrd, Overwrite, Quiet, Threads, Verbose
+from mosegpipe.errors import InputError
+
+REPLAY_KINDS = ("clip", "video", "pair", "tracks")
+"""The summary.json kinds `moseg replay` re-runs (docs/OUTPUTS.md)."""
+
+
+def _read_run_summary(path: Path) -> dict[str, Any]:
+    """A run's summary.json, checked enough to replay it (kind, source, model; config in the library)."""
+    import json
+
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise InputError(f"{path}: not a JSON file ({_one_line(str(exc))})") from exc
+    if not isinstance(data, dict) or not str(data.get("schema", "")).startswith("mosegpipe.summary/"):
+        if isinstance(data, dict) and "clips" in data or path.name == "batch_summary.json":
+            raise InputError(f"{path}: a batch summary; replay one clip's OUT/NAME/summary.json, or re-run the batch")
+        raise InputError(f"{path}: not a moseg summary.json (no 'schema': 'mosegpipe.summary/...')")
+    kind = data.get("kind")
+    if kind not in REPLAY_KINDS:
+        raise InputError(f"{path}: kind {kind!r} cannot be replayed (kinds: {', '.join(REPLAY_KINDS)})")
+    source = data.get("source")
+    sources = source if kind == "pair" else [source]
+    if not isinstance(sources, list) or not sources or not all(isinstance(s, str) and s for s in sources):
+        raise InputError(f"{path}: 'source' is missing or not a path: {source!r}")
+    for s in sources:
+        if not Path(s).exists():
+            raise InputError(
+                f"{s}: no such file or folder (the source recorded in {path}; relative paths are taken from "
+                "the folder the run was started in)"
+            )
+    model = data.get("model")
+    if not isinstance(model, dict) or not isinstance(model.get("model_frames"), int):
+        raise InputError(f"{path}: 'model' is missing or has no 'model_frames'")
+    checkpoint = model.get("checkpoint")
+    if checkpoint is not None and not (isinstance(checkpoint, str) and Path(checkpoint).is_file()):
+        raise InputError(f"{checkpoint}: the checkpoint recorded in {path} is not there")
+    for key in ("frames", "start"):
+        if kind in ("video", "tracks") and not isinstance(data.get(key, 0), int):
+            raise InputError(f"{path}: {key!r} is not an integer: {data.get(key)!r}")
+    return data
+
+
+def _check_same_model(net: Any, recorded: dict[str, Any], where: Path) -> None:
+    """The replay's weights must be the run's: same recipe and configuration (shipped weights may have changed)."""
+    from mosegpipe.pipeline import model_info
+
+    now = model_info(net)
+    for key in ("recipe", "model_config"):
+        if key in recorded and recorded[key] != now[key]:
+            weights = recorded.get("checkpoint") or "the shipped weights"
+            raise InputError(
+                f"{where}: the run used a model with {key} {recorded[key]!r}; {weights} now hold {now[key]!r}"
+            )
+
+
+@_friendly
+def replay(
+    summary: Annotated[
+        Path,
+        typer.Argument(
+            help="The summary.json of an earlier moseg run, pair or tracks run (or of one clip of a batch)."
+        ),
+    ],
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out", "-o", help="Output folder (default: beside the run's folder, named after it + '_replay')."
+        ),
+    ] = None,
+    overwrite: Overwrite = False,
+    no_rrd: NoRrd = False,
+    quiet: Quiet = False,
+    threads: Threads = 1,
+    verbose: Verbose = False,
+) -> None:
+    """Run an earlier segmentation again with the settings its summary.json recorded.
+
+    Same input (the recorded source path), the same frames (--start, --frames; whole-video mode and
+    the frames it read), every pipeline setting (summary.json `config`: tracker, automatic K,
+    masks, ...) and the same weights (the recorded --model file, or the shipped weights). Only the
+    outputs (--out, --no-rrd) are chosen here. Prints whether K came out as recorded.
+    """
+    started = time.perf_counter()
+    recorded = _read_run_summary(summary)
+    _setup(threads, verbose)
+    from mosegpipe.inference import load_embedder
+    from mosegpipe.outputs import (
+        check_output_dir,
+        write_clip_outputs,
+        write_pair_outputs,
+        write_tracks_outputs,
+        write_video_outputs,
+    )
+    from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_pair, segment_tracks
+
+    kind, source = recorded["kind"], recorded["source"]
+    cfg = PipelineConfig.from_dict(recorded.get("config", {}), f"{summary}: config")
+    out = out or _default_out(summary.parent, "_replay")
+    check_output_dir(out, overwrite)
+    net = load_embedder(recorded["model"]["model_frames"], recorded["model"].get("checkpoint"))
+    _check_same_model(net, recorded["model"], summary)
+    if kind == "video":
+        clip = Path(source)
+        read = recorded.get("frames")  # the frames the run read: the same ones again
+        with _frames_progress(clip, cfg, read, quiet) as on_window:
+            result = write_video_outputs(
+                clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=read, on_window=on_window
+            )
+        _print_video_summary(result, out, not no_rrd)
+        then = [w.get("k") for w in recorded.get("windows", [])]
+        now = [w["k"] for w in result["windows"]]
+        differ = sum(a != b for a, b in zip(then, now)) + abs(len(then) - len(now))
+        typer.echo(
+            f"replayed {summary}: K as recorded in all {len(now)} windows"
+            if not differ
+            else f"replayed {summary}: K differs from the recorded run in {differ} of {len(now)} windows"
+        )
+        _print_total(started)
+        return
+    if kind == "clip":
+        written = write_clip_outputs(segment_clip(source, cfg, net), out, cfg, overwrite=overwrite, rrd=not no_rrd)
+        _print_summary(written, out)
+    elif kind == "pair":
+        first, second = source
+        written = write_pair_outputs(
+            segment_pair(first, second, cfg, net),
+            out,
+            cfg,
+            overwrite=overwrite,
+            sources=(first, second),
+            rrd=not no_rrd,
+        )
+        _print_summary(written, out)
+    else:
+        xy, visible = read_tracks_file(Path(source))
+        segmented = segment_tracks(xy, visible, cfg, net, start=recorded.get("start", 0), frames=recorded.get("frames"))
+        written = write_tracks_outputs(segmented, out, cfg, source=source, overwrite=overwrite)
+        _print_tracks_summary(written, out)
+    same = written["k"] == recorded.get("k")
+    typer.echo(
+        f"replayed {summary}: K = {written['k']} as recorded"
+        if same
+        else f"replayed {summary}: K = {written['k']}, the recorded run found K = {recorded.get('k')}"
+    )
+    _print_total(started)
+
+
+def _find_viewer() -> str | None:
+    """The `rerun` executable: on PATH, else beside this Python (a virtualenv not on PATH)."""
+    import shutil
+
+    beside = Path(sys.executable).with_name("rerun")
+    return shutil.which("rerun") or (str(beside) if beside.is_file() else None)
+
+
+def _has_display() -> bool:
+    if sys.platform.startswith("linux"):
+        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    return True
+
+
+@_friendly
+def view(
+    recording: Annotated[Path, typer.Argument(help="A .rrd recording written by moseg.")],
+    web: Annotated[
+        bool,
+        typer.Option("--web", help="Serve the viewer to a web browser instead of opening a window (works headless)."),
+    ] = False,
+    bind: Annotated[
+        str,
+        typer.Option(
+            "--bind",
+            help="With --web: the address to listen on. 127.0.0.1 (default) serves this machine only; "
+            "0.0.0.0 serves every network it is on (anyone who can reach the port sees the recording).",
+        ),
+    ] = "127.0.0.1",
+    web_port: Annotated[
+        int, typer.Option("--web-port", min=0, max=65535, help="With --web: the HTTP port (0 = any free port).")
+    ] = 9090,
+) -> None:
+    """Open a recording in the Rerun viewer (the 'rerun' program that ships with rerun-sdk).
+
+    Headless (no display, over SSH): `moseg view --web REC` serves the viewer on
+    http://127.0.0.1:9090 of this machine; forward the port (`ssh -L 9090:localhost:9090 HOST`)
+    or pass `--bind 0.0.0.0` to serve it to the network.
+    """
+    if not recording.is_file():
+        raise InputError(f"{recording}: no such recording")
+    exe = _find_viewer()
+    if exe is None:
+        raise InputError(
+            "the Rerun viewer ('rerun') was not found on PATH or beside this Python; install rerun-sdk, "
+            f"or open {recording} at https://rerun.io/viewer"
+        )
+    if not web and not _has_display():
+        raise InputError(f"no display to open a window on (DISPLAY is unset); try 'moseg view --web {recording}'")
+    if not web and (bind != "127.0.0.1" or web_port != 9090):
+        raise InputError("--bind and --web-port only apply with --web")
+    web_args = ["--web-viewer", "--bind", bind, "--web-viewer-port", str(web_port)]
+    args = [exe, *web_args, str(recording)] if web else [exe, str(recording)]
+    sys.stdout.flush()
+    os.execv(exe, args)

@@ -1,0 +1,56 @@
+"""The recipe, stage by stage: frames -> tracks -> trajectories -> embeddings -> clusters -> masks.
+
+Compute only: `segment_frames` / `segment_clip` / `segment_pair` / `segment_tracks` return immutable
+results with their timings, and `segment_video` walks a whole video as a stream of window results.
+Writing any of them into an output folder is `mosegpipe.outputs`. `decode_errors` turns whatever
+OpenCV or the OS raise on a broken input into an InputError.
+
+Modules: config (PipelineConfig and its checked loading), common (the model, the shared checks),
+clip (clips), pair (image pairs), tracks (tracks made elsewhere), video (whole videos, window by
+window) and labels (motion labels kept across windows). Every public name is re-exported here.
+"""
+
+from __future__ import annotations
+
+from mosegpipe.inference import load_model
+from mosegpipe.pipeline.clip import ClipResult, clip_masks, segment_clip, segment_frames
+from mosegpipe.pipeline.common import check_rigid, decode_errors, embed_at_model_frames, model_info
+from mosegpipe.pipeline.config import PipelineConfig
+from mosegpipe.pipeline.labels import LabelBook, match_labels
+from mosegpipe.pipeline.pair import PairResult, segment_pair
+from mosegpipe.pipeline.tracks import TracksResult, segment_tracks
+from mosegpipe.pipeline.video import (
+    AMBIGUOUS_K_NOTE,
+    VideoFrame,
+    WindowResult,
+    check_video_settings,
+    frame_mask,
+    segment_video,
+    video_frames_to_read,
+)
+
+__all__ = [
+    "AMBIGUOUS_K_NOTE",
+    "ClipResult",
+    "LabelBook",
+    "PairResult",
+    "PipelineConfig",
+    "TracksResult",
+    "VideoFrame",
+    "WindowResult",
+    "check_rigid",
+    "check_video_settings",
+    "clip_masks",
+    "decode_errors",
+    "embed_at_model_frames",
+    "frame_mask",
+    "load_model",
+    "match_labels",
+    "model_info",
+    "segment_clip",
+    "segment_frames",
+    "segment_pair",
+    "segment_tracks",
+    "segment_video",
+    "video_frames_to_read",
+]

@@ -1,0 +1,185 @@
+"""Short clips: `segment_frames` (a stack of frames) and `segment_clip` (F frames of a video or frame
+folder), their `ClipResult`, and `clip_masks` (the clip's dense masks, extra mask tracks included)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.cluster import cluster_auto_k
+from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.inference import Embedder
+from mosegpipe.io import check_images, read_video, video_info
+from mosegpipe.masks import labels_to_masks
+from mosegpipe.pipeline.common import (
+    _check_k,
+    _frames,
+    _model_or_default,
+    check_rigid,
+    decode_errors,
+    embed_at_model_frames,
+    model_info,
+)
+from mosegpipe.pipeline.config import PipelineConfig
+from mosegpipe.rigid import label_by_rigid_motion
+from mosegpipe.track import spread_corners, track_klt, track_points
+from mosegpipe.trajectories import build_trajectories
+from mosegpipe.types import Clustering, Frames, Tracks, Trajectories
+
+
+@dataclass(frozen=True)
+class ClipResult:
+    """Everything one clip's segmentation produced.
+
+    Attributes:
+        frames: the frames segmented.
+        tracks: all KLT tracks (N_all, T).
+        trajectories: the tracks visible in all frames (N rows, track_ids into `tracks`).
+        embeddings: (N, E) float32 SubspaceNet embeddings.
+        clustering: labels (N,) and the automatic-K evidence.
+        masks: (T, H, W) uint8, k = motion k, 255 = no track nearby (unknown).
+        timings: seconds per stage.
+        model_info: the model's recipe name, input frames and checkpoint format.
+    """
+
+    frames: Frames
+    tracks: Tracks
+    trajectories: Trajectories
+    embeddings: npt.NDArray[np.float32]
+    clustering: Clustering
+    masks: npt.NDArray[np.uint8]
+    timings: dict[str, float]
+    model_info: dict[str, Any]
+
+
+def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: Embedder | None = None) -> ClipResult:
+    """Segments the motions in a short stack of frames.
+
+    Args:
+        frames: Frames with images (T, H, W, 3) uint8 RGB; every frame is segmented.
+        cfg: pipeline settings (cfg.frames is not used here: T is what the frames hold).
+        model: the model (None = the shipped default for T frames).
+
+    Returns:
+        ClipResult; its masks are (T, H, W) uint8 with k = motion k and 255 = unknown.
+
+    Raises:
+        TooFewTracksError: fewer than cfg.min_tracks tracks live through all frames.
+        InputError: cfg.k larger than the number of tracks.
+        CheckpointError: no model given and no shipped weights.
+    """
+    timings: dict[str, float] = {}
+    check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
+    model = _model_or_default(model, frames.num_frames, timings)
+    t0 = time.perf_counter()
+    tracks = track_klt(frames, cfg.track)
+    timings["track"] = time.perf_counter() - t0
+    traj = build_trajectories(tracks, frames=frames.num_frames)
+    if traj.num_points < cfg.min_tracks:
+        raise TooFewTracksError(
+            f"{frames.source or 'clip'}: only {traj.num_points} tracks survived {frames.num_frames} frames; "
+            f"need at least {cfg.min_tracks} (textureless or blank frames?)"
+        )
+    _check_k(cfg.k, traj.num_points, frames.source or "clip")
+    t0 = time.perf_counter()
+    emb = embed_at_model_frames(model, traj)
+    timings["embed"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
+    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
+    timings["cluster"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    masks = clip_masks(frames.images, tracks, traj.track_ids, clustering.labels, cfg)
+    timings["masks"] = time.perf_counter() - t0
+    return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, model_info(model))
+
+
+def clip_masks(
+    images: npt.NDArray[np.uint8],
+    tracks: Tracks,
+    track_ids: npt.NDArray[np.int64],
+    labels: npt.NDArray[np.int64],
+    cfg: PipelineConfig = PipelineConfig(),
+) -> npt.NDArray[np.uint8]:
+    """The dense masks of a clip from its labelled tracks (segment_frames' mask stage).
+
+    With cfg.mask.extra_tracks, more corners spread over the first image away from the tracks are
+    tracked through the clip and labelled by motion (`label_by_rigid_motion`); those with a label
+    join the labelled tracks for the masks only.
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB frames.
+        tracks: the clip's tracks (N rows over the T frames).
+        track_ids: (M,) rows of `tracks` that carry labels (live through the whole clip).
+        labels: (M,) their labels.
+        cfg: mask settings (and the rigid-motion settings that label the extra tracks).
+
+    Returns:
+        (T, H, W) uint8 masks, 255 = unknown.
+    """
+    budget = cfg.mask.extra_tracks
+    if budget > 0 and len(track_ids) and images.shape[0] >= 2:
+        corners = spread_corners(images[0], budget, tracks.xy[tracks.visible[:, 0], 0], cfg.track)
+        extra = track_points(images, corners, cfg.track)
+        full = np.flatnonzero(extra.visible.all(axis=1))
+        data = extra.xy[full].reshape(len(full), 2 * len(images))
+        known = tracks.xy[track_ids].reshape(len(track_ids), 2 * len(images))
+        found = label_by_rigid_motion(data, known, labels, cfg.rigid)
+        keep = found >= 0
+        rows = full[keep]
+        track_ids = np.concatenate([track_ids, tracks.num_tracks + np.arange(rows.size)])
+        labels = np.concatenate([labels, found[keep]])
+        tracks = Tracks(
+            xy=np.concatenate([tracks.xy, extra.xy[rows]]),
+            visible=np.concatenate([tracks.visible, extra.visible[rows]]),
+            size_hw=tracks.size_hw,
+        )
+    return labels_to_masks(tracks, track_ids, labels, cfg.mask, images)
+
+
+def _container_frames(path: str | Path) -> int | None:
+    """The frame count a video container claims (None for folders, images or when it does not say)."""
+    try:
+        with decode_errors(path):
+            info = video_info(path)
+    except InputError:
+        return None
+    return info["num_frames"] if info["kind"] == "video" else None
+
+
+def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model: Embedder | None = None) -> ClipResult:
+    """Reads cfg.frames frames from frame cfg.start of a video file or frame folder and segments them.
+
+    Args:
+        path: a video file OpenCV can read or a folder of images (sorted by name).
+        cfg: pipeline settings; cfg.frames frames are read, from frame cfg.start.
+        model: the model (None = the shipped default for cfg.frames).
+
+    Returns:
+        ClipResult (timings also hold "read").
+
+    Raises:
+        InputError: missing, unreadable, corrupt or truncated input, fewer than cfg.frames frames
+            from cfg.start, or cfg.start past the end.
+        TooFewTracksError: see segment_frames.
+    """
+    t0 = time.perf_counter()
+    with decode_errors(path):
+        frames = read_video(path, max_frames=cfg.frames, start=cfg.start)
+    if frames.num_frames < cfg.frames:
+        claimed = _container_frames(path)
+        hint = ""
+        if claimed and claimed - cfg.start > frames.num_frames:
+            hint = f" of the {claimed} its header lists (truncated or corrupt video?)"
+        after = f" from frame {cfg.start}" if cfg.start else ""
+        raise InputError(
+            f"{path}: only {_frames(frames.num_frames)} could be read{after}{hint}; --frames needs {cfg.frames}"
+        )
+    read_s = time.perf_counter() - t0
+    result = segment_frames(frames, cfg, model)
+    return replace(result, timings={"read": read_s, **result.timings})

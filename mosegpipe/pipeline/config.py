@@ -1,0 +1,150 @@
+"""PipelineConfig, the settings of one segmentation run, and its checked loading from dicts.
+
+`PipelineConfig.from_dict` reads the `dataclasses.asdict` form back (summary.json `config`, replay):
+every field is checked against its type hint by hand (`_typed_value`), with JSON / TOML types only (no
+coercion from strings), and an error names the field (`summary.json: config.track.max_corners: ...`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import types
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
+
+from mosegpipe.cluster import ClusterConfig
+from mosegpipe.errors import InputError
+from mosegpipe.masks import MaskConfig
+from mosegpipe.match import MatchConfig
+from mosegpipe.rigid import RigidCheckConfig
+from mosegpipe.track import TrackConfig
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Settings of one segmentation run.
+
+    Attributes:
+        frames: F, the number of frames segmented (the paper's clips are 5 frames).
+        start: index of the first frame read from a video or frame folder (0-based, in the source);
+            segment_clip reads frames start .. start + F - 1, segment_video starts its first window
+            there. Not used by segment_frames / segment_pair (they are given their images).
+        k: force this many motions (None = automatic K).
+        min_tracks: fewer surviving tracks / matches than this is an error (too little texture).
+        track: KLT settings.
+        match: SIFT matching settings (pairs).
+        cluster: automatic-K settings.
+        rigid: the rigid-motion check after automatic K (clips, whole videos, tracks; not pairs, not
+            with k given): groups of tracks that their cluster's rigid motion does not explain
+            become clusters of their own (mosegpipe.rigid).
+        mask: dense-mask settings.
+        outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix RANSAC fit explains less
+            than this fraction of its points is labelled as outliers.
+        video_k_step: whole videos: a window tries K up to the previous window's K plus this (and at
+            most cluster.k_max), so K rises by at most this much every F - 1 frames; None = the full
+            sweep in every window. The sweep's larger K cost the most K-means time; on the long
+            rendered clips the limit changed no segmentation (docs/RESULTS.md, "Speed").
+        video_cut_survival: whole videos: a frame into which fewer than this fraction of the previous
+            frame's tracks survive (of at least 2 * min_tracks) is a shot cut: the window ends on the
+            frame before it, and tracking and clustering start afresh on it. None = no cut detection.
+    """
+
+    frames: int = 5
+    start: int = 0
+    k: int | None = None
+    min_tracks: int = 10
+    track: TrackConfig = field(default_factory=TrackConfig)
+    match: MatchConfig = field(default_factory=MatchConfig)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    rigid: RigidCheckConfig = field(default_factory=RigidCheckConfig)
+    mask: MaskConfig = field(default_factory=MaskConfig)
+    outlier_inlier_ratio: float = 0.5
+    video_k_step: int | None = 2
+    video_cut_survival: float | None = 0.25
+
+    def __post_init__(self) -> None:
+        if self.video_k_step is not None and self.video_k_step < 1:
+            raise InputError(f"video_k_step={self.video_k_step} must be at least 1 (or None: no limit)")
+        if self.video_cut_survival is not None and not 0 < self.video_cut_survival < 1:
+            raise InputError(
+                f"video_cut_survival={self.video_cut_survival} must lie in (0, 1) (or None: no cut detection)"
+            )
+
+    @classmethod
+    def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
+        """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
+
+        A field left out takes its default (a summary written before the field existed), except
+        `rigid`, `video_cut_survival` and `mask.extra_tracks`: a summary without them was made before
+        the rigid-motion check (the shot-cut test, the extra mask tracks) existed, so it stays off and
+        a replay segments as that run did. An unknown field, a value of the wrong type or one the
+        config classes refuse is an error.
+
+        Args:
+            data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
+            where: how errors name the dict (`summary.json: config`).
+
+        Raises:
+            InputError: naming the field, e.g. `summary.json: config.track.max_corners: expected an
+                integer, got 'many'`.
+        """
+        config = _dataclass_from_dict(cls, data, where)
+        assert isinstance(config, cls)
+        if isinstance(data, Mapping) and "rigid" not in data:
+            config = replace(config, rigid=RigidCheckConfig(enabled=False))
+        if isinstance(data, Mapping) and "video_cut_survival" not in data:
+            config = replace(config, video_cut_survival=None)
+        if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:
+            config = replace(config, mask=replace(config.mask, extra_tracks=0))
+        return config
+
+
+def _dataclass_from_dict(cls: type, data: Any, where: str) -> Any:
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: expected a table of settings, got {type(data).__name__} {data!r}")
+    hints = get_type_hints(cls)
+    names = [f.name for f in fields(cls)]
+    unknown = [key for key in data if key not in names]
+    if unknown:
+        raise InputError(f"{where}.{unknown[0]}: unknown setting (known: {', '.join(names)})")
+    values = {name: _typed_value(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+    try:
+        return cls(**values)
+    except (ValueError, InputError) as exc:
+        raise InputError(f"{where}: {' '.join(str(exc).split())}") from exc
+
+
+_TYPE_NAMES = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
+def _typed_value(hint: Any, value: Any, where: str) -> Any:
+    """`value` checked against the type hint of a config field (JSON / TOML types: no coercion from strings)."""
+    if is_dataclass(hint):
+        return _dataclass_from_dict(hint, value, where)  # type: ignore[arg-type]
+    origin = get_origin(hint)
+    if origin is Union or origin is types.UnionType:
+        options = get_args(hint)
+        if value is None and type(None) in options:
+            return None
+        for option in options:
+            if option is not type(None):
+                with contextlib.suppress(InputError):
+                    return _typed_value(option, value, where)
+        wanted = " or ".join("null" if o is type(None) else _TYPE_NAMES.get(o, str(o)) for o in options)
+        raise InputError(f"{where}: expected {wanted}, got {value!r}")
+    if origin is Literal:
+        if value not in get_args(hint):
+            raise InputError(f"{where}: {value!r} is not one of {', '.join(map(repr, get_args(hint)))}")
+        return value
+    ok = {
+        bool: isinstance(value, bool),
+        int: isinstance(value, int) and not isinstance(value, bool),
+        float: isinstance(value, (int, float)) and not isinstance(value, bool),
+        str: isinstance(value, str),
+    }
+    if hint not in ok:
+        raise TypeError(f"{where}: config fields of type {hint} are not supported")
+    if not ok[hint]:
+        raise InputError(f"{where}: expected {_TYPE_NAMES[hint]}, got {value!r}")
+    return float(value) if hint is float else value

@@ -1,0 +1,114 @@
+"""Point tracks made elsewhere (CoTracker, TAPIR, ...): `segment_tracks` and its `TracksResult`."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.cluster import cluster_auto_k
+from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.inference import Embedder
+from mosegpipe.pipeline.common import _check_k, _model_or_default, check_rigid, embed_at_model_frames, model_info
+from mosegpipe.pipeline.config import PipelineConfig
+from mosegpipe.trajectories import build_trajectories
+from mosegpipe.types import Clustering, Tracks, Trajectories
+
+
+@dataclass(frozen=True)
+class TracksResult:
+    """The segmentation of point tracks made elsewhere (CoTracker, TAPIR, a tracker of one's own).
+
+    Attributes:
+        tracks: the tracks as given (N tracks over T frames).
+        trajectories: the tracks visible in every frame of the window (M rows, track_ids into `tracks`).
+        start: first frame of the window segmented.
+        embeddings: (M, E) float32 SubspaceNet embeddings.
+        clustering: labels (M,) and the automatic-K evidence.
+        labels: (N,) int64 motion of every given track, -1 for a track not visible throughout the window.
+        timings: seconds per stage.
+        model_info: as in ClipResult.
+    """
+
+    tracks: Tracks
+    trajectories: Trajectories
+    start: int
+    embeddings: npt.NDArray[np.float32]
+    clustering: Clustering
+    labels: npt.NDArray[np.int64]
+    timings: dict[str, float]
+    model_info: dict[str, Any]
+
+
+def segment_tracks(
+    xy: npt.ArrayLike,
+    visible: npt.ArrayLike | None = None,
+    cfg: PipelineConfig = PipelineConfig(),
+    model: Embedder | None = None,
+    start: int = 0,
+    frames: int | None = None,
+) -> TracksResult:
+    """Segments the motions of point tracks from another tracker with our embedding and clustering.
+
+    Tracks visible in every frame of the window [start, start + frames) are embedded (resampled in
+    time to the model's frame count when the window is longer or shorter) and clustered with
+    cfg.cluster; the others get label -1.
+
+    Args:
+        xy: (N, T, 2) pixel coordinates, x right and y down (CoTracker's (T, N, 2) output transposed).
+        visible: (N, T) bool, True where a track is visible (None = everywhere; TAPIR gives
+            `occluded`, i.e. its negation).
+        cfg: pipeline settings (cfg.frames is not used: the window is `frames`).
+        model: the model (None = the shipped default for the window's length).
+        start: first frame of the window.
+        frames: window length F >= 2 (None = from `start` to the last frame).
+
+    Returns:
+        TracksResult.
+
+    Raises:
+        InputError: arrays of the wrong shape or type, NaN/inf where visible, a window outside the
+            frames, or cfg.k larger than the number of tracks.
+        TooFewTracksError: fewer than cfg.min_tracks tracks are visible through the whole window.
+    """
+    arr = np.asarray(xy)
+    if arr.ndim != 3 or arr.shape[2] != 2 or arr.dtype.kind not in "iuf" or arr.shape[0] == 0:
+        raise InputError(f"xy must be an (N, T, 2) array of pixel coordinates, got {arr.dtype} {arr.shape}")
+    num, num_frames = arr.shape[:2]
+    vis = np.ones((num, num_frames), dtype=bool) if visible is None else np.asarray(visible)
+    if vis.shape != (num, num_frames) or vis.dtype.kind not in "bui":
+        raise InputError(f"visible must be an ({num}, {num_frames}) bool array, got {vis.dtype} {vis.shape}")
+    vis = vis.astype(bool)
+    if not np.all(np.isfinite(arr[vis])):
+        raise InputError("xy holds NaN or inf where the tracks are visible")
+    for name, value in (("start", start), ("frames", frames)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
+            raise InputError(f"{name}={value!r} must be an integer")
+    window = num_frames - start if frames is None else frames
+    if start < 0 or window < 2 or start + window > num_frames:
+        raise InputError(f"start={start}, frames={window}: the window must hold 2 or more of the {num_frames} frames")
+    finite = np.where(vis[..., None], arr, 0.0).astype(np.float32)
+    span = finite[vis].max(axis=0) if vis.any() else np.zeros(2)
+    tracks = Tracks(xy=finite, visible=vis, size_hw=(int(span[1]) + 1, int(span[0]) + 1))
+    timings: dict[str, float] = {}
+    model = _model_or_default(model, window, timings)
+    traj = build_trajectories(tracks, frames=window, start=start)
+    if traj.num_points < cfg.min_tracks:
+        raise TooFewTracksError(
+            f"only {traj.num_points} of {num} tracks are visible in all frames {start}..{start + window - 1}; "
+            f"need at least {cfg.min_tracks} (choose a shorter window with frames/start)"
+        )
+    _check_k(cfg.k, traj.num_points, "tracks")
+    t0 = time.perf_counter()
+    emb = embed_at_model_frames(model, traj)
+    timings["embed"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
+    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
+    timings["cluster"] = time.perf_counter() - t0
+    labels = np.full(num, -1, dtype=np.int64)
+    labels[traj.track_ids] = clustering.labels
+    return TracksResult(tracks, traj, start, emb, clustering, labels, timings, model_info(model))

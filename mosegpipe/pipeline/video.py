@@ -1,0 +1,476 @@
+"""Whole videos: `segment_video` walks a video as a stream of F-frame window results.
+
+Windows share their boundary frame (window w covers frames w(F-1) .. w(F-1)+F-1) and the tracker
+re-seeds corners at every window start, so tracks run on from one window into the next. A window's
+clusters take the global label of the previous window's cluster they share most tracks with
+(Hungarian matching on the overlap counts); a cluster of new tracks starts a new global label, a
+cluster that split off a known motion only once it splits off in two windows running
+(`mosegpipe.pipeline.labels`). On a near tie of the automatic-K scores a window keeps the previous
+window's K. A shot cut (`_is_cut`) ends a window early and starts tracking afresh. Only the current
+window's frames (at most F images) are held.
+
+The steps: `_read_windows` reads and tracks the frames and cuts them into windows, `_label_window`
+clusters one window (`_cluster_window`) and labels its frames, `_report_video_end` checks and logs
+what the whole run found.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.inference import Embedder, load_model
+from mosegpipe.io import iter_video, video_info
+from mosegpipe.masks import MaskConfig, labels_to_mask
+from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames
+from mosegpipe.pipeline.config import PipelineConfig
+from mosegpipe.pipeline.labels import LabelBook, match_labels
+from mosegpipe.track import KLTTracker, tracks_from_steps
+from mosegpipe.trajectories import build_trajectories
+from mosegpipe.types import Trajectories
+
+log = logging.getLogger(__name__)
+
+
+_Frame = tuple[int, npt.NDArray[np.uint8], npt.NDArray[np.int64], npt.NDArray[np.float32]]
+
+
+@dataclass(frozen=True)
+class VideoFrame:
+    """One frame of a whole-video run with the labels of its tracks.
+
+    Attributes:
+        index: frame index in the source (0-based).
+        image: (H, W, 3) uint8 RGB.
+        track_ids: (N,) int64 ids of the tracks live in this frame.
+        xy: (N, 2) float32 pixel positions of those tracks.
+        labels: (N,) int64 global motion label of each track, -1 = unlabelled. A track that ends
+            inside its window (lost before the window's last frame, so not clustered there) keeps
+            the label the window before gave it.
+        mask: (H, W) uint8, label = motion, 255 = unknown; None when segment_video was asked for
+            no masks (see `frame_mask`).
+    """
+
+    index: int
+    image: npt.NDArray[np.uint8]
+    track_ids: npt.NDArray[np.int64]
+    xy: npt.NDArray[np.float32]
+    labels: npt.NDArray[np.int64]
+    mask: npt.NDArray[np.uint8] | None
+
+
+def frame_mask(frame: VideoFrame, cfg: MaskConfig = MaskConfig()) -> npt.NDArray[np.uint8]:
+    """The dense mask of one whole-video frame from its labelled tracks (what segment_video computes).
+
+    Returns:
+        (H, W) uint8, label = motion, 255 = unknown.
+    """
+    if frame.mask is not None:
+        return frame.mask
+    keep = frame.labels >= 0
+    return labels_to_mask(frame.xy[keep], frame.labels[keep], frame.image.shape[:2], cfg, frame.image)
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """One F-frame window of a whole video.
+
+    Attributes:
+        start: index of the window's first frame.
+        num_frames: frames in the window (F, or fewer for the last one).
+        num_tracks: tracks live through the whole window.
+        k: motions found in it (0 = left unlabelled: too few tracks).
+        track_ids: (N,) int64 ids of the labelled tracks (empty when unlabelled).
+        labels: (N,) int64 their global labels.
+        frames: the frames this window adds (its first frame belongs to the previous window, except
+            for the first window), with labels and masks.
+        num_motions: global labels handed out so far.
+        num_labels_reused: labels handed out again so far (only after 255 labels).
+        num_frames_read: frames read from the source so far.
+        k_note: automatic K's note on this window (Clustering.note: e.g. the K choice was
+            ambiguous); "" when none.
+        k_scores: automatic K's score per candidate K in this window (Clustering.scores); empty
+            when K was forced or the window was left unlabelled.
+        shot_start: the window starts on a shot cut (PipelineConfig.video_cut_survival): its
+            tracks were detected afresh there, and it shares no frame with the window before.
+    """
+
+    start: int
+    num_frames: int
+    num_tracks: int
+    k: int
+    track_ids: npt.NDArray[np.int64]
+    labels: npt.NDArray[np.int64]
+    frames: tuple[VideoFrame, ...]
+    num_motions: int
+    num_labels_reused: int
+    num_frames_read: int
+    k_note: str = ""
+    k_scores: Mapping[int, float] = field(default_factory=dict)
+    shot_start: bool = False
+
+    @property
+    def is_labelled(self) -> bool:
+        """Whether the window had enough tracks to be segmented."""
+        return self.k > 0
+
+    @property
+    def is_k_ambiguous(self) -> bool:
+        """Whether automatic K found two K scoring within ClusterConfig.ambiguity_margin here."""
+        return self.k_note.startswith(AMBIGUOUS_K_NOTE)
+
+    def record(self) -> dict[str, int | bool]:
+        """The window's row in summary.json."""
+        return {
+            "start": self.start,
+            "frames": self.num_frames,
+            "num_tracks": self.num_tracks,
+            "k": self.k,
+            "k_ambiguous": self.is_k_ambiguous,
+            "shot_start": self.shot_start,
+        }
+
+
+AMBIGUOUS_K_NOTE = "the K choice is ambiguous"
+"""How cluster_auto_k's note (and warning) for an ambiguous K choice starts."""
+
+
+def check_video_settings(cfg: PipelineConfig, max_frames: int | None) -> None:
+    """Fails early on settings a whole-video run cannot use.
+
+    Raises:
+        InputError: cfg.frames < 2 or max_frames < 1.
+    """
+    if cfg.frames < 2:
+        raise InputError(f"--frames {cfg.frames}: whole-video mode needs windows of at least 2 frames")
+    if max_frames is not None and max_frames < 1:
+        raise InputError(f"--max-frames {max_frames} must be >= 1")
+
+
+def video_frames_to_read(path: str | Path, cfg: PipelineConfig, max_frames: int | None = None) -> int | None:
+    """How many frames segment_video will read: for a progress bar's total (None when not known).
+
+    A frame folder knows its length; a video file only what its container header claims (which
+    may be wrong for a truncated file: the run then ends early). Unreadable input gives None here:
+    segment_video reports it.
+    """
+    try:
+        with decode_errors(path):
+            claimed = video_info(path)["num_frames"]
+    except InputError:
+        return None
+    if claimed is None:
+        return max_frames
+    available = max(0, int(claimed) - cfg.start)
+    return available if max_frames is None else min(available, max_frames)
+
+
+def segment_video(
+    path: str | Path,
+    cfg: PipelineConfig = PipelineConfig(),
+    model: Embedder | None = None,
+    max_frames: int | None = None,
+    masks: bool = True,
+) -> Iterator[WindowResult]:
+    """Segments a whole video window by window, streamed: yields each window as soon as it is labelled.
+
+    Args:
+        path: video file or frame folder.
+        cfg: pipeline settings; cfg.frames is the window length F (>= 2).
+        model: the model (None = shipped default for cfg.frames).
+        max_frames: stop after this many frames (None = whole video).
+        masks: compute each frame's dense mask; False leaves VideoFrame.mask None for the caller
+            to compute with `frame_mask` (e.g. on another thread, as outputs.write_video_outputs does).
+
+    Yields:
+        WindowResult per window, in order; together their `frames` cover every frame read once.
+
+    Raises:
+        InputError: unreadable input, fewer than F frames, F < 2 or max_frames < 1.
+        TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
+            the video is exhausted).
+
+    Only the tracks live through a whole window are clustered; one that ends inside it (leaving the
+    view, occluded) keeps the label it had in the window before for its last frames, so an object
+    leaving the view keeps its label while its tracks last.
+
+    A shot cut (fewer than cfg.video_cut_survival of a frame's tracks survive into the next frame)
+    ends the window on the frame before it, however short; tracking restarts on the cut frame
+    (`KLTTracker.restart`), which starts the next window (WindowResult.shot_start), so no track and
+    no window spans two shots. The motions of the new shot get labels of their own, the dominant one 0.
+
+    Automatic K keeps the previous window's K when that K scores within cfg.cluster.ambiguity_margin
+    of the best (`cluster_auto_k`'s prefer_k): a change of K needs clear evidence; and it tries K only
+    up to the previous window's K + cfg.video_k_step. Automatic K's
+    warning that its choice is ambiguous is logged once, after the last window
+    ("K was ambiguous in 3 of 40 windows: ..."), not per window; each window keeps its note
+    (WindowResult.k_note, summary.json `windows[].k_ambiguous`).
+    """
+    check_video_settings(cfg, max_frames)
+    model = model or load_model(cfg.frames)
+    with decode_errors(path):
+        info = video_info(path)
+    run = _VideoRun()
+    for window, first_labelled in _read_windows(path, cfg, run, max_frames):
+        yield _label_window(window, first_labelled, cfg, model, run, masks)
+        del window  # from here on its frames live only in the result: at most F frames are held
+    _report_video_end(path, cfg, info, run, max_frames)
+
+
+@dataclass
+class _VideoRun:
+    """What one segment_video run carries from window to window.
+
+    Attributes:
+        book: the global labels handed out so far.
+        prev: track id -> global label in the last labelled window (a track that ends inside the next
+            window keeps its label there).
+        prev_k: K of the last labelled window as the embedding found it, before the rigid-motion check
+            (the next window's preferred K; 0 = none yet).
+        num_windows: windows yielded so far.
+        num_labelled: windows labelled so far.
+        num_frames: frames read so far.
+        cuts: frames that start a new shot.
+        ambiguous: (first, last) frame of each window whose K was ambiguous.
+    """
+
+    book: LabelBook = field(default_factory=LabelBook)
+    prev: dict[int, int] = field(default_factory=dict)
+    prev_k: int = 0
+    num_windows: int = 0
+    num_labelled: int = 0
+    num_frames: int = 0
+    cuts: set[int] = field(default_factory=set)
+    ambiguous: list[tuple[int, int]] = field(default_factory=list)
+
+
+def _no_labels() -> npt.NDArray[np.int64]:
+    return np.zeros(0, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class _WindowLabels:
+    """One window's clusters as global labels (k = 0: the window was left unlabelled).
+
+    Attributes:
+        k: motions found (after the rigid-motion check).
+        note: automatic K's note.
+        scores: automatic K's score per candidate K.
+        track_ids: (N,) int64 ids of the labelled tracks.
+        labels: (N,) int64 their global labels (>= 0).
+    """
+
+    k: int = 0
+    note: str = ""
+    scores: dict[int, float] = field(default_factory=dict)
+    track_ids: npt.NDArray[np.int64] = field(default_factory=_no_labels)
+    labels: npt.NDArray[np.int64] = field(default_factory=_no_labels)
+
+    def by_id(self) -> dict[int, int]:
+        """Track id -> global label."""
+        return {int(i): int(g) for i, g in zip(self.track_ids, self.labels)}
+
+
+def _read_windows(
+    path: str | Path, cfg: PipelineConfig, run: _VideoRun, max_frames: int | None
+) -> Iterator[tuple[list[_Frame], bool]]:
+    """Reads and tracks the frames and cuts them into windows, each as soon as it is complete.
+
+    Yields:
+        (the window's frames, whether its first frame was labelled by the window before: windows
+        share their boundary frame, except across a shot cut).
+
+    Raises:
+        InputError: unreadable input or fewer than cfg.frames frames.
+    """
+    f = cfg.frames
+    tracker = KLTTracker(replace(cfg.track, reseed=True, reseed_every=f - 1))
+    window: list[_Frame] = []
+    first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
+    frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames)
+    while True:
+        with decode_errors(path):
+            item = next(frames_iter, None)
+        if item is None:
+            break
+        t, frame = item
+        ids, xy = tracker.step(frame)
+        run.num_frames += 1
+        if window and _is_cut(window[-1][2], ids, cfg):
+            # A shot cut: the window ends on the frame before, a new one starts on this frame with
+            # tracks detected afresh (the few that survived the cut landed on unrelated content).
+            run.cuts.add(t)
+            ids, xy = tracker.restart(frame)
+            if not first_done or len(window) > 1:
+                yield window, first_done
+            window, first_done = [], False
+        window.append((t, frame, ids, xy))
+        if len(window) == f:
+            # Later windows start on the previous one's last frame, already labelled there.
+            yield window, first_done
+            window, first_done = [window[-1]], True
+    if run.num_frames < f:
+        raise InputError(f"{path}: only {_frames(run.num_frames)} could be read; --frames needs {f}")
+    if not first_done or len(window) > 1:
+        yield window, first_done
+
+
+def _is_cut(before: npt.NDArray[np.int64], after: npt.NDArray[np.int64], cfg: PipelineConfig) -> bool:
+    """Whether fewer than cfg.video_cut_survival of the track ids `before` (one frame) live on `after`."""
+    if cfg.video_cut_survival is None or before.size < 2 * cfg.min_tracks:
+        return False
+    survived = np.count_nonzero(np.isin(before, after, assume_unique=True))
+    return bool(survived < cfg.video_cut_survival * before.size)
+
+
+def _window_sweep(cfg: PipelineConfig, prev_k: int) -> ClusterConfig:
+    """cfg.cluster, trying K only up to the previous window's K + cfg.video_k_step (prev_k 0: no window yet)."""
+    sweep = cfg.cluster
+    if prev_k and cfg.video_k_step is not None:
+        sweep = replace(sweep, k_max=max(sweep.k_min, min(sweep.k_max, prev_k + cfg.video_k_step)))
+    return sweep
+
+
+def _cluster_window(
+    window: list[_Frame], cfg: PipelineConfig, model: Embedder, run: _VideoRun
+) -> tuple[npt.NDArray[np.int64], _WindowLabels]:
+    """Clusters the tracks live through the whole window and maps the clusters to global labels.
+
+    Returns:
+        (tracker ids of the tracks live through the whole window, their global labels; k = 0 when
+        the window is a single frame or holds fewer than cfg.min_tracks such tracks).
+    """
+    tracks, row_ids = tracks_from_steps([(ids, xy) for _, _, ids, xy in window], window[0][1].shape[:2])
+    traj = build_trajectories(tracks)
+    common = row_ids[traj.track_ids]  # tracker ids of the tracks live through the whole window
+    if len(window) < 2:
+        log.info("frame %d: a shot of one frame; left unlabelled", window[0][0])
+        return common, _WindowLabels()
+    if common.size < max(cfg.min_tracks, 2):
+        log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
+        return common, _WindowLabels()
+    emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
+    forced = None if cfg.k is None else min(cfg.k, common.size)
+    with _warnings_held(logging.getLogger(cluster_auto_k.__module__)):
+        sweep = _window_sweep(cfg, run.prev_k)
+        clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
+    sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
+    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
+    glob = match_labels(run.prev, common, clustering.labels, clustering.k, run.book, run.num_windows)
+    found = _WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[glob >= 0], glob[glob >= 0])
+    run.prev, run.prev_k = found.by_id(), sweep_k
+    run.num_labelled += 1
+    return common, found
+
+
+def _label_window(
+    window: list[_Frame], first_labelled: bool, cfg: PipelineConfig, model: Embedder, run: _VideoRun, masks: bool
+) -> WindowResult:
+    """Clusters one window and labels its frames (all but the first when the window before labelled that one)."""
+    before = run.prev  # the last labelled window's labels: tracks that end inside this window keep theirs
+    common, found = _cluster_window(window, cfg, model, run)
+    note = found.note
+    log.info(
+        "frames %d-%d: %d tracks, K = %d%s", window[0][0], window[-1][0], common.size, found.k, note and f"; {note}"
+    )
+    by_id = found.by_id()
+    new = window[1:] if first_labelled else window
+    labelled = tuple(_labelled_frame(item, by_id, before, cfg.mask, masks) for item in new)
+    run.num_windows += 1
+    result = WindowResult(
+        start=window[0][0],
+        num_frames=len(window),
+        num_tracks=int(common.size),
+        k=found.k,
+        track_ids=found.track_ids,
+        labels=found.labels,
+        frames=labelled,
+        num_motions=run.book.next_label,
+        num_labels_reused=run.book.num_reused,
+        num_frames_read=run.num_frames,
+        k_note=note,
+        k_scores=found.scores,
+        shot_start=window[0][0] in run.cuts,
+    )
+    if result.is_k_ambiguous:
+        run.ambiguous.append((window[0][0], window[-1][0]))
+    return result
+
+
+def _labelled_frame(
+    item: _Frame, labels: dict[int, int], before: dict[int, int], cfg: MaskConfig, masks: bool
+) -> VideoFrame:
+    """One frame with its tracks' labels (`labels`, else the window before's `before`, else -1) and its mask."""
+    t, img, ids, xy = item
+    lab = np.array([labels.get(int(i), before.get(int(i), -1)) for i in ids], dtype=np.int64)
+    frame = VideoFrame(t, img, ids, xy, lab, None)
+    return replace(frame, mask=frame_mask(frame, cfg)) if masks else frame
+
+
+def _report_video_end(
+    path: str | Path, cfg: PipelineConfig, info: dict[str, Any], run: _VideoRun, max_frames: int | None
+) -> None:
+    """Logs the shot cuts, a decoder that stopped early and the windows whose K was ambiguous.
+
+    Raises:
+        TooFewTracksError: no window was labelled.
+    """
+    cuts = sorted(run.cuts)
+    if cuts:
+        shown = ", ".join(str(c) for c in cuts[:5]) + (f" and {len(cuts) - 5} more" if len(cuts) > 5 else "")
+        log.info("shot cuts at frames %s: tracking started afresh there", shown)
+    if run.num_labelled == 0:
+        raise TooFewTracksError(
+            f"{path}: no window had at least {cfg.min_tracks} tracks through its {cfg.frames} frames (textureless video?)"
+        )
+    claimed = info.get("num_frames")
+    if max_frames is None and info["kind"] == "video" and claimed and run.num_frames < claimed - cfg.start:
+        log.warning(
+            "%s: decoding stopped after %d of the %d frames the header lists", path, cfg.start + run.num_frames, claimed
+        )
+    if run.ambiguous:
+        log.warning(
+            "K was ambiguous in %d of %d windows: %s (runner-up within %g; summary.json windows[].k_ambiguous); "
+            "pass --k to decide",
+            len(run.ambiguous),
+            run.num_windows,
+            _ranges(run.ambiguous),
+            cfg.cluster.ambiguity_margin,
+        )
+
+
+@contextlib.contextmanager
+def _warnings_held(logger: logging.Logger) -> Iterator[None]:
+    """Keeps `logger`'s WARNING records of this thread from its handlers while the block runs.
+
+    Whole-video mode reports automatic K's ambiguity warnings once for all windows, not once per
+    window (hundreds of lines on a long video); the notes themselves are kept (WindowResult.k_note).
+    Other threads' records pass: a clip segmented beside this video keeps its warning.
+    """
+    thread = threading.get_ident()
+
+    def keep(record: logging.LogRecord) -> bool:
+        return record.thread != thread or record.levelno != logging.WARNING
+
+    logger.addFilter(keep)
+    try:
+        yield
+    finally:
+        logger.removeFilter(keep)
+
+
+def _ranges(spans: list[tuple[int, int]], shown: int = 3) -> str:
+    """`frames 0-4, 8-12, 16-20 and 4 more`: the first `shown` of some (first, last) frame ranges."""
+    listed = ", ".join(f"{first}-{last}" for first, last in spans[:shown])
+    more = f" and {len(spans) - shown} more" if len(spans) > shown else ""
+    return f"frames {listed}{more}"
