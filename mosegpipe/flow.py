@@ -1,0 +1,187 @@
+"""Dense optical flow (OpenCV DIS) and the camera's motion fitted to it.
+
+Every pixel gets a displacement to the next frame (DIS, Kroeger et al. 2016, as OpenCV ships it); a
+homography fitted robustly to a grid of those displacements is the camera's motion (the dominant
+planar motion: a rotating or zooming camera, or a distant scene); what it does not explain is each
+pixel's *camera residual*, the evidence that the pixel moves on its own. `mosegpipe.motion` turns
+residuals into dense masks of the moving objects.
+
+Measured on the 20 dev clips of DAVIS-2016 train (docs/RESULTS.md, "Real video"): the flow at full
+resolution separates objects from background clearly better than at half resolution (mask J 0.57 vs
+0.52 with the same mask stage) because DIS's smoothing spills less across object boundaries; finer
+patches or a weaker smoothness term at half resolution did not help.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+DIS_PRESETS = {
+    "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
+    "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+    "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
+}
+"""The DIS presets `FlowConfig.preset` accepts."""
+
+
+@dataclass(frozen=True)
+class FlowConfig:
+    """Settings of the dense flow and the camera fit.
+
+    Attributes:
+        preset: DIS preset ("ultrafast", "fast" or "medium"); medium is the most accurate of the three.
+        scale: flow is computed on images resized by this factor (0 < scale <= 1); residuals are
+            returned at full resolution in full-resolution pixels.
+        grid_step_px: the camera fit samples one pixel every this many pixels (at the flow's scale).
+        fb_max_px: a sample whose forward flow and the backward flow at its end point disagree by
+            more than this (pixels, at the flow's scale) is left out of the camera fit (occlusions,
+            flow failures).
+        ransac_px: RANSAC (MAGSAC) inlier threshold of the homography, in pixels at the flow's scale.
+    """
+
+    preset: str = "medium"
+    scale: float = 1.0
+    grid_step_px: int = 4
+    fb_max_px: float = 1.0
+    ransac_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.preset not in DIS_PRESETS:
+            raise ValueError(f"preset={self.preset!r} must be one of {', '.join(DIS_PRESETS)}")
+        if not 0 < self.scale <= 1:
+            raise ValueError(f"scale={self.scale} must be in (0, 1]")
+        if self.grid_step_px < 1:
+            raise ValueError(f"grid_step_px={self.grid_step_px} must be >= 1")
+        if not self.fb_max_px > 0 or not self.ransac_px > 0:
+            raise ValueError(f"fb_max_px={self.fb_max_px} and ransac_px={self.ransac_px} must be > 0")
+
+
+def to_gray(image: npt.NDArray[np.uint8], scale: float) -> npt.NDArray[np.uint8]:
+    """(H, W, 3) RGB or (H, W) gray uint8 -> gray uint8 resized by `scale` (area interpolation)."""
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    if scale == 1:
+        return np.ascontiguousarray(gray)
+    return cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+
+
+class DenseFlow:
+    """DIS optical flow between gray images, one OpenCV instance reused (it keeps its buffers)."""
+
+    def __init__(self, cfg: FlowConfig = FlowConfig()) -> None:
+        self.cfg = cfg
+        self._dis = cv2.DISOpticalFlow.create(DIS_PRESETS[cfg.preset])
+
+    def __call__(self, gray0: npt.NDArray[np.uint8], gray1: npt.NDArray[np.uint8]) -> npt.NDArray[np.float32]:
+        """(h, w, 2) float32 displacement (dx, dy) of each pixel of gray0 to gray1, in pixels of these images."""
+        return self._dis.calc(gray0, gray1, None)
+
+
+def _pixel_grid(h: int, w: int) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    return xs, ys
+
+
+def forward_backward_error(
+    forward: npt.NDArray[np.float32], backward: npt.NDArray[np.float32]
+) -> npt.NDArray[np.float32]:
+    """(h, w) float32: |forward(p) + backward(p + forward(p))| in pixels; inf where forward leaves the image.
+
+    Small where the two flows agree; large at occlusions, flow failures and dynamic textures (water,
+    smoke), whose flow is not a consistent motion.
+    """
+    h, w = forward.shape[:2]
+    xs, ys = _pixel_grid(h, w)
+    x1, y1 = xs + forward[..., 0], ys + forward[..., 1]
+    back = cv2.remap(backward, x1, y1, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    err = np.hypot(forward[..., 0] + back[..., 0], forward[..., 1] + back[..., 1])
+    inside = (x1 >= 0) & (x1 <= w - 1) & (y1 >= 0) & (y1 <= h - 1)
+    return np.where(inside, err, np.float32(np.inf)).astype(np.float32)
+
+
+def fit_camera(
+    flow: npt.NDArray[np.float32], usable: npt.NDArray[np.bool_] | None, cfg: FlowConfig = FlowConfig()
+) -> npt.NDArray[np.float64]:
+    """The homography that explains most of a flow field (the camera's motion), fitted with MAGSAC.
+
+    Args:
+        flow: (h, w, 2) float32 displacements.
+        usable: (h, w) bool, pixels the fit may sample (None = all).
+        cfg: grid step and inlier threshold.
+
+    Returns:
+        (3, 3) float64 homography mapping a pixel of the first image to the second; the identity
+        when too few samples are usable or the fit fails (the flow is then taken as all residual).
+    """
+    h, w = flow.shape[:2]
+    step = cfg.grid_step_px
+    sel = np.zeros((h, w), bool)
+    sel[step // 2 :: step, step // 2 :: step] = True
+    if usable is not None:
+        sel &= usable
+    ys, xs = np.nonzero(sel)
+    if xs.size < 8:
+        return np.eye(3)
+    p = np.stack([xs, ys], axis=1).astype(np.float32)
+    q = p + flow[ys, xs]
+    hom, _ = cv2.findHomography(p, q, cv2.USAC_MAGSAC, cfg.ransac_px)
+    return np.eye(3) if hom is None else hom
+
+
+def camera_residual(flow: npt.NDArray[np.float32], hom: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
+    """(h, w) float32: |flow - the displacement the homography predicts| per pixel, in pixels."""
+    h, w = flow.shape[:2]
+    xs, ys = _pixel_grid(h, w)
+    hm = hom.astype(np.float32)
+    den = hm[2, 0] * xs + hm[2, 1] * ys + hm[2, 2]
+    den = np.where(np.abs(den) < 1e-6, 1e-6, den)
+    px = (hm[0, 0] * xs + hm[0, 1] * ys + hm[0, 2]) / den
+    py = (hm[1, 0] * xs + hm[1, 1] * ys + hm[1, 2]) / den
+    return np.hypot(xs + flow[..., 0] - px, ys + flow[..., 1] - py).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class FrameMotion:
+    """Per-frame flow evidence of a stack of T frames, at the flow's scale (h, w).
+
+    Attributes:
+        residual: (T, h, w) float32 camera residual (`camera_residual`), pixels.
+        fb_error: (T, h, w) float32 forward-backward disagreement (`forward_backward_error`), pixels;
+            inf where the flow leaves the image.
+        scale: the flow's scale (h / H).
+    """
+
+    residual: npt.NDArray[np.float32]
+    fb_error: npt.NDArray[np.float32]
+    scale: float
+
+
+def frame_motion(images: npt.NDArray[np.uint8], cfg: FlowConfig = FlowConfig()) -> FrameMotion:
+    """The camera residual and flow consistency of every frame of a stack.
+
+    Frame t < T-1 uses its flow to frame t+1 (checked by the flow back); the last frame its flow back
+    to frame T-2 (checked by the flow forward).
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB, T >= 2.
+        cfg: flow settings.
+
+    Returns:
+        FrameMotion at the flow's scale.
+    """
+    if images.shape[0] < 2:
+        raise ValueError(f"frame_motion needs at least 2 frames, got {images.shape[0]}")
+    flow = DenseFlow(cfg)
+    gray = [to_gray(im, cfg.scale) for im in images]
+    forward = [flow(gray[t], gray[t + 1]) for t in range(len(gray) - 1)]
+    backward = [flow(gray[t + 1], gray[t]) for t in range(len(gray) - 1)]
+    residual, fb_error = [], []
+    for t in range(len(gray)):
+        fwd, bwd = (forward[t], backward[t]) if t + 1 < len(gray) else (backward[t - 1], forward[t - 1])
+        err = forward_backward_error(fwd, bwd)
+        residual.append(camera_residual(fwd, fit_camera(fwd, err < cfg.fb_max_px, cfg)))
+        fb_error.append(err)
+    return FrameMotion(np.stack(residual), np.stack(fb_error), cfg.scale)

@@ -1,0 +1,245 @@
+"""Dense masks of what moves, from the flow the camera's motion does not explain.
+
+Per frame, the camera residual (`mosegpipe.flow`) says how far each pixel's flow is from the camera's
+motion. The steps, each measured on the 20 dev clips of DAVIS-2016 train (docs/RESULTS.md, "Real
+video"; the 10 val clips were not used to choose anything):
+
+1. log(residual + eps) split in two by Otsu's threshold, per frame: moving objects are slow in some
+   clips and fast in others, so a fixed threshold in pixels fits few of them (J 0.39 at the best fixed
+   threshold, 0.46 with Otsu, half-resolution flow).
+2. A colour model of the clip: RGB histograms of the confidently moving and confidently static pixels
+   of all frames; their log ratio is added to the motion score (the object's colours pull in its
+   untextured parts; the background's push out the flow's spill over the border).
+3. Superpixels (SLIC, scikit-image): the score is averaged over each, so masks follow image edges.
+4. Components smaller than a share of the largest are dropped (specks of flow noise, ripples).
+Steps 2-4 together took the dev clips from J 0.46 to 0.53 (0.57 with full-resolution flow).
+
+`label_moving_pixels` then gives the moving pixels the labels of the tracks' motions, so that a
+pipeline's masks carry motion labels as the other mask methods' do.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion
+
+
+@dataclass(frozen=True)
+class MotionMaskConfig:
+    """Settings of the motion masks.
+
+    Attributes:
+        flow: dense flow and camera fit.
+        work_scale: the mask steps (colour model, superpixels, components) run on images resized by
+            this factor; the masks are resized back (nearest).
+        eps_px: residuals are compared on log(residual + eps_px) (full-resolution pixels): below eps
+            differences are flow noise.
+        min_residual_px: a pixel whose residual is below this (full-resolution pixels) is never
+            moving, whatever Otsu's threshold says: a frame with nothing moving is then left empty.
+        fb_weight: the motion score loses this times the local mean of log(1 + forward-backward
+            error) (work-scale pixels): flow that does not hold up in both directions (water, smoke,
+            occlusions) is weak evidence of motion (0 = off).
+        fb_box_px: side of the box (work-scale pixels) that averages the forward-backward error.
+        colour_weight: weight of the colour model's log ratio (0 = off).
+        colour_bins: histogram bins per RGB channel.
+        colour_margin: pixels more than this above (below) the frame's threshold in log units train
+            the moving (static) colour model.
+        superpixels: approximate number of SLIC superpixels per frame (0 = off).
+        compactness: SLIC compactness (colour vs distance).
+        min_component: connected moving regions smaller than this share of the frame's largest are
+            dropped (0 = keep all).
+    """
+
+    flow: FlowConfig = field(default_factory=FlowConfig)
+    work_scale: float = 0.5
+    eps_px: float = 1.0
+    min_residual_px: float = 0.5
+    fb_weight: float = 1.5
+    fb_box_px: int = 7
+    colour_weight: float = 0.5
+    colour_bins: int = 16
+    colour_margin: float = 0.5
+    superpixels: int = 600
+    compactness: float = 10.0
+    min_component: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 0 < self.work_scale <= 1:
+            raise ValueError(f"work_scale={self.work_scale} must be in (0, 1]")
+        if not self.eps_px > 0 or self.min_residual_px < 0:
+            raise ValueError(f"eps_px={self.eps_px} must be > 0 and min_residual_px={self.min_residual_px} >= 0")
+        if self.colour_weight < 0 or not 2 <= self.colour_bins <= 64:
+            raise ValueError(
+                f"colour_weight={self.colour_weight} must be >= 0, colour_bins={self.colour_bins} in 2..64"
+            )
+        if self.fb_weight < 0 or self.fb_box_px < 1:
+            raise ValueError(f"fb_weight={self.fb_weight} must be >= 0 and fb_box_px={self.fb_box_px} >= 1")
+        if self.superpixels < 0 or not 0 <= self.min_component <= 1:
+            raise ValueError(
+                f"superpixels={self.superpixels} must be >= 0, min_component={self.min_component} in [0, 1]"
+            )
+
+
+def _resize(x: npt.NDArray[np.float32], hw: tuple[int, int]) -> npt.NDArray[np.float32]:
+    if x.shape[:2] == hw:
+        return x
+    return cv2.resize(x, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+
+
+def _colour_index(image: npt.NDArray[np.uint8], bins: int) -> npt.NDArray[np.int64]:
+    q = (image.astype(np.int64) * bins) >> 8
+    return (q[..., 0] * bins + q[..., 1]) * bins + q[..., 2]
+
+
+def _colour_log_ratio(
+    images: list[npt.NDArray[np.uint8]], scores: list[npt.NDArray[np.float32]], cfg: MotionMaskConfig
+) -> list[npt.NDArray[np.float32]]:
+    """Per frame, log p(colour | moving) - log p(colour | static), from the confident pixels of all frames."""
+    nbins = cfg.colour_bins**3
+    moving = np.ones(nbins)
+    static = np.ones(nbins)
+    index = [_colour_index(im, cfg.colour_bins) for im in images]
+    for idx, z in zip(index, scores):
+        moving += np.bincount(idx[z > cfg.colour_margin], minlength=nbins)
+        static += np.bincount(idx[z < -cfg.colour_margin], minlength=nbins)
+    ratio = np.clip(np.log(moving / moving.sum()) - np.log(static / static.sum()), -5.0, 5.0).astype(np.float32)
+    return [ratio[idx] for idx in index]
+
+
+def _superpixel_mean(
+    image: npt.NDArray[np.uint8], score: npt.NDArray[np.float32], cfg: MotionMaskConfig
+) -> npt.NDArray[np.float32]:
+    from skimage.segmentation import slic
+
+    seg = slic(image, n_segments=cfg.superpixels, compactness=cfg.compactness, start_label=0)
+    sums = np.bincount(seg.ravel(), score.ravel().astype(np.float64))
+    counts = np.maximum(np.bincount(seg.ravel()), 1)
+    return (sums / counts).astype(np.float32)[seg]
+
+
+def _keep_large(mask: npt.NDArray[np.bool_], share: float) -> npt.NDArray[np.bool_]:
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 2 or share <= 0:
+        return mask
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    keep = np.zeros(n, bool)
+    keep[1:] = areas >= share * areas.max()
+    return keep[comp]
+
+
+def moving_from_motion(
+    images: npt.NDArray[np.uint8], motion: FrameMotion, cfg: MotionMaskConfig = MotionMaskConfig()
+) -> npt.NDArray[np.bool_]:
+    """Masks of the moving pixels from the frames' flow evidence (steps 1-4 of the module docstring).
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB.
+        motion: camera residuals and forward-backward errors of the T frames (`flow.frame_motion`).
+        cfg: mask settings.
+
+    Returns:
+        (T, H, W) bool, True = moving.
+    """
+    from skimage.filters import threshold_otsu
+
+    num, height, width = images.shape[:3]
+    to_full = np.float32(1.0 / motion.scale)
+    to_work = np.float32(cfg.work_scale / motion.scale)
+    hw = (max(1, round(height * cfg.work_scale)), max(1, round(width * cfg.work_scale)))
+    small = [cv2.resize(im, (hw[1], hw[0]), interpolation=cv2.INTER_AREA) for im in images]
+    res = [_resize(r * to_full, hw) for r in motion.residual]
+    logs = [np.log(r + np.float32(cfg.eps_px)) for r in res]
+    if cfg.fb_weight > 0:
+        box = (cfg.fb_box_px, cfg.fb_box_px)
+        for t, err in enumerate(motion.fb_error):
+            inconsistency = np.log1p(np.minimum(_resize(np.minimum(err, 1e3) * to_work, hw), 50.0))
+            logs[t] = logs[t] - np.float32(cfg.fb_weight) * cv2.blur(inconsistency, box)
+    scores = []
+    for lg in logs:
+        sample = lg[::2, ::2]
+        thr = threshold_otsu(sample) if np.ptp(sample) > 0 else float(sample.max())
+        scores.append((lg - np.float32(thr)).astype(np.float32))
+    if cfg.colour_weight > 0:
+        ratios = _colour_log_ratio(small, scores, cfg)
+        scores = [z + np.float32(cfg.colour_weight) * a for z, a in zip(scores, ratios)]
+    if cfg.superpixels > 0:
+        scores = [_superpixel_mean(im, z, cfg) for im, z in zip(small, scores)]
+    masks = np.zeros((num, height, width), bool)
+    for t, (z, r) in enumerate(zip(scores, res)):
+        moving = z > 0
+        if cfg.min_residual_px > 0:
+            moving &= cv2.dilate((r >= cfg.min_residual_px).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        moving = _keep_large(moving, cfg.min_component)
+        masks[t] = cv2.resize(moving.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
+    return masks
+
+
+def moving_masks(images: npt.NDArray[np.uint8], cfg: MotionMaskConfig = MotionMaskConfig()) -> npt.NDArray[np.bool_]:
+    """Masks of what moves against the camera's motion in a stack of frames.
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB, T >= 2.
+        cfg: flow and mask settings.
+
+    Returns:
+        (T, H, W) bool, True = moving.
+    """
+    return moving_from_motion(images, frame_motion(images, cfg.flow), cfg)
+
+
+def background_label(labels: npt.NDArray[np.int64]) -> int:
+    """The label most tracks carry (the camera's motion); -1 when there are no labelled tracks."""
+    labels = labels[labels >= 0]
+    return int(np.bincount(labels).argmax()) if labels.size else -1
+
+
+def label_moving_pixels(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    new_label: int,
+) -> npt.NDArray[np.uint8]:
+    """One frame's label image: static pixels get the background label, moving ones a moving motion's.
+
+    A moving pixel takes the label of the nearest track of a motion other than the background; with
+    no such track in the frame it takes `new_label` (a motion the camera fit found that the tracks'
+    clustering did not).
+
+    Args:
+        moving: (H, W) bool moving pixels.
+        xy: (N, 2) float32 track positions in this frame (pixels).
+        labels: (N,) int64 their motion labels (-1 = unlabelled, ignored).
+        background: the background motion's label.
+        new_label: label for moving pixels when no track of a moving motion is in the frame.
+
+    Returns:
+        (H, W) uint8 label image.
+    """
+    height, width = moving.shape
+    out = np.full((height, width), max(background, 0), np.uint8)
+    if not moving.any():
+        return out
+    keep = (labels >= 0) & (labels != background)
+    pts = np.round(xy[keep]).astype(np.int64)
+    inside = (pts[:, 0] >= 0) & (pts[:, 0] < width) & (pts[:, 1] >= 0) & (pts[:, 1] < height)
+    pts, lab = pts[inside], labels[keep][inside]
+    if not lab.size:
+        out[moving] = new_label
+        return out
+    seeds = np.ones((height, width), np.uint8)
+    seeds[pts[:, 1], pts[:, 0]] = 0
+    _, nearest = cv2.distanceTransformWithLabels(seeds, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
+    # distanceTransformWithLabels numbers the zero pixels 1.. in row-major order.
+    seed_label = np.zeros(height * width + 1, np.int64)
+    order = np.flatnonzero(seeds.ravel() == 0)
+    label_at = np.zeros(height * width, np.int64)
+    label_at[pts[:, 1] * width + pts[:, 0]] = lab
+    seed_label[1 : order.size + 1] = label_at[order]
+    out[moving] = seed_label[nearest[moving]].astype(np.uint8)
+    return out

@@ -1,0 +1,110 @@
+"""Dense flow, camera residuals and motion masks (mosegpipe.flow, mosegpipe.motion) on scenes the tests draw."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from mosegpipe.flow import FlowConfig, camera_residual, fit_camera, frame_motion
+from mosegpipe.motion import MotionMaskConfig, background_label, label_moving_pixels, moving_masks
+
+
+def _texture(h: int, w: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    noise = rng.uniform(0, 255, (h, w, 3)).astype(np.float32)
+    return np.clip(cv2.GaussianBlur(noise, (0, 0), 2.0) * 3 - 255, 0, 255).astype(np.uint8)
+
+
+def _scene(frames: int = 5, h: int = 144, w: int = 192) -> tuple[np.ndarray, np.ndarray]:
+    """A textured background panning 1 px/frame right and a textured square moving 3 px/frame down-left."""
+    bg = _texture(h + 40, w + 40, 0)
+    obj = _texture(40, 40, 1)
+    obj[..., 0] = 255 - obj[..., 0]  # a colour of its own
+    images, gt = [], []
+    for t in range(frames):
+        im = bg[20 : 20 + h, 20 - t : 20 - t + w].copy()
+        y, x = 40 + 3 * t, 100 - 3 * t
+        im[y : y + 40, x : x + 40] = obj
+        m = np.zeros((h, w), bool)
+        m[y : y + 40, x : x + 40] = True
+        images.append(im)
+        gt.append(m)
+    return np.stack(images), np.stack(gt)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def test_camera_residual_of_a_pure_homography_is_zero() -> None:
+    h, w = 60, 80
+    hom = np.array([[1.01, 0.002, 2.0], [-0.003, 0.99, -1.5], [1e-5, 2e-5, 1.0]])
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    pts = np.stack([xs, ys], -1).reshape(1, -1, 2)
+    flow = (cv2.perspectiveTransform(pts, hom).reshape(h, w, 2) - pts.reshape(h, w, 2)).astype(np.float32)
+    fitted = fit_camera(flow, None, FlowConfig(grid_step_px=4))
+    assert np.abs(camera_residual(flow, fitted)).max() < 0.05
+    # a 2 px patch moving on its own shows as residual exactly there
+    flow[10:20, 10:20, 0] += 2.0
+    res = camera_residual(flow, fit_camera(flow, None, FlowConfig(grid_step_px=4)))
+    assert res[12:18, 12:18].min() > 1.5
+    assert np.median(res) < 0.05
+
+
+def test_frame_motion_separate_the_moving_square() -> None:
+    images, gt = _scene()
+    motion = frame_motion(images, FlowConfig())
+    res = motion.residual
+    assert res.shape == gt.shape and motion.fb_error.shape == gt.shape
+    inner = np.zeros_like(gt)
+    for t in range(len(gt)):
+        inner[t] = cv2.erode(gt[t].astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    assert np.median(res[inner]) > 2.0  # 3 px/frame against a 1 px/frame pan: about 4 px of residual
+    assert np.median(res[~gt]) < 0.5
+
+
+def test_frame_motion_at_half_scale_are_in_that_scale() -> None:
+    images, _ = _scene(frames=2)
+    motion = frame_motion(images, FlowConfig(scale=0.5))
+    assert motion.residual.shape == (2, 72, 96) and motion.scale == 0.5
+    with pytest.raises(ValueError, match="at least 2 frames"):
+        frame_motion(images[:1])
+
+
+def test_moving_masks_find_the_square_and_nothing_when_all_is_still() -> None:
+    images, gt = _scene()
+    cfg = MotionMaskConfig(superpixels=0, work_scale=1.0)  # SLIC cells cut through the noise texture drawn here
+    masks = moving_masks(images, cfg)
+    assert masks.shape == gt.shape and masks.dtype == bool
+    assert np.mean([_iou(m, g) for m, g in zip(masks, gt)]) > 0.75
+    still = np.repeat(images[:1], 4, axis=0)  # the camera and the square stand still: no residual anywhere
+    assert not moving_masks(still, cfg).any()
+
+
+def test_motion_mask_config_refuses_bad_values() -> None:
+    with pytest.raises(ValueError, match="work_scale"):
+        MotionMaskConfig(work_scale=0)
+    with pytest.raises(ValueError, match="colour_bins"):
+        MotionMaskConfig(colour_bins=1)
+    with pytest.raises(ValueError, match="preset"):
+        FlowConfig(preset="slow")
+
+
+def test_background_label_is_the_most_common() -> None:
+    assert background_label(np.array([2, 2, 1, -1, -1, -1])) == 2
+    assert background_label(np.array([-1, -1])) == -1
+
+
+def test_label_moving_pixels_takes_the_nearest_moving_track() -> None:
+    moving = np.zeros((10, 20), bool)
+    moving[2:8, 1:6] = True
+    moving[2:8, 14:19] = True
+    xy = np.array([[3, 4], [16, 4], [10, 5], [18, 9]], np.float32)
+    labels = np.array([1, 2, 0, 0])
+    out = label_moving_pixels(moving, xy, labels, background=0, new_label=3)
+    assert (out[~moving] == 0).all()
+    assert (out[2:8, 1:6] == 1).all() and (out[2:8, 14:19] == 2).all()
+    # no track of a moving motion: the moving pixels get the new label
+    out = label_moving_pixels(moving, xy[2:], labels[2:], background=0, new_label=3)
+    assert (out[moving] == 3).all() and (out[~moving] == 0).all()
