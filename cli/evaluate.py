@@ -17,6 +17,7 @@ from mosegpipe.cli.options import (
     KMax,
     KMethod,
     KMethodChoice,
+    MaskMethodChoice,
     ModelOpt,
     RigidCheck,
     Verbose,
@@ -66,6 +67,8 @@ class ProtocolChoice(StrEnum):
     adelaide_pairs_loo = "adelaide-pairs-loo"
     rendered = "rendered"
     rendered_long = "rendered-long"
+    davis = "davis"
+    davis_clip5 = "davis-clip5"
 
 
 class VariantChoice(StrEnum):
@@ -224,6 +227,10 @@ def eval_(
     k_method: KMethod = KMethodChoice.silhouette,
     k_max: KMax = 8,
     rigid_check: RigidCheck = True,
+    mask_method: Annotated[
+        MaskMethodChoice | None,
+        typer.Option("--mask-method", help="End-to-end protocols: the dense-mask method (default: the pipeline's)."),
+    ] = None,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,
@@ -253,6 +260,7 @@ def eval_(
         k_method=k_method,
         k_max=k_max,
         rigid_check=rigid_check,
+        mask_method=_value(mask_method) if mask_method is not None else None,
         progress=typer.echo,
     )
     result = proto.run(proto, request)

@@ -61,6 +61,7 @@ class MaskMethodChoice(StrEnum):
     watershed = "watershed"
     nearest = "nearest"
     vote = "vote"
+    motion = "motion"
 
 
 def _value(choice: Any) -> Any:
@@ -162,7 +163,7 @@ MaskMethod = Annotated[
     MaskMethodChoice,
     typer.Option(
         "--mask-method",
-        help="Dense masks from track labels: watershed (default: follows image edges), nearest (nearest track) or vote.",
+        help="Dense masks: watershed (default: track labels flooded along image edges), nearest (nearest track), vote, or motion (pixels whose optical flow the camera's motion does not explain, labelled by the tracks).",
         rich_help_panel=_MASKS,
     ),
 ]

@@ -59,7 +59,7 @@ class MotionMaskConfig:
     work_scale: float = 0.5
     eps_px: float = 1.0
     min_residual_px: float = 0.5
-    fb_weight: float = 1.5
+    fb_weight: float = 0.75
     fb_box_px: int = 7
     colour_weight: float = 0.5
     colour_bins: int = 16

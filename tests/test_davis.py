@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -221,3 +222,24 @@ def test_baseline_on_a_real_clip(data_root: Path) -> None:
     row = report.rows[0]
     assert row.frames == 5 and not row.error
     assert row.j_mean > 0.3, row
+
+
+def test_moseg_eval_davis_writes_both_methods(fake_davis: Path, tmp_path: Path) -> None:
+    from helpers import moseg
+
+    out = tmp_path / "out"
+    code, stdout, stderr = moseg(
+        "eval", "davis-clip5", "--data-root", fake_davis.parent, "--out", out, "--folds", "alpha,beta"
+    )
+    assert code == 0, stderr
+    result = json.loads((out / "results.json").read_text())
+    assert result["config"]["mode"] == "clip5"
+    methods = [(r["method"], r["clip"]) for r in result["rows"]]
+    assert methods == [
+        ("pipeline", "alpha"),
+        ("pipeline", "beta"),
+        ("flow-homography", "alpha"),
+        ("flow-homography", "beta"),
+    ]
+    assert result["summary"]["flow-homography"]["all"]["j_mean"] > 0.5
+    assert "DAVIS-2016 clip5, method pipeline" in stdout and "method flow-homography" in stdout

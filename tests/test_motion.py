@@ -108,3 +108,36 @@ def test_label_moving_pixels_takes_the_nearest_moving_track() -> None:
     # no track of a moving motion: the moving pixels get the new label
     out = label_moving_pixels(moving, xy[2:], labels[2:], background=0, new_label=3)
     assert (out[moving] == 3).all() and (out[~moving] == 0).all()
+
+
+def test_segment_frames_with_motion_masks_marks_the_square_as_moving() -> None:
+    from mosegpipe.masks import MaskConfig
+    from mosegpipe.pipeline import PipelineConfig, segment_frames
+    from mosegpipe.types import Frames
+
+    images, gt = _scene()
+    cfg = PipelineConfig(mask=MaskConfig(method="motion", motion=MotionMaskConfig(superpixels=0, work_scale=1.0)))
+    result = segment_frames(Frames(images=images), cfg)
+    background = background_label(result.clustering.labels)
+    moving = result.masks != background
+    assert result.masks.shape == gt.shape and not (result.masks == 255).any()
+    assert np.mean([_iou(m, g) for m, g in zip(moving, gt)]) > 0.7
+
+
+def test_video_frame_mask_uses_the_moving_pixels() -> None:
+    from mosegpipe.masks import MOVING_UNCLUSTERED, MaskConfig
+    from mosegpipe.pipeline import VideoFrame, frame_mask
+
+    image = _texture(40, 60, 3)
+    moving = np.zeros((40, 60), bool)
+    moving[10:20, 30:45] = True
+    xy = np.array([[5, 5], [50, 30], [10, 35], [36, 15]], np.float32)
+    ids = np.arange(4)
+    frame = VideoFrame(0, image, ids, xy, np.array([0, 0, 0, 3]), None, moving)
+    mask = frame_mask(frame, MaskConfig(method="motion"))
+    assert (mask[~moving] == 0).all() and (mask[moving] == 3).all()
+    # only background tracks: the moving pixels are a motion of their own
+    frame = VideoFrame(0, image, ids, xy, np.array([0, 0, 0, -1]), None, moving)
+    assert (frame_mask(frame, MaskConfig(method="motion"))[moving] == MOVING_UNCLUSTERED).all()
+    # another method ignores the moving pixels
+    assert frame_mask(frame, MaskConfig(method="nearest"))[15, 40] == 0

@@ -56,6 +56,9 @@ log = logging.getLogger(__name__)
 MODES: dict[str, int | None] = {"clip5": 5, "whole": None}
 """Mode -> frames read from each clip's start (None = all)."""
 
+DAVIS_MODES = {"davis": "whole", "davis-clip5": "clip5"}
+"""`moseg eval` protocol name -> mode."""
+
 MaskMethod = Callable[[DavisClip, str], npt.NDArray[np.uint8]]
 """A mask method: (clip, mode) -> (T, H, W) uint8 labels for clip.images, k = motion k, 255 = unknown.
 
@@ -252,7 +255,7 @@ def flow_homography_labels(
     return out
 
 
-def pipeline_method(cfg: PipelineConfig | None = None) -> MaskMethod:
+def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | None = None) -> MaskMethod:
     """The pipeline as a mask method: segment_clip on the frames folder for "clip5", segment_video
     for "whole" (window length cfg.frames), both from clip.start over clip.num_frames frames.
 
@@ -262,6 +265,7 @@ def pipeline_method(cfg: PipelineConfig | None = None) -> MaskMethod:
     Args:
         cfg: pipeline settings (None = the defaults). For "clip5" cfg.frames and cfg.start are set
             from the clip.
+        checkpoint: a checkpoint instead of the shipped weights.
     """
     from mosegpipe.inference import Embedder, load_embedder
 
@@ -270,7 +274,7 @@ def pipeline_method(cfg: PipelineConfig | None = None) -> MaskMethod:
 
     def model_for(frames: int) -> Embedder:
         if frames not in models:
-            models[frames] = load_embedder(frames)
+            models[frames] = load_embedder(frames, checkpoint)
         return models[frames]
 
     def run(clip: DavisClip, mode: str) -> npt.NDArray[np.uint8]:
@@ -414,6 +418,7 @@ def run_davis(
     part: str = "all",
     cfg: PipelineConfig | None = None,
     threads: int | None = 1,
+    name: str | None = None,
 ) -> DavisReport:
     """Runs a mask method on DAVIS clips and scores it.
 
@@ -426,6 +431,7 @@ def run_davis(
         cfg: pipeline settings for method "pipeline" (None = defaults).
         threads: set torch / OpenCV / BLAS threads to this first (runtime.set_threads; one is fastest
             on the 2-core machines); None leaves them as they are.
+        name: the method's name in the report (None = the name given, or the callable's __name__).
 
     Returns:
         DavisReport, rows in clip order.
@@ -436,7 +442,8 @@ def run_davis(
     """
     max_frames = MODES[check_choice("mode", mode, MODES)]
     run = get_method(method, cfg)
-    name = method if isinstance(method, str) else getattr(method, "__name__", "custom")
+    if name is None:
+        name = method if isinstance(method, str) else getattr(method, "__name__", "custom")
     if threads is not None:
         set_threads(threads)
     names = davis_split(list(clips) if clips is not None else list_davis_clips(root), part)

@@ -56,6 +56,7 @@ class EvalRequest:
         k_max: largest K considered by automatic K.
         rigid_check: end-to-end protocols: run the rigid-motion check after automatic K
             (PipelineConfig.rigid; False = automatic K alone, as before the check existed).
+        mask_method: end-to-end protocols: the dense-mask method (MaskConfig.method; None = the default).
         progress: called with one line per fold / stage.
     """
 
@@ -76,6 +77,7 @@ class EvalRequest:
     k_method: str = "silhouette"
     k_max: int = 8
     rigid_check: bool = True
+    mask_method: str | None = None
     progress: Callable[[str], None] | None = field(default=None, compare=False)
 
 
@@ -191,14 +193,19 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
     from dataclasses import replace
 
     from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.rigid import RigidCheckConfig
 
     k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
+    mask = MaskConfig()
+    if req.mask_method is not None:
+        mask = replace(mask, method=check_choice("--mask-method", req.mask_method, MASK_METHODS))
     return PipelineConfig(
         frames=frames,
         cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max),
         rigid=RigidCheckConfig(enabled=req.rigid_check),
+        mask=mask,
     )
 
 
@@ -223,6 +230,50 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     }
     table = format_rows(rows)
     summary = summarize_rows(rows)
+    write_results(req.out_dir, rows, summary, config, table)
+    return EvalResult(rows, summary, table)
+
+
+def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
+    """DAVIS-2016 train clips (evaluation.davis): the pipeline's dense masks against the human masks of the
+    main moving object, J and F per clip and over the dev / val / all clips; with any --baselines also
+    the classical flow-homography reference on the same frames. `req.folds` picks clips by name.
+    """
+    from dataclasses import asdict
+
+    from mosegpipe.evaluation.davis import DAVIS_MODES, format_table, pipeline_method, run_davis
+    from mosegpipe.evaluation.report import write_results
+
+    if req.data_root is None:
+        raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
+    mode = DAVIS_MODES[protocol.name]
+    cfg = _pipeline_config(req, req.frames or protocol.default_frames)
+    methods: list[tuple[str, Any]] = [("pipeline", pipeline_method(cfg, req.model))]
+    if req.baselines:
+        methods.append(("flow-homography", "flow-homography"))
+    rows: list[dict[str, Any]] = []
+    tables, summary = [], {}
+    for name, method in methods:
+        report = run_davis(req.data_root, mode, method, clips=req.folds, threads=None, name=name)
+        rows += [{"method": name, **asdict(r)} for r in report.rows]
+        summary[name] = report.means
+        tables.append(format_table(report))
+        if req.progress is not None:
+            req.progress(
+                f"{name}: " + ", ".join(f"{p} J {m['j_mean']:.3f} F {m['f_mean']:.3f}" for p, m in report.means.items())
+            )
+    config = {
+        "protocol": protocol.name,
+        "mode": mode,
+        "frames": cfg.frames,
+        "mask_method": cfg.mask.method,
+        "k_method": req.k_method,
+        "k_max": req.k_max,
+        "rigid_check": req.rigid_check,
+        "model": str(req.model or "shipped default"),
+        "clips": list(req.folds) if req.folds else "all",
+    }
+    table = "\n\n".join(tables)
     write_results(req.out_dir, rows, summary, config, table)
     return EvalResult(rows, summary, table)
 
@@ -531,6 +582,26 @@ _PROTOCOLS: Sequence[Protocol] = (
         run=run_end_to_end,
         kind="end-to-end",
         end_to_end=_rendered_long,
+    ),
+)
+
+_PROTOCOLS = (
+    *_PROTOCOLS,
+    Protocol(
+        "davis",
+        "DAVIS-2016 train clips, whole-video mode: dense masks vs the moving object's human masks, J and F, dev / val",
+        default_frames=5,
+        data="davis2016-train",
+        run=run_davis_protocol,
+        kind="end-to-end",
+    ),
+    Protocol(
+        "davis-clip5",
+        "DAVIS-2016 train clips, the first 5 frames of each as one clip: J and F, dev / val",
+        default_frames=5,
+        data="davis2016-train",
+        run=run_davis_protocol,
+        kind="end-to-end",
     ),
 )
 

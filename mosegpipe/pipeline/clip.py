@@ -15,7 +15,7 @@ from mosegpipe.cluster import cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.inference import Embedder
 from mosegpipe.io import check_images, read_video, video_info
-from mosegpipe.masks import labels_to_masks
+from mosegpipe.masks import labels_to_masks, motion_masks
 from mosegpipe.pipeline.common import (
     _check_k,
     _frames,
@@ -122,6 +122,8 @@ def clip_masks(
     Returns:
         (T, H, W) uint8 masks, 255 = unknown.
     """
+    if cfg.mask.method == "motion" and images.shape[0] >= 2:
+        return motion_masks(images, tracks, track_ids, labels, cfg.mask)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:
         corners = spread_corners(images[0], budget, tracks.xy[tracks.visible[:, 0], 0], cfg.track)

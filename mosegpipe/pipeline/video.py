@@ -31,7 +31,8 @@ from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
-from mosegpipe.masks import MaskConfig, labels_to_mask
+from mosegpipe.masks import MaskConfig, labels_to_mask, moving_to_labels
+from mosegpipe.motion import moving_masks
 from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels
@@ -59,6 +60,8 @@ class VideoFrame:
             the label the window before gave it.
         mask: (H, W) uint8, label = motion, 255 = unknown; None when segment_video was asked for
             no masks (see `frame_mask`).
+        moving: (H, W) bool moving pixels from the window's dense flow (mask method "motion"); None
+            with the other methods and in windows of one frame.
     """
 
     index: int
@@ -67,6 +70,7 @@ class VideoFrame:
     xy: npt.NDArray[np.float32]
     labels: npt.NDArray[np.int64]
     mask: npt.NDArray[np.uint8] | None
+    moving: npt.NDArray[np.bool_] | None = None
 
 
 def frame_mask(frame: VideoFrame, cfg: MaskConfig = MaskConfig()) -> npt.NDArray[np.uint8]:
@@ -77,6 +81,8 @@ def frame_mask(frame: VideoFrame, cfg: MaskConfig = MaskConfig()) -> npt.NDArray
     """
     if frame.mask is not None:
         return frame.mask
+    if cfg.method == "motion" and frame.moving is not None:
+        return moving_to_labels(frame.moving, frame.xy, frame.labels, image=frame.image, cfg=cfg)
     keep = frame.labels >= 0
     return labels_to_mask(frame.xy[keep], frame.labels[keep], frame.image.shape[:2], cfg, frame.image)
 
@@ -384,8 +390,14 @@ def _label_window(
         "frames %d-%d: %d tracks, K = %d%s", window[0][0], window[-1][0], common.size, found.k, note and f"; {note}"
     )
     by_id = found.by_id()
-    new = window[1:] if first_labelled else window
-    labelled = tuple(_labelled_frame(item, by_id, before, cfg.mask, masks) for item in new)
+    moving: npt.NDArray[np.bool_] | list[None] = [None] * len(window)
+    if cfg.mask.method == "motion" and len(window) >= 2:
+        moving = moving_masks(np.stack([img for _, img, _, _ in window]), cfg.mask.motion)
+    skip = 1 if first_labelled else 0
+    labelled = tuple(
+        _labelled_frame(item, by_id, before, cfg.mask, masks, moved)
+        for item, moved in zip(window[skip:], moving[skip:])
+    )
     run.num_windows += 1
     result = WindowResult(
         start=window[0][0],
@@ -408,12 +420,17 @@ def _label_window(
 
 
 def _labelled_frame(
-    item: _Frame, labels: dict[int, int], before: dict[int, int], cfg: MaskConfig, masks: bool
+    item: _Frame,
+    labels: dict[int, int],
+    before: dict[int, int],
+    cfg: MaskConfig,
+    masks: bool,
+    moving: npt.NDArray[np.bool_] | None = None,
 ) -> VideoFrame:
     """One frame with its tracks' labels (`labels`, else the window before's `before`, else -1) and its mask."""
     t, img, ids, xy = item
     lab = np.array([labels.get(int(i), before.get(int(i), -1)) for i in ids], dtype=np.int64)
-    frame = VideoFrame(t, img, ids, xy, lab, None)
+    frame = VideoFrame(t, img, ids, xy, lab, None, moving)
     return replace(frame, mask=frame_mask(frame, cfg)) if masks else frame
 
 
