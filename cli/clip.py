@@ -24,6 +24,8 @@ from mosegpipe.cli.options import (
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
+    Method,
+    MethodChoice,
     ModelOpt,
     NoRrd,
     Overwrite,
@@ -72,6 +74,7 @@ def run(
         ),
     ] = True,
     clustering: ClusterOptions = ClusterOptions(),
+    method: Method = MethodChoice.subspacenet,
     rigid_check: RigidCheck = True,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
@@ -107,6 +110,7 @@ def run(
     cfg = _pipeline_cfg(
         frames,
         clustering,
+        segment_method=method,
         start=start,
         rigid_check=rigid_check,
         shot_cuts=shot_cuts,
@@ -217,6 +221,7 @@ def tracks(
         typer.Option("--frames", "-f", min=2, help="Window length (default: from --start to the last frame)."),
     ] = None,
     clustering: ClusterOptions = ClusterOptions(),
+    method: Method = MethodChoice.subspacenet,
     rigid_check: RigidCheck = True,
     model: ModelOpt = None,
     overwrite: Overwrite = False,
@@ -241,7 +246,7 @@ def tracks(
 
     xy, visible = read_tracks_file(file)
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
-    cfg = _pipeline_cfg(max(2, window), clustering, start=start, rigid_check=rigid_check)
+    cfg = _pipeline_cfg(max(2, window), clustering, segment_method=method, start=start, rigid_check=rigid_check)
     out = out or _default_out(file, "_moseg")
     check_output_dir(out, overwrite)
     net = load_embedder(max(2, window), model)

@@ -18,6 +18,7 @@ from mosegpipe.cli.options import (
     KMethod,
     KMethodChoice,
     MaskMethodChoice,
+    MethodChoice,
     ModelOpt,
     RigidCheck,
     Verbose,
@@ -231,6 +232,13 @@ def eval_(
         MaskMethodChoice | None,
         typer.Option("--mask-method", help="End-to-end protocols: the dense-mask method (default: the pipeline's)."),
     ] = None,
+    method: Annotated[
+        MethodChoice | None,
+        typer.Option(
+            "--method",
+            help="End-to-end protocols: how tracks become motions, subspacenet or geometric (default: the pipeline's).",
+        ),
+    ] = None,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,
@@ -261,6 +269,7 @@ def eval_(
         k_max=k_max,
         rigid_check=rigid_check,
         mask_method=_value(mask_method) if mask_method is not None else None,
+        method=_value(method) if method is not None else None,
         progress=typer.echo,
     )
     result = proto.run(proto, request)

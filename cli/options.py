@@ -64,6 +64,13 @@ class MaskMethodChoice(StrEnum):
     motion = "motion"
 
 
+class MethodChoice(StrEnum):
+    """--method: the values of mosegpipe.pipeline.config.SEGMENT_METHODS (a test keeps them equal)."""
+
+    subspacenet = "subspacenet"
+    geometric = "geometric"
+
+
 def _value(choice: Any) -> Any:
     """The plain value of an Enum choice (what the library and summary.json take)."""
     return choice.value if isinstance(choice, Enum) else choice
@@ -72,6 +79,17 @@ def _value(choice: Any) -> Any:
 KMethod = Annotated[
     KMethodChoice,
     typer.Option("--k-method", help="Automatic K: silhouette (default, more often right) or residual (faster)."),
+]
+
+
+Method = Annotated[
+    MethodChoice,
+    typer.Option(
+        "--method",
+        help="How tracks become motions: subspacenet (default: the learned embedding, automatic K, the rigid-motion "
+        "check) or geometric (homographies / fundamental matrices fitted one after another, automatic K; "
+        "no model needed). moseg pair always uses the embedding.",
+    ),
 ]
 
 
@@ -334,6 +352,7 @@ def _pipeline_cfg(
     frames: int,
     clustering: ClusterOptions,
     *,
+    segment_method: MethodChoice | str = MethodChoice.subspacenet,
     start: int = 0,
     rigid_check: bool = True,
     shot_cuts: bool = True,
@@ -344,12 +363,15 @@ def _pipeline_cfg(
     """The PipelineConfig of a command's options (tracker / masks None: the library's defaults;
     mask_extra_tracks None: not an option of the command)."""
     from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.grouping import GeometricConfig
     from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.pipeline.config import SEGMENT_METHODS
     from mosegpipe.rigid import RigidCheckConfig
     from mosegpipe.track import TrackConfig
 
     method = cast(KMethodName, check_choice("--k-method", _value(clustering.k_method), get_args(KMethodName)))
+    segment = check_choice("--method", _value(segment_method), SEGMENT_METHODS)
     track = tracker.config_fields() if tracker is not None else {}
     mask = masks.config_fields() if masks is not None else {}
     if mask_extra_tracks is not None:
@@ -366,8 +388,10 @@ def _pipeline_cfg(
         frames=frames,
         start=start,
         k=clustering.k,
+        method=segment,
         track=track_cfg,
         cluster=replace(ClusterConfig(), method=method, k_max=clustering.k_max),
+        geometric=replace(GeometricConfig(), k_max=clustering.k_max),
         rigid=RigidCheckConfig(enabled=rigid_check),
         mask=mask_cfg,
         video_cut_survival=PipelineConfig().video_cut_survival if shot_cuts else None,

@@ -57,6 +57,8 @@ class EvalRequest:
         rigid_check: end-to-end protocols: run the rigid-motion check after automatic K
             (PipelineConfig.rigid; False = automatic K alone, as before the check existed).
         mask_method: end-to-end protocols: the dense-mask method (MaskConfig.method; None = the default).
+        method: end-to-end protocols: how tracks become motions (PipelineConfig.method, "subspacenet" or
+            "geometric"; None = the default). With "geometric", k_max bounds its K too.
         progress: called with one line per fold / stage.
     """
 
@@ -78,6 +80,7 @@ class EvalRequest:
     k_max: int = 8
     rigid_check: bool = True
     mask_method: str | None = None
+    method: str | None = None
     progress: Callable[[str], None] | None = field(default=None, compare=False)
 
 
@@ -193,8 +196,10 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
     from dataclasses import replace
 
     from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.grouping import GeometricConfig
     from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.pipeline.config import SEGMENT_METHODS
     from mosegpipe.rigid import RigidCheckConfig
 
     k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
@@ -203,8 +208,10 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
         mask = replace(mask, method=check_choice("--mask-method", req.mask_method, MASK_METHODS))
     return PipelineConfig(
         frames=frames,
+        method=check_choice("--method", req.method or PipelineConfig.method, SEGMENT_METHODS),
         cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max),
         rigid=RigidCheckConfig(enabled=req.rigid_check),
+        geometric=replace(GeometricConfig(), k_max=req.k_max),
         mask=mask,
     )
 

@@ -13,6 +13,7 @@ import numpy.typing as npt
 
 from mosegpipe.cluster import cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder
 from mosegpipe.io import check_images, read_video, video_info
 from mosegpipe.masks import labels_to_masks, motion_masks
@@ -40,7 +41,7 @@ class ClipResult:
         frames: the frames segmented.
         tracks: all KLT tracks (N_all, T).
         trajectories: the tracks visible in all frames (N rows, track_ids into `tracks`).
-        embeddings: (N, E) float32 SubspaceNet embeddings.
+        embeddings: (N, E) float32 SubspaceNet embeddings ((N, 0) with method "geometric").
         clustering: labels (N,) and the automatic-K evidence.
         masks: (T, H, W) uint8, k = motion k, 255 = no track nearby (unknown).
         timings: seconds per stage.
@@ -55,6 +56,37 @@ class ClipResult:
     masks: npt.NDArray[np.uint8]
     timings: dict[str, float]
     model_info: dict[str, Any]
+
+
+def group_tracks(
+    traj: Trajectories, size_hw: tuple[int, int], cfg: PipelineConfig, model: Embedder, timings: dict[str, float]
+) -> tuple[npt.NDArray[np.float32], Clustering]:
+    """The motions of trajectories by cfg.method: embedding + automatic K + the rigid-motion check
+    ("subspacenet"), or rigid models fitted one after another ("geometric", no embedding: (N, 0)).
+
+    Args:
+        traj: the trajectories (N, 2F), pixels.
+        size_hw: (H, W) of the frames, pixels.
+        cfg: method, cluster, rigid, geometric and k.
+        model: the embedding model (not used by "geometric").
+        timings: gets "embed" (subspacenet) and "cluster" seconds.
+
+    Returns:
+        ((N, E) float32 embeddings, the clustering).
+    """
+    if cfg.method == "geometric":
+        t0 = time.perf_counter()
+        clustering = group_geometric(traj.data, size_hw, cfg.geometric, k=cfg.k)
+        timings["cluster"] = time.perf_counter() - t0
+        return np.zeros((traj.num_points, 0), dtype=np.float32), clustering
+    t0 = time.perf_counter()
+    emb = embed_at_model_frames(model, traj)
+    timings["embed"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
+    clustering = check_rigid(clustering, traj.data, size_hw, cfg)
+    timings["cluster"] = time.perf_counter() - t0
+    return emb, clustering
 
 
 def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: Embedder | None = None) -> ClipResult:
@@ -86,13 +118,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
             f"need at least {cfg.min_tracks} (textureless or blank frames?)"
         )
     _check_k(cfg.k, traj.num_points, frames.source or "clip")
-    t0 = time.perf_counter()
-    emb = embed_at_model_frames(model, traj)
-    timings["embed"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
-    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
-    timings["cluster"] = time.perf_counter() - t0
+    emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
     t0 = time.perf_counter()
     masks = clip_masks(frames.images, tracks, traj.track_ids, clustering.labels, cfg)
     timings["masks"] = time.perf_counter() - t0

@@ -14,11 +14,16 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 from mosegpipe.cluster import ClusterConfig
-from mosegpipe.errors import InputError
+from mosegpipe.errors import InputError, check_choice
+from mosegpipe.grouping import GeometricConfig
 from mosegpipe.masks import MaskConfig
 from mosegpipe.match import MatchConfig
 from mosegpipe.rigid import RigidCheckConfig
 from mosegpipe.track import TrackConfig
+
+SEGMENT_METHODS = ("subspacenet", "geometric")
+"""How tracks become motions: "subspacenet" (the learned embedding, automatic K by K-means, the rigid-motion
+check) or "geometric" (sequential homography / fundamental-matrix fitting, mosegpipe.grouping)."""
 
 
 @dataclass(frozen=True)
@@ -31,6 +36,10 @@ class PipelineConfig:
             segment_clip reads frames start .. start + F - 1, segment_video starts its first window
             there. Not used by segment_frames / segment_pair (they are given their images).
         k: force this many motions (None = automatic K).
+        method: how tracks become motions (SEGMENT_METHODS): "subspacenet" embeds them and clusters
+            the embeddings (cluster, rigid); "geometric" fits rigid motions to them one after another
+            (mosegpipe.grouping.group_geometric with `geometric`; no embedding, no rigid-motion check).
+            Pairs are always segmented with the embedding.
         min_tracks: fewer surviving tracks / matches than this is an error (too little texture).
         track: KLT settings.
         match: SIFT matching settings (pairs).
@@ -38,6 +47,7 @@ class PipelineConfig:
         rigid: the rigid-motion check after automatic K (clips, whole videos, tracks; not pairs, not
             with k given): groups of tracks that their cluster's rigid motion does not explain
             become clusters of their own (mosegpipe.rigid).
+        geometric: the settings of method "geometric".
         mask: dense-mask settings.
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix RANSAC fit explains less
             than this fraction of its points is labelled as outliers.
@@ -53,17 +63,20 @@ class PipelineConfig:
     frames: int = 5
     start: int = 0
     k: int | None = None
+    method: str = "subspacenet"  # a summary without it was made before "geometric" existed
     min_tracks: int = 10
     track: TrackConfig = field(default_factory=TrackConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     rigid: RigidCheckConfig = field(default_factory=RigidCheckConfig)
+    geometric: GeometricConfig = field(default_factory=GeometricConfig)
     mask: MaskConfig = field(default_factory=MaskConfig)
     outlier_inlier_ratio: float = 0.5
     video_k_step: int | None = 2
     video_cut_survival: float | None = 0.25
 
     def __post_init__(self) -> None:
+        check_choice("method", self.method, SEGMENT_METHODS)
         if self.video_k_step is not None and self.video_k_step < 1:
             raise InputError(f"video_k_step={self.video_k_step} must be at least 1 (or None: no limit)")
         if self.video_cut_survival is not None and not 0 < self.video_cut_survival < 1:

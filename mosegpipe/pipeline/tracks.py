@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.inference import Embedder
-from mosegpipe.pipeline.common import _check_k, _model_or_default, check_rigid, embed_at_model_frames, model_info
+from mosegpipe.pipeline.clip import group_tracks
+from mosegpipe.pipeline.common import _check_k, _model_or_default, model_info
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import Clustering, Tracks, Trajectories
@@ -26,7 +25,7 @@ class TracksResult:
         tracks: the tracks as given (N tracks over T frames).
         trajectories: the tracks visible in every frame of the window (M rows, track_ids into `tracks`).
         start: first frame of the window segmented.
-        embeddings: (M, E) float32 SubspaceNet embeddings.
+        embeddings: (M, E) float32 SubspaceNet embeddings ((M, 0) with method "geometric").
         clustering: labels (M,) and the automatic-K evidence.
         labels: (N,) int64 motion of every given track, -1 for a track not visible throughout the window.
         timings: seconds per stage.
@@ -55,7 +54,8 @@ def segment_tracks(
 
     Tracks visible in every frame of the window [start, start + frames) are embedded (resampled in
     time to the model's frame count when the window is longer or shorter) and clustered with
-    cfg.cluster; the others get label -1.
+    cfg.cluster (or, with cfg.method "geometric", grouped by rigid models fitted to them, with no
+    embedding); the others get label -1.
 
     Args:
         xy: (N, T, 2) pixel coordinates, x right and y down (CoTracker's (T, N, 2) output transposed).
@@ -102,13 +102,7 @@ def segment_tracks(
             f"need at least {cfg.min_tracks} (choose a shorter window with frames/start)"
         )
     _check_k(cfg.k, traj.num_points, "tracks")
-    t0 = time.perf_counter()
-    emb = embed_at_model_frames(model, traj)
-    timings["embed"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
-    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
-    timings["cluster"] = time.perf_counter() - t0
+    emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
     labels = np.full(num, -1, dtype=np.int64)
     labels[traj.track_ids] = clustering.labels
     return TracksResult(tracks, traj, start, emb, clustering, labels, timings, model_info(model))

@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
 from mosegpipe.masks import MaskConfig, labels_to_mask, moving_to_labels
@@ -350,7 +351,7 @@ def _window_sweep(cfg: PipelineConfig, prev_k: int) -> ClusterConfig:
 def _cluster_window(
     window: list[_Frame], cfg: PipelineConfig, model: Embedder, run: _VideoRun
 ) -> tuple[npt.NDArray[np.int64], _WindowLabels]:
-    """Clusters the tracks live through the whole window and maps the clusters to global labels.
+    """Clusters the tracks live through the whole window (by cfg.method) and maps the clusters to global labels.
 
     Returns:
         (tracker ids of the tracks live through the whole window, their global labels; k = 0 when
@@ -365,13 +366,17 @@ def _cluster_window(
     if common.size < max(cfg.min_tracks, 2):
         log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
         return common, _WindowLabels()
-    emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
     forced = None if cfg.k is None else min(cfg.k, common.size)
-    with _warnings_held(logging.getLogger(cluster_auto_k.__module__)):
-        sweep = _window_sweep(cfg, run.prev_k)
-        clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
-    sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
-    clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
+    if cfg.method == "geometric":  # rigid models fitted one after another: no embedding, no check
+        clustering = group_geometric(traj.data, tracks.size_hw, cfg.geometric, k=forced)
+        sweep_k = clustering.k
+    else:
+        emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
+        with _warnings_held(logging.getLogger(cluster_auto_k.__module__)):
+            sweep = _window_sweep(cfg, run.prev_k)
+            clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
+        sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
+        clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
     glob = match_labels(run.prev, common, clustering.labels, clustering.k, run.book, run.num_windows)
     found = _WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[glob >= 0], glob[glob >= 0])
     run.prev, run.prev_k = found.by_id(), sweep_k

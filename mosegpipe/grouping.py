@@ -1,0 +1,278 @@
+"""Geometric grouping: motions found by sequential multi-model fitting, no learned embedding.
+
+`group_geometric` explains the tracks of a window with as few rigid two-view models as it can, one
+after another (sequential RANSAC with automatic K):
+
+1. On the tracks not yet explained, fit a homography and a fundamental matrix from frame 0 to frame
+   F - 1 by RANSAC (OpenCV USAC_MAGSAC, inlier distance `residual_px`). Each is then refined on all
+   frames: from its RANSAC inliers a model is fitted by least squares for every frame pair (0, t),
+   t = 1 .. F - 1, and a track's residual is the largest over those pairs (transfer error for the
+   homography, Sampson distance for the fundamental matrix, pixels); the inliers to `residual_px`
+   are refitted once more. So a track must follow the motion in every frame, not only the last.
+2. The model of the group is the homography unless the fundamental matrix explains clearly more
+   tracks (the homography keeps fewer than `homography_ratio` of its inliers) and the tracks that
+   only it explains are not one planar motion of their own. A fundamental matrix is degenerate for
+   a camera that stands still or only rotates (a planar background): it then also explains an
+   object that translates, which the second condition keeps from being swallowed. With parallax (a
+   camera moving through a 3D scene) the homography explains only one depth layer and the
+   fundamental matrix, explaining all depths, wins: the scene stays one group.
+3. The group's inliers are removed and the next group is fitted, until the next one would hold
+   fewer than `min_group` tracks or `min_share` of all tracks, or K reaches `k_max`. With K given,
+   exactly K models are fitted whatever their size.
+4. Every track is labelled with the model that fits it best (smallest residual): leftovers (tracker
+   failures, points of motions too small to be a group) join the group whose motion they follow
+   most closely. With automatic K, a group left with fewer than the minimum is dissolved the same way.
+
+Memory is O(N K): per track one residual per model, no N x N matrices. On rigid objects moving over
+planar backgrounds this is the right model; on articulated or deforming objects (people, animals)
+one rigid model per object does not hold, and the learned embedding may do better.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.cluster import kmeans, relabel_by_size
+from mosegpipe.errors import InputError
+from mosegpipe.rigid import _MIN_FUNDAMENTAL, _h_residual_px, _sampson_px
+from mosegpipe.types import Clustering
+
+logger = logging.getLogger(__name__)
+
+ModelKind = Literal["homography", "fundamental"]
+
+_MIN_HOMOGRAPHY = 4  # points that determine a homography
+
+
+@dataclass(frozen=True)
+class GeometricConfig:
+    """Settings of `group_geometric` (see the module docstring for what each one does).
+
+    Attributes:
+        residual_px: a track within this many pixels of a model (in every frame pair) is its inlier;
+            also RANSAC's inlier distance.
+        min_group: with automatic K, the smallest group, in tracks.
+        min_share: with automatic K, the smallest group as a share of all tracks, in [0, 1); the
+            larger of the two minimums applies.
+        k_max: with automatic K, the most groups fitted.
+        homography_ratio: the homography is the group's model when it keeps at least this fraction
+            of the fundamental matrix's inliers, in (0, 1].
+        planar_share: the tracks that only the fundamental matrix explains are one planar motion of
+            their own (and the homography stays the model) when one homography explains at least
+            this share of them, in (0, 1].
+        ransac_iters: RANSAC iterations per model.
+        confidence: RANSAC's confidence, in (0, 1).
+        seed: OpenCV's random seed, set before each grouping (same seed, same labels).
+    """
+
+    residual_px: float = 1.5  # KLT tracks of textured points: about 0.5 px noise; rigid.py's threshold
+    min_group: int = 10  # fewer tracks barely constrain a model (8 for a fundamental matrix)
+    min_share: float = 0.02  # on 1000 tracks, a group of 20: a small object, not a patch of tracker errors
+    k_max: int = 8  # as ClusterConfig.k_max: benchmarks have at most 5 motions
+    homography_ratio: float = 0.9  # parallax must add a tenth more inliers before the fundamental matrix is used
+    planar_share: float = 0.8  # one plane explaining 4/5 of the extra inliers is an object, not depth
+    ransac_iters: int = 2000  # USAC_MAGSAC converges in far fewer on these inlier shares
+    confidence: float = 0.999  # OpenCV's default for findFundamentalMat
+    seed: int = 0  # fixed so that repeated runs give identical labels
+
+    def __post_init__(self) -> None:
+        if not self.residual_px > 0:
+            raise InputError(f"geometric grouping: residual_px={self.residual_px} must be positive")
+        if self.min_group < 1:
+            raise InputError(f"geometric grouping: min_group={self.min_group} must be at least 1")
+        if not 0 <= self.min_share < 1:
+            raise InputError(f"geometric grouping: min_share={self.min_share} must lie in [0, 1)")
+        if self.k_max < 1:
+            raise InputError(f"geometric grouping: k_max={self.k_max} must be at least 1")
+        for name in ("homography_ratio", "planar_share"):
+            if not 0 < getattr(self, name) <= 1:
+                raise InputError(f"geometric grouping: {name}={getattr(self, name)} must lie in (0, 1]")
+        if self.ransac_iters < 1:
+            raise InputError(f"geometric grouping: ransac_iters={self.ransac_iters} must be at least 1")
+        if not 0 < self.confidence < 1:
+            raise InputError(f"geometric grouping: confidence={self.confidence} must lie in (0, 1)")
+
+
+@dataclass(frozen=True)
+class _Model:
+    """One rigid motion over the window: a 3x3 matrix per frame pair (0, t), t = 1 .. F - 1."""
+
+    kind: ModelKind
+    mats: tuple[npt.NDArray[np.float64], ...]
+
+    def residuals(self, xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """(M, F, 2) positions -> (M,) largest residual over the frame pairs, pixels."""
+        pair = _h_residual_px if self.kind == "homography" else _sampson_px
+        a = np.ascontiguousarray(xy[:, 0])
+        res = [pair(m, a, np.ascontiguousarray(xy[:, t + 1])) for t, m in enumerate(self.mats)]
+        return np.asarray(np.max(res, axis=0))
+
+
+def _least_squares(
+    kind: ModelKind, a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64] | None:
+    """The model of all correspondences a -> b (no RANSAC), None when degenerate."""
+    if kind == "homography":
+        mat, _ = cv2.findHomography(a, b, 0)
+    else:
+        mat, _ = cv2.findFundamentalMat(a, b, cv2.FM_8POINT)
+    if mat is None or mat.shape != (3, 3) or not np.all(np.isfinite(mat)):
+        return None
+    return np.asarray(mat, dtype=np.float64)
+
+
+def _fit(
+    kind: ModelKind, xy: npt.NDArray[np.float64], cfg: GeometricConfig
+) -> tuple[_Model, npt.NDArray[np.bool_]] | None:
+    """The model of most of the tracks xy (M, F, 2) and its inliers (M,), or None (too few / degenerate)."""
+    least = _MIN_HOMOGRAPHY if kind == "homography" else _MIN_FUNDAMENTAL
+    if len(xy) < least:
+        return None
+    a, b = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, -1])
+    if kind == "homography":
+        mat, mask = cv2.findHomography(
+            a, b, cv2.USAC_MAGSAC, cfg.residual_px, maxIters=cfg.ransac_iters, confidence=cfg.confidence
+        )
+    else:
+        mat, mask = cv2.findFundamentalMat(a, b, cv2.USAC_MAGSAC, cfg.residual_px, cfg.confidence, cfg.ransac_iters)
+    if mat is None or mat.shape != (3, 3) or mask is None:
+        return None
+    inliers = mask.ravel().astype(bool)
+    best: tuple[_Model, npt.NDArray[np.bool_]] | None = None
+    for _ in range(2):  # least squares on every frame pair from the inliers, then once more from its own
+        if inliers.sum() < least:
+            break
+        mats = [_least_squares(kind, a[inliers], np.ascontiguousarray(xy[inliers, t])) for t in range(1, xy.shape[1])]
+        if any(m is None for m in mats):
+            break
+        model = _Model(kind, tuple(m for m in mats if m is not None))
+        found = model.residuals(xy) <= cfg.residual_px
+        if best is not None and found.sum() < best[1].sum():
+            break
+        best = (model, found)
+        inliers = found
+    return best
+
+
+def _fit_group(xy: npt.NDArray[np.float64], cfg: GeometricConfig) -> tuple[_Model, npt.NDArray[np.bool_]] | None:
+    """The rigid motion of most of the tracks xy (M, F, 2): homography or fundamental matrix (step 2)."""
+    hom = _fit("homography", xy, cfg)
+    fun = _fit("fundamental", xy, cfg)
+    if fun is None:
+        return hom
+    if hom is None:
+        return fun
+    h_in, f_in = hom[1], fun[1]
+    if h_in.sum() >= cfg.homography_ratio * f_in.sum():
+        return hom
+    extra = f_in & ~h_in
+    if extra.sum() >= _MIN_HOMOGRAPHY:
+        own = _fit("homography", xy[extra], cfg)
+        if own is not None and own[1].mean() >= cfg.planar_share:
+            return hom  # the fundamental matrix swallowed a planar motion of its own
+    return fun
+
+
+def _check_points(points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    try:
+        data = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"trajectories: not an array of numbers ({exc})") from exc
+    if data.ndim != 2 or data.shape[1] < 4 or data.shape[1] % 2:
+        raise InputError(f"trajectories must have shape (N, 2F) with F >= 2, got {data.shape}")
+    if not np.all(np.isfinite(data)):
+        raise InputError(f"trajectories of shape {data.shape} contain NaN or inf")
+    return data
+
+
+def group_geometric(
+    points: npt.ArrayLike,
+    size_hw: tuple[int, int],
+    cfg: GeometricConfig = GeometricConfig(),
+    k: int | None = None,
+) -> Clustering:
+    """Groups trajectories into rigid motions by sequential multi-model fitting (module docstring).
+
+    Args:
+        points: (N, 2F) float trajectories in pixels (x_0, y_0, x_1, y_1, ...), F >= 2.
+        size_hw: (H, W) of the frames, pixels (checked; the models work in pixels as given).
+        cfg: thresholds, see GeometricConfig.
+        k: exactly this many groups (None = automatic K, at most cfg.k_max).
+
+    Returns:
+        Clustering with labels (N,) in 0..K-1 ordered by decreasing group size (0 = the largest,
+        usually the background), method "geometric" and scores {K': share of the tracks that the
+        first K' models explain to cfg.residual_px} for each model fitted (K' = 1, 2, ...; the share
+        grows with K', and the last entries may exceed K when a small group was dissolved).
+        The note names the model of each group in order of fitting ("models: homography, fundamental").
+
+    Raises:
+        InputError: points not (N, 2F) finite numbers with N >= 1, F >= 2; a bad size_hw; k < 1 or k > N.
+    """
+    data = _check_points(points)
+    n = data.shape[0]
+    if n == 0:
+        raise InputError("trajectories: no tracks to group")
+    if len(size_hw) != 2 or min(size_hw) < 1:
+        raise InputError(f"size_hw={size_hw!r} must be (H, W) with H, W >= 1")
+    if k is not None and (isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= n):
+        raise InputError(f"k={k!r} must be an integer in 1..{n} (the number of tracks)")
+    xy = data.reshape(n, -1, 2)
+    cv2.setRNGSeed(cfg.seed)
+    min_size = max(cfg.min_group, math.ceil(cfg.min_share * n))
+    target = cfg.k_max if k is None else int(k)
+    models: list[_Model] = []
+    explained = np.zeros(n, dtype=bool)
+    scores: dict[int, float] = {}
+    while len(models) < target:
+        rest = np.flatnonzero(~explained)
+        if rest.size < (_MIN_HOMOGRAPHY if k is not None else max(min_size, _MIN_HOMOGRAPHY)):
+            break
+        found = _fit_group(xy[rest], cfg)
+        if found is None or (k is None and found[1].sum() < min_size) or not found[1].any():
+            break
+        models.append(found[0])
+        explained[rest[found[1]]] = True
+        scores[len(models)] = round(float(explained.mean()), 4)
+    if not models:
+        return Clustering(np.zeros(n, dtype=np.int64), 1, scores, "geometric", "no rigid model fits the tracks")
+    res = np.stack([m.residuals(xy) for m in models], axis=1)  # (N, K) pixels
+    active = list(range(len(models)))
+    labels = np.asarray(np.argmin(res, axis=1), dtype=np.int64)
+    while k is None and len(active) > 1:
+        sizes = np.bincount(labels, minlength=len(models))[active]
+        if sizes.min() >= min_size:
+            break
+        del active[int(np.argmin(sizes))]  # dissolved: its tracks join the next best model
+        labels = np.asarray(np.array(active)[np.argmin(res[:, active], axis=1)], dtype=np.int64)
+    if k is not None and len(models) < k:
+        labels = _fill_groups(xy, labels, res.min(axis=1), k - len(models), len(models), cfg)
+    note = "models: " + ", ".join(models[i].kind for i in active)
+    out = relabel_by_size(labels)
+    return Clustering(out, int(out.max()) + 1, scores, "geometric", note)
+
+
+def _fill_groups(
+    xy: npt.NDArray[np.float64],
+    labels: npt.NDArray[np.int64],
+    best: npt.NDArray[np.float64],
+    need: int,
+    first: int,
+    cfg: GeometricConfig,
+) -> npt.NDArray[np.int64]:
+    """With K given but fewer models fitted: the `need` groups missing, by K-means on the displacements
+    of the tracks no model explains (at least `need` of the worst-fitting tracks)."""
+    order = np.argsort(-best, kind="stable")
+    pool = order[: max(need, int((best > cfg.residual_px).sum()))]
+    disp = (xy[pool] - xy[pool, :1]).reshape(len(pool), -1)
+    sub, _ = kmeans(disp, need, seed=cfg.seed, n_init=3)
+    out = labels.copy()
+    out[pool] = first + sub
+    return out
