@@ -159,3 +159,15 @@ def test_method_choices_are_the_library_methods() -> None:
     from mosegpipe.pipeline.config import SEGMENT_METHODS
 
     assert [c.value for c in cli_options.MethodChoice] == list(SEGMENT_METHODS)
+
+
+def test_geometric_segment_frames_gives_displacements_for_embeddings() -> None:
+    from mosegpipe.io import read_video
+    from mosegpipe.pipeline import segment_frames
+
+    frames = read_video(ROOT / "samples" / "rendered" / "frames", max_frames=3)
+    result = segment_frames(frames, PipelineConfig(frames=3, method="geometric"))
+    n = result.trajectories.num_points
+    assert result.embeddings.shape == (n, 4)
+    assert result.clustering.method == "geometric"
+    assert "embed" not in result.timings

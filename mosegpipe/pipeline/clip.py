@@ -41,7 +41,8 @@ class ClipResult:
         frames: the frames segmented.
         tracks: all KLT tracks (N_all, T).
         trajectories: the tracks visible in all frames (N rows, track_ids into `tracks`).
-        embeddings: (N, E) float32 SubspaceNet embeddings ((N, 0) with method "geometric").
+        embeddings: (N, E) float32 SubspaceNet embeddings (method "geometric": (N, 2F - 2) displacements
+            from frame 0, pixels; see group_tracks).
         clustering: labels (N,) and the automatic-K evidence.
         masks: (T, H, W) uint8, k = motion k, 255 = no track nearby (unknown).
         timings: seconds per stage.
@@ -62,7 +63,9 @@ def group_tracks(
     traj: Trajectories, size_hw: tuple[int, int], cfg: PipelineConfig, model: Embedder, timings: dict[str, float]
 ) -> tuple[npt.NDArray[np.float32], Clustering]:
     """The motions of trajectories by cfg.method: embedding + automatic K + the rigid-motion check
-    ("subspacenet"), or rigid models fitted one after another ("geometric", no embedding: (N, 0)).
+    ("subspacenet"), or rigid models fitted one after another ("geometric"; it has no embedding, so
+    each track's displacements from frame 0, (N, 2F - 2) pixels, stand in for the recording and for
+    the evaluation's K-means with the true K).
 
     Args:
         traj: the trajectories (N, 2F), pixels.
@@ -78,7 +81,8 @@ def group_tracks(
         t0 = time.perf_counter()
         clustering = group_geometric(traj.data, size_hw, cfg.geometric, k=cfg.k)
         timings["cluster"] = time.perf_counter() - t0
-        return np.zeros((traj.num_points, 0), dtype=np.float32), clustering
+        data = traj.data
+        return np.asarray(data[:, 2:] - np.tile(data[:, :2], traj.num_frames - 1), dtype=np.float32), clustering
     t0 = time.perf_counter()
     emb = embed_at_model_frames(model, traj)
     timings["embed"] = time.perf_counter() - t0

@@ -25,7 +25,7 @@ class TracksResult:
         tracks: the tracks as given (N tracks over T frames).
         trajectories: the tracks visible in every frame of the window (M rows, track_ids into `tracks`).
         start: first frame of the window segmented.
-        embeddings: (M, E) float32 SubspaceNet embeddings ((M, 0) with method "geometric").
+        embeddings: (M, E) float32 SubspaceNet embeddings (method "geometric": displacements, see group_tracks).
         clustering: labels (M,) and the automatic-K evidence.
         labels: (N,) int64 motion of every given track, -1 for a track not visible throughout the window.
         timings: seconds per stage.
