@@ -9,6 +9,9 @@
     of a rendered 640x480 video (~900 tracks) and of vtest.avi resized to 640x480 (~400 tracks):
     frames per second, vtest.avi with and without the Rerun recording.
 (c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
+(e) whole-video mode at 854x480 (DAVIS' size; vtest.avi resized) with each dense-mask method, against
+    a bare DIS loop (medium preset, forward flow only, full resolution, one thread) and the bare KLT
+    loop of (b) on the same frames, measured right before each run.
 (d) start-up: `moseg run` on 5 frames (samples/rendered/frames) from the shell, fresh processes with
     the commands interleaved, against `python -c "import numpy, cv2"` and `python -c "import torch"`
     measured in the same rounds; then the same steps stamped one by one in a fresh process (interpreter,
@@ -200,19 +203,60 @@ def video_table(runs: list[tuple[str, Path, bool]], model: Embedder, work: Path)
     return "\n".join(lines)
 
 
+def bare_dis_fps(video: Path) -> float:
+    """Frames/s of a bare OpenCV DIS loop (medium preset, forward flow only, full resolution) on the
+    decoded frames of `video`: the reference of (e), the flow that the "motion" masks compute twice."""
+    from mosegpipe.io import iter_video
+
+    grays = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for _, f in iter_video(video)]
+    dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    t0 = time.perf_counter()
+    for a, b in zip(grays, grays[1:]):
+        dis.calc(a, b, None)
+    return (len(grays) - 1) / (time.perf_counter() - t0)
+
+
+def dense_table(video: Path, model: Embedder, work: Path, methods: tuple[str, ...] = ("motion", "watershed")) -> str:
+    """Whole-video mode (no recording) with each mask method, against bare DIS and KLT loops measured just before."""
+    from dataclasses import replace
+
+    from mosegpipe.masks import MaskConfig
+    from mosegpipe.outputs import write_video_outputs
+
+    lines = [
+        "| mask method | frames | wall s | frames/s | bare DIS frames/s | x bare DIS | bare KLT frames/s | x bare KLT "
+        "| CPU ms / frame (all threads) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for i, method in enumerate(methods):
+        dis, klt = bare_dis_fps(video), bare_klt_fps(video)
+        cfg = replace(PipelineConfig(frames=5), mask=MaskConfig(method=method))
+        t0, c0 = time.perf_counter(), time.process_time()
+        s = write_video_outputs(video, work / f"dense_{i}", cfg, model, overwrite=True, rrd=False)
+        seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+        fps = s["frames"] / seconds
+        lines.append(
+            f"| {method} | {s['frames']} | {seconds:.2f} | {fps:.1f} | {dis:.1f} | {fps / dis:.2f} | {klt:.0f} | "
+            f"{fps / klt:.3f} | {1000 * cpu / s['frames']:.0f} |"
+        )
+    return "\n".join(lines)
+
+
 # The steps of `moseg run CLIP --frames 5` (cli/clip.py `run`) in a fresh interpreter, each stamped
 # with the wall clock (time.time(), comparable with the parent's): the breakdown of table (d).
 _STARTUP_PROBE = """
 import json, sys, time
 marks = {"started": time.time()}
 from mosegpipe.cli import main as cli
+from mosegpipe.cli.app import _setup
+from mosegpipe.cli.options import ClusterOptions, _pipeline_cfg
 marks["cli_imported"] = time.time()
-cli._setup(1, False, "mosegpipe.outputs")
+_setup(1, False, "mosegpipe.outputs")
 marks["setup"] = time.time()
 from mosegpipe.outputs import write_clip_outputs
 from mosegpipe.inference import load_embedder
 from mosegpipe.pipeline import segment_clip
-cfg = cli._pipeline_cfg(5, None, "silhouette", 8)
+cfg = _pipeline_cfg(5, ClusterOptions())
 model = load_embedder(5)
 marks["model"] = time.time()
 result = segment_clip(sys.argv[1], cfg, model)
@@ -358,7 +402,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--data-root", type=Path, default=Path(os.environ.get("MOSEG_DATA", _DEFAULT_DATA)))
     ap.add_argument("--video-frames", type=int, default=200, help="frames of the videos in whole-video mode")
     ap.add_argument("--repeats", type=int, default=3, help="warm calls per input in (a)")
-    ap.add_argument("--skip", nargs="*", default=[], choices=["clip", "video", "kt3d", "startup"])
+    ap.add_argument("--skip", nargs="*", default=[], choices=["clip", "video", "dense", "kt3d", "startup"])
     ap.add_argument("--startup-clip", type=Path, default=_SAMPLE_FRAMES, help="input of the start-up table (d)")
     ap.add_argument("--startup-repeats", type=int, default=5, help="rounds of the start-up table (d)")
     args = ap.parse_args(argv)

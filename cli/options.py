@@ -58,10 +58,10 @@ class KMethodChoice(StrEnum):
 class MaskMethodChoice(StrEnum):
     """--mask-method: the values of mosegpipe.masks.MASK_METHODS (a test keeps them equal)."""
 
+    motion = "motion"
     watershed = "watershed"
     nearest = "nearest"
     vote = "vote"
-    motion = "motion"
 
 
 class MethodChoice(StrEnum):
@@ -181,7 +181,7 @@ MaskMethod = Annotated[
     MaskMethodChoice,
     typer.Option(
         "--mask-method",
-        help="Dense masks: watershed (default: track labels flooded along image edges), nearest (nearest track), vote, or motion (pixels whose optical flow the camera's motion does not explain, labelled by the tracks).",
+        help="Dense masks: motion (default: pixels whose optical flow the camera's motion does not explain, labelled by the tracks), watershed (track labels flooded along image edges), nearest (nearest track) or vote.",
         rich_help_panel=_MASKS,
     ),
 ]
@@ -274,7 +274,7 @@ class MaskOptions:
     (run, pair, batch; --mask-extra-tracks is an option of run and batch only). Each field's metadata
     names the MaskConfig field it sets."""
 
-    mask_method: MaskMethod = field(default=MaskMethodChoice.watershed, metadata={"config": "method"})
+    mask_method: MaskMethod = field(default=MaskMethodChoice.motion, metadata={"config": "method"})
     mask_max_distance: MaskMaxDistance = field(default=40.0, metadata={"config": "max_distance_px"})
     mask_min_agree: MaskMinAgree = field(default=1, metadata={"config": "min_agree"})
     mask_median: MaskMedian = field(default=0, metadata={"config": "median_px"})
@@ -376,7 +376,7 @@ def _pipeline_cfg(
     mask = masks.config_fields() if masks is not None else {}
     if mask_extra_tracks is not None:
         mask["extra_tracks"] = mask_extra_tracks
-    if mask.get("method", "watershed") not in MASK_METHODS:
+    if mask.get("method", "motion") not in MASK_METHODS:
         raise InputError(f"--mask-method {mask['method']!r}: choose {', '.join(map(repr, MASK_METHODS))}")
     _check_settings(track, mask, MaskConfig().vote_k)
     try:

@@ -14,6 +14,8 @@ patches or a weaker smoothness term at half resolution did not help.
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -41,6 +43,8 @@ class FlowConfig:
             more than this (pixels, at the flow's scale) is left out of the camera fit (occlusions,
             flow failures).
         ransac_px: RANSAC (MAGSAC) inlier threshold of the homography, in pixels at the flow's scale.
+        workers: threads that compute the flows and fits of a stack (`frame_motion`); OpenCV releases
+            the GIL, so two threads use both cores of a small machine (each thread has its own DIS).
     """
 
     preset: str = "medium"
@@ -48,6 +52,7 @@ class FlowConfig:
     grid_step_px: int = 4
     fb_max_px: float = 1.0
     ransac_px: float = 1.0
+    workers: int = 2
 
     def __post_init__(self) -> None:
         if self.preset not in DIS_PRESETS:
@@ -56,6 +61,8 @@ class FlowConfig:
             raise ValueError(f"scale={self.scale} must be in (0, 1]")
         if self.grid_step_px < 1:
             raise ValueError(f"grid_step_px={self.grid_step_px} must be >= 1")
+        if self.workers < 1:
+            raise ValueError(f"workers={self.workers} must be >= 1")
         if not self.fb_max_px > 0 or not self.ransac_px > 0:
             raise ValueError(f"fb_max_px={self.fb_max_px} and ransac_px={self.ransac_px} must be > 0")
 
@@ -174,14 +181,23 @@ def frame_motion(images: npt.NDArray[np.uint8], cfg: FlowConfig = FlowConfig()) 
     """
     if images.shape[0] < 2:
         raise ValueError(f"frame_motion needs at least 2 frames, got {images.shape[0]}")
-    flow = DenseFlow(cfg)
-    gray = [to_gray(im, cfg.scale) for im in images]
-    forward = [flow(gray[t], gray[t + 1]) for t in range(len(gray) - 1)]
-    backward = [flow(gray[t + 1], gray[t]) for t in range(len(gray) - 1)]
-    residual, fb_error = [], []
-    for t in range(len(gray)):
-        fwd, bwd = (forward[t], backward[t]) if t + 1 < len(gray) else (backward[t - 1], forward[t - 1])
+    local = threading.local()
+
+    def flow_between(pair: tuple[int, int]) -> npt.NDArray[np.float32]:
+        if not hasattr(local, "flow"):
+            local.flow = DenseFlow(cfg)
+        return local.flow(gray[pair[0]], gray[pair[1]])
+
+    num = images.shape[0]
+    pairs = [(t, t + 1) for t in range(num - 1)] + [(t + 1, t) for t in range(num - 1)]
+
+    def evidence(t: int) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        fwd, bwd = (flows[t], flows[num - 1 + t]) if t + 1 < num else (flows[2 * num - 3], flows[num - 2])
         err = forward_backward_error(fwd, bwd)
-        residual.append(camera_residual(fwd, fit_camera(fwd, err < cfg.fb_max_px, cfg)))
-        fb_error.append(err)
-    return FrameMotion(np.stack(residual), np.stack(fb_error), cfg.scale)
+        return camera_residual(fwd, fit_camera(fwd, err < cfg.fb_max_px, cfg)), err
+
+    with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
+        gray = list(pool.map(lambda im: to_gray(im, cfg.scale), images))
+        flows = list(pool.map(flow_between, pairs))
+        found = list(pool.map(evidence, range(num)))
+    return FrameMotion(np.stack([r for r, _ in found]), np.stack([e for _, e in found]), cfg.scale)

@@ -6,7 +6,7 @@ labelled track near enough: no evidence). The value is the label itself.
 
 Methods (`MaskConfig.method`):
 
-- "watershed" (default): marker-based watershed (OpenCV, Meyer's flooding) on the colour image,
+- "watershed": marker-based watershed (OpenCV, Meyer's flooding) on the colour image,
   seeded by the labelled tracks, so that two motions meet on the image edge between their tracks
   rather than half-way between them. On the 10 rendered clips (docs/RESULTS.md) against "nearest":
   J 0.511 -> 0.521 and boundary F 0.252 -> 0.364 with the pipeline's labels, J 0.740 -> 0.805 and
@@ -14,7 +14,7 @@ Methods (`MaskConfig.method`):
 - "nearest": label of the nearest track (a Voronoi partition, OpenCV's labelled distance
   transform; 4-6 ms per 640x480 frame with 400-1000 tracks).
 - "vote": majority label of the `vote_k` nearest tracks.
-- "motion": each pixel is moving or not by whether the camera's motion explains its dense optical
+- "motion" (default): each pixel is moving or not by whether the camera's motion explains its dense optical
   flow (`mosegpipe.motion`: flow residual, flow consistency, a colour model, superpixels); static
   pixels take the background's label (the one most tracks carry), moving pixels the label of the
   nearest track of a moving motion, or MOVING_UNCLUSTERED (254) when no track of a moving motion is
@@ -48,7 +48,7 @@ UNKNOWN = 255
 MOVING_UNCLUSTERED = MAX_LABEL
 """"motion" masks: moving pixels with no track of a moving motion in their frame."""
 
-MASK_METHODS = ("watershed", "nearest", "vote", "motion")
+MASK_METHODS = ("motion", "watershed", "nearest", "vote")
 """The densifiers `MaskConfig.method` accepts; the first is the default."""
 
 
@@ -87,7 +87,7 @@ class MaskConfig:
     """
 
     max_distance_px: float = 40.0
-    method: str = "watershed"
+    method: str = "motion"
     vote_k: int = 5
     vote_downsample: int = 4
     median_px: int = 0

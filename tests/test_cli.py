@@ -255,7 +255,10 @@ def test_bad_input_gives_one_error_line(case: str, tmp_path: Path, clip_avi: Pat
         ),
         (["study", "tsne", "-o", "out", "--budget", "huge"], "--budget huge: 'huge' is not one of 'cpu', 'full'"),
         (["eval", "kt3d-loo", "-o", "out", "--variant", "x"], "--variant x: 'x' is not one of 'vanilla', 'augment'"),
-        (["run", "x.avi", "--mask-method", "flood"], "--mask-method flood: 'flood' is not one of 'watershed'"),
+        (
+            ["run", "x.avi", "--mask-method", "flood"],
+            "--mask-method flood: 'flood' is not one of 'motion', 'watershed'",
+        ),
     ],
 )
 def test_unknown_choices_are_usage_errors(args: list[str], expected: str) -> None:

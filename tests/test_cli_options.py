@@ -371,7 +371,11 @@ def test_train_help_lists_every_loss_and_recipe() -> None:
     assert code == 0
     for name in [*LOSSES, *RECIPES]:
         assert name in out, name
-    for command, listed in [("batch", "watershed|nearest|vote"), ("study", "cpu|full"), ("eval", "vanilla|augment")]:
+    for command, listed in [
+        ("batch", "motion|watershed|nearest|vote"),
+        ("study", "cpu|full"),
+        ("eval", "vanilla|augment"),
+    ]:
         code, out, _ = moseg(command, "--help")
         assert code == 0 and listed in out, command
 

@@ -25,7 +25,7 @@ def test_bad_mask_method_is_one_error_line(tmp_path: Path) -> None:
     clip = write_frames(tmp_path / "clip", render_scene(5).frames)
     result = runner.invoke(app, ["run", str(clip), "--mask-method", "grabcut", "--out", str(tmp_path / "o")])
     assert result.exit_code == 2  # a usage error: --mask-method is a choice (an Enum)
-    assert "--mask-method grabcut: 'grabcut' is not one of 'watershed', 'nearest', 'vote'" in result.output
+    assert "--mask-method grabcut: 'grabcut' is not one of 'motion', 'watershed', 'nearest', 'vote'" in result.output
     assert not (tmp_path / "o").exists()
 
 
@@ -78,10 +78,10 @@ def test_extra_tracks_fill_in_an_object_with_few_tracks() -> None:
     rows = traj.track_ids[keep]  # object 1 left with 12 tracks, as a weakly textured one would be
     few = Tracks(tracks.xy[rows], tracks.visible[rows], tracks.size_hw)
     ids, labels = np.arange(len(rows)), gt[keep]
-    off = PipelineConfig(mask=MaskConfig(extra_tracks=0))
+    off = PipelineConfig(mask=MaskConfig(method="watershed", extra_tracks=0))
     without = clip_masks(scene.frames, few, ids, labels, off)
     assert np.array_equal(without, labels_to_masks(few, ids, labels, off.mask, scene.frames))
-    with_extra = clip_masks(scene.frames, few, ids, labels, PipelineConfig())
+    with_extra = clip_masks(scene.frames, few, ids, labels, PipelineConfig(mask=MaskConfig(method="watershed")))
     assert set(np.unique(with_extra)) <= {0, 1, 2, UNKNOWN}
     j = {}
     for name, masks in (("without", without), ("with", with_extra)):
