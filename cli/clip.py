@@ -183,13 +183,19 @@ def read_tracks_file(path: Path) -> tuple[Any, Any]:
     Raises:
         InputError: not a readable .npz, or none of the layouts.
     """
+    import zipfile
+
     import numpy as np
 
+    unreadable = f"{path}: not a readable .npz file (numpy.savez, no pickled objects)"
     try:
-        with np.load(path, allow_pickle=False) as data:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.lib.npyio.NpzFile):  # a .npy (one array) under a .npz name
+            raise InputError(f"{path}: a single .npy array, not a .npz archive of named arrays (numpy.savez)")
+        with loaded as data:
             arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError(f"{path}: not a readable .npz file (numpy.savez, no pickled objects)") from exc
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # BadZipFile: a truncated archive
+        raise InputError(f"{unreadable}: {exc}") from exc
     if "xy" in arrays:
         return arrays["xy"], arrays.get("visible")
     if "tracks" in arrays and "occluded" in arrays:
@@ -250,7 +256,10 @@ def tracks(
     out = out or _default_out(file, "_moseg")
     check_output_dir(out, overwrite)
     net = load_embedder(max(2, window), model)
-    result = segment_tracks(xy, visible, cfg, net, start=start, frames=frames)
+    try:
+        result = segment_tracks(xy, visible, cfg, net, start=start, frames=frames)
+    except InputError as exc:  # everything segment_tracks refuses is in the file: name it
+        raise type(exc)(f"{file}: {exc}") from exc
     summary = write_tracks_outputs(result, out, cfg, source=str(file), overwrite=overwrite)
     _print_tracks_summary(summary, out)
     _print_total(started)

@@ -204,33 +204,33 @@ def _merge_rigid(
     return groups
 
 
-def split_by_rigid_motion(
-    points: npt.ArrayLike,
-    labels: npt.ArrayLike,
-    size_hw: tuple[int, int],
-    cfg: RigidCheckConfig = RigidCheckConfig(),
-) -> tuple[npt.NDArray[np.int64], int]:
-    """Splits off the coherent groups that their cluster's rigid motion does not explain.
+# With more points than this the check runs on a seeded random sample of this many and the others
+# follow the groups found (see split_by_rigid_motion): linking candidates within a fixed radius is
+# quadratic in the density of points (100 000 tracks gave ~10^8 neighbour pairs), and RANSAC gains
+# nothing from more than a few thousand points. Clips and video windows (< 1100 tracks) are below it.
+MAX_CHECKED_POINTS = 3000
 
-    Args:
-        points: (N, 2F) trajectory matrix in pixels (x_0, y_0, x_1, y_1, ...), F >= 2.
-        labels: (N,) cluster labels 0..k-1.
-        size_hw: (H, W) of the frames, pixels (the neighbourhood is a fraction of its diagonal).
-        cfg: thresholds, see RigidCheckConfig.
+_CHUNK = 65536  # rows per block when the points beyond the sample follow the groups
 
-    Returns:
-        (labels, number of groups split off): labels ordered by decreasing cluster size as
-        `cluster_auto_k` orders them; unchanged (but relabelled by size) when nothing was split.
-    """
-    data = np.asarray(points, dtype=np.float64)
-    lab = np.asarray(labels, dtype=np.int64)
-    n = data.shape[0]
-    xy = data.reshape(n, data.shape[1] // 2, 2)
-    if n == 0:
-        return lab.copy(), 0
-    radius = cfg.neighbour_frac * float(np.hypot(*size_hw))
+
+@dataclass(frozen=True)
+class _Split:
+    """One group split off a host cluster: its new label, member rows, its model and the host's."""
+
+    host: int
+    label: int
+    members: npt.NDArray[np.int64]
+    own: Residuals
+    host_model: Residuals
+
+
+def _split(
+    xy: npt.NDArray[np.float64], lab: npt.NDArray[np.int64], radius: float, cfg: RigidCheckConfig
+) -> tuple[npt.NDArray[np.int64], list[_Split]]:
+    """Steps 1-4 of the module docstring on (N, F, 2) positions: (labels, the groups split off)."""
     out = lab.copy()
     next_label = int(lab.max()) + 1
+    splits: list[_Split] = []
     for c in np.unique(lab):
         host = np.flatnonzero(lab == c)
         if host.size < cfg.min_host + cfg.min_tracks:
@@ -271,9 +271,96 @@ def split_by_rigid_motion(
                 & (own_res < rest_res)
             )
             out[rest[joins]] = next_label
+            splits.append(_Split(int(c), next_label, np.flatnonzero(out == next_label), own, host_model))
             next_label += 1
-    split = next_label - (int(lab.max()) + 1)
-    return relabel_by_size(out), split
+    return out, splits
+
+
+def _follow(
+    xy: npt.NDArray[np.float64],
+    lab: npt.NDArray[np.int64],
+    sampled: npt.NDArray[np.bool_],
+    sample_xy: npt.NDArray[np.float64],
+    splits: list[_Split],
+    radius: float,
+    cfg: RigidCheckConfig,
+) -> npt.NDArray[np.int64]:
+    """Labels of the points outside the sample (`sampled` False): a point of a host is a candidate for a
+    group split off it when the host's model does not explain it (step 2) or the group's model explains
+    it better (step 4); candidates join the group by region growing from its sampled members, each
+    round taking those within `radius` (frame 0) of a point that joined in the round before and
+    moving like it, as step 2 links neighbours."""
+    out = lab.copy()
+    for split in splits:
+        rows = np.flatnonzero((out == split.host) & ~sampled)
+        kept = []
+        for lo in range(0, rows.size, _CHUNK):
+            block = rows[lo : lo + _CHUNK]
+            host_res, own_res = split.host_model(xy[block]), split.own(xy[block])
+            fits = (host_res > cfg.residual_px) | ((own_res <= cfg.residual_px) & (own_res < host_res))
+            kept.append(block[fits])
+        candidates = np.concatenate(kept) if kept else rows
+        frontier = sample_xy[split.members]
+        while candidates.size and frontier.size:
+            tree = cKDTree(frontier[:, 0])
+            joined = np.zeros(candidates.size, dtype=bool)
+            for lo in range(0, candidates.size, _CHUNK):
+                block = candidates[lo : lo + _CHUNK]
+                dist, near = tree.query(xy[block, 0], distance_upper_bound=radius)
+                ok = np.flatnonzero(np.isfinite(dist))
+                pts, member = xy[block[ok]], frontier[near[ok]]
+                joined[lo + ok[_alike(pts - pts[:, :1], member - member[:, :1], cfg)]] = True
+            out[candidates[joined]] = split.label
+            frontier = xy[candidates[joined]]
+            candidates = candidates[~joined]
+    return out
+
+
+def split_by_rigid_motion(
+    points: npt.ArrayLike,
+    labels: npt.ArrayLike,
+    size_hw: tuple[int, int],
+    cfg: RigidCheckConfig = RigidCheckConfig(),
+    seed: int = 0,
+) -> tuple[npt.NDArray[np.int64], int]:
+    """Splits off the coherent groups that their cluster's rigid motion does not explain.
+
+    With more than MAX_CHECKED_POINTS points (3000) the check runs on a random sample of that many
+    (seeded by `seed`) and every other point of a host joins a group split off it when it fits the
+    group's model better than the host's (or the host's not at all) and is linked to a sampled member
+    through points that do, each within the neighbourhood of the next and moving like it (region
+    growing); memory and time are then linear in N. A group needs cfg.min_tracks sampled
+    points, so the smallest group split off grows with N / MAX_CHECKED_POINTS.
+
+    Args:
+        points: (N, 2F) trajectory matrix in pixels (x_0, y_0, x_1, y_1, ...), F >= 2.
+        labels: (N,) cluster labels 0..k-1.
+        size_hw: (H, W) of the frames, pixels (the neighbourhood is a fraction of its diagonal).
+        cfg: thresholds, see RigidCheckConfig.
+        seed: random state of the sample (large N only).
+
+    Returns:
+        (labels, number of groups split off): labels ordered by decreasing cluster size as
+        `cluster_auto_k` orders them; unchanged (but relabelled by size) when nothing was split.
+    """
+    data = np.asarray(points, dtype=np.float64)
+    lab = np.asarray(labels, dtype=np.int64)
+    n = data.shape[0]
+    xy = data.reshape(n, data.shape[1] // 2, 2)
+    if n == 0:
+        return lab.copy(), 0
+    radius = cfg.neighbour_frac * float(np.hypot(*size_hw))
+    if n <= MAX_CHECKED_POINTS:
+        out, splits = _split(xy, lab, radius, cfg)
+    else:
+        idx = np.sort(np.random.default_rng(seed).choice(n, size=MAX_CHECKED_POINTS, replace=False))
+        sample_xy = xy[idx]
+        sample_out, splits = _split(sample_xy, lab[idx], radius, cfg)
+        sampled = np.zeros(n, dtype=bool)
+        sampled[idx] = True
+        out = _follow(xy, lab, sampled, sample_xy, splits, radius, cfg)
+        out[idx] = sample_out
+    return relabel_by_size(out), len(splits)
 
 
 def label_by_rigid_motion(

@@ -427,3 +427,147 @@ def test_moseg_tracks_reads_our_and_cotracker_layouts(tmp_path: Path) -> None:
     assert code == 1 and "holds ['points']; expected 'xy'" in one_error_line(err)
     nothing_left_but = sorted(p.name for p in tmp_path.iterdir())
     assert "x" not in nothing_left_but and ".x.partial" not in nothing_left_but
+
+
+# ---------------------------------------------------------------------------------------------
+# 24. Issue 24: moseg tracks at scale and its damaged files
+# ---------------------------------------------------------------------------------------------
+
+
+def _blobs(n: int, k: int = 3, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    truth = rng.integers(0, k, n)
+    centres = np.eye(5)[:k] * 3.0
+    return centres[truth] + rng.normal(0, 0.1, (n, 5)), truth
+
+
+@pytest.mark.parametrize("rule", ["silhouette", "residual"])
+def test_automatic_k_scores_a_sample_of_many_points(monkeypatch: pytest.MonkeyPatch, rule: str) -> None:
+    """N x N distances for 100 000 tracks asked for 74.5 GiB: beyond MAX_SCORED_POINTS K is chosen on
+    a seeded sample and the others go to the nearest centre; nothing quadratic sees more than the sample."""
+    import mosegpipe.cluster as cluster
+
+    monkeypatch.setattr(cluster, "MAX_SCORED_POINTS", 300)
+    real_distances, real_kmeans = cluster.pairwise_distances, cluster.kmeans
+    seen: list[int] = []
+
+    def distances(x: np.ndarray) -> np.ndarray:
+        seen.append(len(x))
+        return real_distances(x)
+
+    def kmeans(x: np.ndarray, *args: object, **kwargs: object) -> tuple[np.ndarray, float]:
+        seen.append(len(x))
+        return real_kmeans(x, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(cluster, "pairwise_distances", distances)
+    monkeypatch.setattr(cluster, "kmeans", kmeans)
+    emb, truth = _blobs(5000)
+    result = cluster_auto_k(emb, ClusterConfig(method=rule))  # type: ignore[arg-type]
+    assert seen and max(seen) == 300
+    assert result.k == 3 and result.labels.shape == (5000,)
+    assert best_permutation_accuracy(result.labels, truth) == 1.0
+    again = cluster_auto_k(emb, ClusterConfig(method=rule))  # type: ignore[arg-type]
+    assert np.array_equal(again.labels, result.labels)  # seeded
+
+
+def test_automatic_k_is_unchanged_up_to_the_sample_size() -> None:
+    import mosegpipe.cluster as cluster
+
+    emb, _ = _blobs(cluster.MAX_SCORED_POINTS)
+    cfg = ClusterConfig()
+    distances = cluster.pairwise_distances(emb)
+    fits = {k: cluster.kmeans(emb, k, seed=cfg.seed, n_init=cfg.n_init) for k in range(2, 9)}
+    expected = max(fits, key=lambda k: (cluster.mean_silhouette(distances, fits[k][0]), -k))
+    result = cluster_auto_k(emb, cfg)
+    assert result.k == expected and np.array_equal(result.labels, fits[expected][0])
+
+
+def _rigid_scene(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2F) tracks over 5 frames of a 400x300 view: a static background and a 100x100 square
+    moving 4 px per frame (about 8 % of the points), all in one cluster."""
+    rng = np.random.default_rng(seed)
+    start = rng.uniform((0, 0), (400, 300), (n, 2))
+    inside = np.all((start > (150, 100)) & (start < (250, 200)), axis=1)
+    t = np.arange(5)[None, :, None]
+    xy = start[:, None] + t * np.where(inside[:, None], 4.0, 0.0)[:, None] + rng.normal(0, 0.2, (n, 5, 2))
+    return xy.reshape(n, 10), inside
+
+
+def test_rigid_check_of_many_points_links_a_sample(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Linking candidates within a radius was quadratic in the density; beyond MAX_CHECKED_POINTS the
+    check runs on a sample and the other points follow the groups split off."""
+    import mosegpipe.rigid as rigid
+
+    monkeypatch.setattr(rigid, "MAX_CHECKED_POINTS", 400)
+    real = rigid._coherent_groups
+    seen: list[int] = []
+
+    def groups(xy: np.ndarray, *args: object) -> np.ndarray:
+        seen.append(len(xy))
+        return real(xy, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(rigid, "_coherent_groups", groups)
+    points, inside = _rigid_scene(6000)
+    labels, split = rigid.split_by_rigid_motion(points, np.zeros(len(points), np.int64), (300, 400))
+    assert split == 1 and seen and max(seen) <= 400
+    assert best_permutation_accuracy(labels, inside.astype(np.int64)) > 0.99
+
+
+def test_rigid_check_is_unchanged_up_to_the_sample_size(monkeypatch: pytest.MonkeyPatch) -> None:
+    import mosegpipe.rigid as rigid
+
+    points, inside = _rigid_scene(1000)
+    labels, split = rigid.split_by_rigid_motion(points, np.zeros(1000, np.int64), (300, 400))
+    monkeypatch.setattr(rigid, "MAX_CHECKED_POINTS", 10**9)
+    assert np.array_equal(rigid.split_by_rigid_motion(points, np.zeros(1000, np.int64), (300, 400))[0], labels)
+    assert split == 1 and best_permutation_accuracy(labels, inside.astype(np.int64)) > 0.95
+
+
+@pytest.mark.parametrize(
+    ("fault", "message"),
+    [
+        ("truncated", "truncated.npz: not a readable .npz file"),
+        ("npy", "npy.npz: a single .npy array, not a .npz archive"),
+        ("huge", "huge.npz: xy holds coordinates up to 1e+300"),
+    ],
+)
+def test_moseg_tracks_names_a_damaged_file(tmp_path: Path, fault: str, message: str) -> None:
+    xy = _two_motions()
+    path = tmp_path / f"{fault}.npz"
+    if fault == "truncated":
+        np.savez(tmp_path / "whole.npz", xy=xy)
+        path.write_bytes((tmp_path / "whole.npz").read_bytes()[:300])  # cut inside the first array
+    elif fault == "npy":
+        with open(path, "wb") as fh:
+            np.save(fh, xy)
+    else:
+        xy[0, 0] = 1e300  # became inf in float32, then an OverflowError traceback
+        np.savez(path, xy=xy)
+    code, out, err = moseg("tracks", path, "--out", tmp_path / "out")
+    assert code == 1 and message in one_error_line(err) and out == ""
+    assert not (tmp_path / "out").exists() and not (tmp_path / ".out.partial").exists()
+
+
+@pytest.mark.parametrize("damage", ["truncated", "nan"])
+def test_damaged_inference_copy_is_rewritten(
+    tmp_path: Path, model5: Path, monkeypatch: pytest.MonkeyPatch, damage: str
+) -> None:
+    """A cut-short copy gave a BadZipFile traceback on every run, one with NaN weights an error blaming
+    the input; either is now ignored and written again from the checkpoint."""
+    from mosegpipe.inference import NumpySubspaceNet, load_embedder
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("MOSEG_CACHE", str(cache))
+    load_embedder(5, model5)
+    (copy,) = (cache / "inference").glob("*.npz")
+    if damage == "truncated":
+        copy.write_bytes(copy.read_bytes()[:200])
+    else:
+        net = NumpySubspaceNet.load_npz(copy)
+        net.weights["head.bias"][:] = np.nan
+        net.save_npz(copy)
+    np.savez(tmp_path / "tracks.npz", xy=_two_motions())
+    code, out, err = moseg("tracks", tmp_path / "tracks.npz", "--model", model5, "--out", tmp_path / "out")
+    assert code == 0 and "K = 2" in out, err
+    assert "error" not in err and "Traceback" not in err
+    assert np.all(np.isfinite(NumpySubspaceNet.load_npz(copy).weights["head.bias"]))  # rewritten

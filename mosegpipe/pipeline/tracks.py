@@ -16,6 +16,10 @@ from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import Clustering, Tracks, Trajectories
 
+# Pixel coordinates beyond this are not pixels (a 1e300 became inf in float32 and then crashed the
+# image size); the largest video frames are a few 10^4 px wide.
+MAX_COORD_PX = 1e6
+
 
 @dataclass(frozen=True)
 class TracksResult:
@@ -70,8 +74,8 @@ def segment_tracks(
         TracksResult.
 
     Raises:
-        InputError: arrays of the wrong shape or type, NaN/inf where visible, a window outside the
-            frames, or cfg.k larger than the number of tracks.
+        InputError: arrays of the wrong shape or type, NaN/inf or coordinates beyond +-MAX_COORD_PX
+            where visible, a window outside the frames, or cfg.k larger than the number of tracks.
         TooFewTracksError: fewer than cfg.min_tracks tracks are visible through the whole window.
     """
     arr = np.asarray(xy)
@@ -84,6 +88,12 @@ def segment_tracks(
     vis = vis.astype(bool)
     if not np.all(np.isfinite(arr[vis])):
         raise InputError("xy holds NaN or inf where the tracks are visible")
+    if vis.any():
+        largest = float(np.abs(arr[vis]).max())
+        if largest > MAX_COORD_PX:
+            raise InputError(
+                f"xy holds coordinates up to {largest:.3g}; pixel coordinates must lie within +-{MAX_COORD_PX:g}"
+            )
     for name, value in (("start", start), ("frames", frames)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
             raise InputError(f"{name}={value!r} must be an integer")
