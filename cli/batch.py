@@ -13,6 +13,7 @@ from mosegpipe.cli.app import _fail, _friendly, _setup
 from mosegpipe.cli.common import _check_model_path, _print_total, _progress_columns
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
+    MAX_FRAMES,
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
@@ -41,6 +42,10 @@ class EngineChoice(StrEnum):
     inline = "inline"
 
 
+MAX_JOBS = 1024
+MAX_CLIP_TIMEOUT_S = 1e6  # 11.6 days: beyond it a float of seconds overflows the worker's timers
+
+
 @_friendly
 @option_blocks
 def batch(
@@ -48,7 +53,10 @@ def batch(
     out: Annotated[
         Path, typer.Option("--out", "-o", help="Output folder: one sub-folder per clip plus batch_summary.csv/json.")
     ],
-    frames: Annotated[int, typer.Option("--frames", "-f", min=2, help="Frames to segment in each clip.")] = 5,
+    frames: Annotated[
+        int,
+        typer.Option("--frames", "-f", min=2, max=MAX_FRAMES, help=f"Frames to segment in each clip, 2..{MAX_FRAMES}."),
+    ] = 5,
     start: Start = 0,
     clustering: ClusterOptions = ClusterOptions(),
     method: Method = MethodChoice.subspacenet,
@@ -67,7 +75,8 @@ def batch(
             "--jobs",
             "-j",
             min=1,
-            help="Clips at once: worker processes (default: the number of cores), or Ray tasks in flight with --engine ray (default: the cluster's CPUs).",
+            max=MAX_JOBS,
+            help=f"Clips at once (1..{MAX_JOBS}): worker processes (default: the number of cores), or Ray tasks in flight with --engine ray (default: the cluster's CPUs).",
         ),
     ] = None,
     engine: Annotated[
@@ -88,7 +97,9 @@ def batch(
         float | None,
         typer.Option(
             "--clip-timeout",
-            help="Seconds a clip may run before its worker is killed and it is reported failed (default: no limit).",
+            min=0.0,
+            max=MAX_CLIP_TIMEOUT_S,
+            help=f"Seconds a clip may run, up to {MAX_CLIP_TIMEOUT_S:g}, before its worker is killed and it is reported failed (default: no limit).",
         ),
     ] = None,
     config: ConfigOpt = None,

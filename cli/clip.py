@@ -21,6 +21,8 @@ from mosegpipe.cli.common import (
 )
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
+    MAX_FRAME_INDEX,
+    MAX_FRAMES,
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
@@ -48,7 +50,11 @@ def run(
     frames: Annotated[
         int,
         typer.Option(
-            "--frames", "-f", min=2, help="Frames to segment (the paper uses 5); with --whole, the window length."
+            "--frames",
+            "-f",
+            min=2,
+            max=MAX_FRAMES,
+            help=f"Frames to segment, 2..{MAX_FRAMES} (the paper uses 5); with --whole, the window length.",
         ),
     ] = 5,
     start: Start = 0,
@@ -63,7 +69,8 @@ def run(
         ),
     ] = False,
     max_frames: Annotated[
-        int | None, typer.Option("--max-frames", min=1, help="With --whole: stop after this many frames.")
+        int | None,
+        typer.Option("--max-frames", min=1, max=MAX_FRAME_INDEX, help="With --whole: stop after this many frames."),
     ] = None,
     shot_cuts: Annotated[
         bool,
@@ -224,7 +231,13 @@ def tracks(
     start: Start = 0,
     frames: Annotated[
         int | None,
-        typer.Option("--frames", "-f", min=2, help="Window length (default: from --start to the last frame)."),
+        typer.Option(
+            "--frames",
+            "-f",
+            min=2,
+            max=MAX_FRAMES,
+            help=f"Window length, 2..{MAX_FRAMES} (default: from --start to the last frame).",
+        ),
     ] = None,
     clustering: ClusterOptions = ClusterOptions(),
     method: Method = MethodChoice.subspacenet,

@@ -82,9 +82,15 @@ def _config_defaults(path: Path, ctx: Any) -> dict[str, Any]:
     values |= {f"{command}.{key}": value for key, value in table.items()} if isinstance(table, dict) else {}
     hints = _option_hints(command)
     defaults: dict[str, Any] = {}
+    spelled: dict[tuple[str, str], str] = {}  # (table, option) -> the key that set it
     for key, value in values.items():
-        name = key.rsplit(".", 1)[-1]
+        table_name, _, name = key.rpartition(".")
         param = options.get(name.replace("_", "-"))
+        if param is not None and (table_name, name.replace("_", "-")) in spelled:
+            # 'k-method' and 'k_method' in one table: which one is meant is a guess, so neither is taken.
+            first = spelled[(table_name, name.replace("_", "-"))]
+            raise _ConfigError(f"{path}: {first!r} and {key!r} set the same option; keep one of them")
+        spelled[(table_name, name.replace("_", "-"))] = key
         if param is None:
             import difflib
 

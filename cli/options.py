@@ -29,8 +29,30 @@ from mosegpipe.cli.app import F, _one_line
 from mosegpipe.errors import InputError, check_choice
 from mosegpipe.types import KMethodName
 
+# Upper bounds of the numeric options, checked before any work (a usage error naming the option): past
+# them OpenCV crashes (--min-distance 1e308: SIGSEGV), overflows (--max-corners 3000000000, --win-size
+# 100001: tracebacks) or runs for minutes (--mask-median 100001). The library's configs hold the same
+# bounds (TrackConfig, ClusterConfig); a --config file is checked by the options themselves.
+MAX_THREADS = 256
+MAX_K = 64  # --k-max: each K is a K-means fit (benchmarks have at most 5 motions)
+MAX_FORCED_K = 100_000  # --k: at most the tracks, which --max-corners bounds in clips
+MAX_FRAMES = 10_000  # --frames: a window of trajectories, (N, 2F) per window
+MAX_FRAME_INDEX = 2**31 - 1  # --start, --max-frames: frame indices OpenCV can seek to
+MAX_CORNERS = 100_000
+MAX_MIN_DISTANCE_PX = 10_000.0
+MAX_WIN_SIZE_PX = 255
+MAX_MASK_DISTANCE_PX = 100_000.0
+MAX_MASK_MEDIAN_PX = 255
+MAX_EXTRA_TRACKS = 100_000
+
 Threads = Annotated[
-    int, typer.Option("--threads", min=1, help="CPU threads (1 is fastest for one clip on small machines).")
+    int,
+    typer.Option(
+        "--threads",
+        min=1,
+        max=MAX_THREADS,
+        help=f"CPU threads, 1..{MAX_THREADS} (1 is fastest for one clip on small machines).",
+    ),
 ]
 
 
@@ -45,7 +67,15 @@ Quiet = Annotated[
 ]
 
 
-KOpt = Annotated[int | None, typer.Option("--k", min=1, help="Force this many motions (default: automatic K).")]
+KOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--k",
+        min=1,
+        max=MAX_FORCED_K,
+        help=f"Force this many motions, 1..{MAX_FORCED_K} and at most the tracks (default: automatic K).",
+    ),
+]
 
 
 class KMethodChoice(StrEnum):
@@ -93,7 +123,9 @@ Method = Annotated[
 ]
 
 
-KMax = Annotated[int, typer.Option("--k-max", min=1, help="Largest K considered by automatic K.")]
+KMax = Annotated[
+    int, typer.Option("--k-max", min=1, max=MAX_K, help=f"Largest K considered by automatic K, 1..{MAX_K}.")
+]
 
 
 RigidCheck = Annotated[
@@ -119,6 +151,7 @@ Start = Annotated[
     typer.Option(
         "--start",
         min=0,
+        max=MAX_FRAME_INDEX,
         help="First frame to segment: its 0-based index in the video or frame folder (masks keep the source's frame numbers).",
     ),
 ]
@@ -137,7 +170,8 @@ MaxCorners = Annotated[
     typer.Option(
         "--max-corners",
         min=1,
-        help="Corners detected and tracked (Shi-Tomasi); more tracks cost more time.",
+        max=MAX_CORNERS,
+        help=f"Corners detected and tracked (Shi-Tomasi), 1..{MAX_CORNERS}; more tracks cost more time.",
         rich_help_panel=_TRACKER,
     ),
 ]
@@ -148,7 +182,8 @@ MinDistance = Annotated[
     typer.Option(
         "--min-distance",
         min=0.0,
-        help="Minimum spacing between corners, pixels: a coarser grid of tracks over the whole image.",
+        max=MAX_MIN_DISTANCE_PX,
+        help=f"Minimum spacing between corners, pixels, 0..{MAX_MIN_DISTANCE_PX:g}: a coarser grid of tracks over the whole image.",
         rich_help_panel=_TRACKER,
     ),
 ]
@@ -171,7 +206,8 @@ WinSize = Annotated[
     typer.Option(
         "--win-size",
         min=3,
-        help="Lucas-Kanade window, pixels: larger follows faster motion and blur, smaller is more precise.",
+        max=MAX_WIN_SIZE_PX,
+        help=f"Lucas-Kanade window, pixels, 3..{MAX_WIN_SIZE_PX}: larger follows faster motion and blur, smaller is more precise.",
         rich_help_panel=_TRACKER,
     ),
 ]
@@ -192,7 +228,8 @@ MaskMaxDistance = Annotated[
     typer.Option(
         "--mask-max-distance",
         min=0.0,
-        help="Pixels farther than this from every labelled track stay unknown (255); must be > 0.",
+        max=MAX_MASK_DISTANCE_PX,
+        help=f"Pixels farther than this from every labelled track stay unknown (255); in (0, {MAX_MASK_DISTANCE_PX:g}].",
         rich_help_panel=_MASKS,
     ),
 ]
@@ -214,7 +251,8 @@ MaskMedian = Annotated[
     typer.Option(
         "--mask-median",
         min=0,
-        help="Median filter over the label image, pixels (odd, >= 3; 0 = off): smoother borders, no specks.",
+        max=MAX_MASK_MEDIAN_PX,
+        help=f"Median filter over the label image, pixels (odd, 3..{MAX_MASK_MEDIAN_PX}; 0 = off): smoother borders, no specks.",
         rich_help_panel=_MASKS,
     ),
 ]
@@ -237,7 +275,8 @@ MaskExtraTracks = Annotated[
     typer.Option(
         "--mask-extra-tracks",
         min=0,
-        help="Clips: up to this many more corners, spread over the image, tracked and labelled by motion "
+        max=MAX_EXTRA_TRACKS,
+        help=f"Clips: up to this many more corners (0..{MAX_EXTRA_TRACKS}), spread over the image, tracked and labelled by motion "
         "for the masks only (0 = off; not used by --whole).",
         rich_help_panel=_MASKS,
     ),

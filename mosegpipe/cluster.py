@@ -45,6 +45,8 @@ _RESIDUAL_FLOOR = 1e-9
 # 70 MB of distances and keep clips and video windows (< 1100 tracks) exactly as they were.
 MAX_SCORED_POINTS = 3000
 
+MAX_K = 64  # the largest k_max (the CLI's --k-max and --k hold the same bound)
+
 
 @dataclass(frozen=True)
 class ClusterConfig:
@@ -106,6 +108,8 @@ class ClusterConfig:
             raise InputError(f"k_min={self.k_min} must be at least 1")
         if self.k_max < self.k_min:
             raise InputError(f"k_max={self.k_max} is smaller than k_min={self.k_min}")
+        if self.k_max > MAX_K:
+            raise InputError(f"k_max={self.k_max} is larger than {MAX_K} (each K is a K-means fit)")
         if self.n_init < 1:
             raise InputError(f"n_init={self.n_init} must be at least 1")
         if self.num_threads < 1:

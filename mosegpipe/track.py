@@ -20,6 +20,10 @@ from mosegpipe.types import Frames, Tracks
 
 logger = logging.getLogger(__name__)
 
+MAX_CORNERS = 100_000
+MAX_WIN_SIZE_PX = 255
+MAX_MIN_DISTANCE_PX = 10_000.0
+
 
 @dataclass(frozen=True)
 class TrackConfig:
@@ -66,10 +70,16 @@ class TrackConfig:
     reseed_every: int = 5
 
     def __post_init__(self) -> None:
-        if self.max_corners < 1:
-            raise ValueError(f"max_corners={self.max_corners} must be >= 1")
-        if self.win_size_px < 3:
-            raise ValueError(f"win_size_px={self.win_size_px} must be >= 3")
+        # Upper bounds: past them OpenCV crashes (min_distance 1e308: SIGSEGV in goodFeaturesToTrack)
+        # or overflows its int arguments (max_corners 3e9, win_size 100001); the CLI's options hold the same.
+        if not 1 <= self.max_corners <= MAX_CORNERS:
+            raise ValueError(f"max_corners={self.max_corners} must lie in 1..{MAX_CORNERS}")
+        if not 3 <= self.win_size_px <= MAX_WIN_SIZE_PX:
+            raise ValueError(f"win_size_px={self.win_size_px} must lie in 3..{MAX_WIN_SIZE_PX}")
+        if not 0 <= self.min_distance_px <= MAX_MIN_DISTANCE_PX:
+            raise ValueError(f"min_distance_px={self.min_distance_px} must lie in [0, {MAX_MIN_DISTANCE_PX:g}]")
+        if not 0 < self.quality_level <= 1:
+            raise ValueError(f"quality_level={self.quality_level} must lie in (0, 1]")
         if self.max_level < 0:
             raise ValueError(f"max_level={self.max_level} must be >= 0")
         if self.fb_threshold_px is not None and self.fb_threshold_px <= 0:
@@ -398,7 +408,13 @@ def track_klt(frames: Frames, cfg: TrackConfig = TrackConfig()) -> Tracks:
     Returns:
         Tracks with xy (N, T, 2) float32 pixels (NaN where not visible), visible (N, T) bool,
         size_hw = frames.size_hw. Row n is the n-th detected corner.
+
+    Raises:
+        ValueError: images that are not (T, H, W, 3) with H, W >= 1 (e.g. 0x0 frames).
     """
+    shape = np.shape(frames.images)
+    if len(shape) != 4 or shape[1] < 1 or shape[2] < 1 or shape[3] != 3:
+        raise ValueError(f"track_klt: images must be (T, H, W, 3) with H, W >= 1, got {shape}")
     tracker = KLTTracker(cfg)
     steps = [tracker.step(image) for image in frames.images]
     tracks, _ = tracks_from_steps(steps, frames.size_hw)

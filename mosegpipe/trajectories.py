@@ -32,7 +32,11 @@ def build_trajectories(tracks: Tracks, frames: int | None = None, start: int = 0
 
     Raises:
         InputError: the window does not fit in the tracked frames, or F < 1.
+        ValueError: xy is not (N, T, 2) or visible not (N, T) of the same N and T (Tracks built wrongly).
     """
+    xy_shape, vis_shape = np.shape(tracks.xy), np.shape(tracks.visible)
+    if len(xy_shape) != 3 or xy_shape[2] != 2 or vis_shape != xy_shape[:2]:
+        raise ValueError(f"tracks: xy {xy_shape} and visible {vis_shape} must be (N, T, 2) and (N, T)")
     num_frames = tracks.num_frames
     if frames is None:
         frames = num_frames - start

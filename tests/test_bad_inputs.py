@@ -571,3 +571,85 @@ def test_damaged_inference_copy_is_rewritten(
     assert code == 0 and "K = 2" in out, err
     assert "error" not in err and "Traceback" not in err
     assert np.all(np.isfinite(NumpySubspaceNet.load_npz(copy).weights["head.bias"]))  # rewritten
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["run", "x.avi", "--min-distance", "1e308"], "--min-distance 1e308: "),  # was SIGSEGV in OpenCV
+        (["run", "x.avi", "--min-distance", "1e30"], "--min-distance 1e30: "),
+        (["run", "x.avi", "--max-corners", "3000000000"], "--max-corners 3000000000: "),  # was a traceback
+        (["run", "x.avi", "--win-size", "100001"], "--win-size 100001: "),  # was a traceback
+        (["run", "x.avi", "--mask-median", "100001"], "--mask-median 100001: "),  # ran for minutes
+        (["run", "x.avi", "--mask-max-distance", "1e9"], "--mask-max-distance 1e9: "),
+        (["run", "x.avi", "--mask-extra-tracks", "1000001"], "--mask-extra-tracks 1000001: "),
+        (["run", "x.avi", "--k-max", "65"], "--k-max 65: "),
+        (["run", "x.avi", "--k", "1000000"], "--k 1000000: "),
+        (["run", "x.avi", "--frames", "100000"], "--frames 100000: "),
+        (["run", "x.avi", "--start", "99999999999"], "--start 99999999999: "),
+        (["run", "x.avi", "--threads", "100000"], "--threads 100000: "),
+        (["pair", "a.png", "b.png", "--mask-median", "100001"], "--mask-median 100001: "),
+        (["tracks", "t.npz", "--frames", "100000"], "--frames 100000: "),
+        (["tracks", "t.npz", "--k-max", "1000"], "--k-max 1000: "),
+        (["batch", "d", "--out", "o", "--max-corners", "3000000000"], "--max-corners 3000000000: "),
+        (["batch", "d", "--out", "o", "--jobs", "100000"], "--jobs 100000: "),
+        (["batch", "d", "--out", "o", "--clip-timeout", "1e300"], "--clip-timeout 1e300: "),
+    ],
+)
+def test_numeric_options_have_upper_bounds(args: list[str], expected: str) -> None:
+    code, out, err = moseg(*args)
+    line = one_error_line(err)
+    assert code == 2 and expected in line and "less than or equal to" in line and out == ""
+
+
+def test_option_bounds_are_the_libraries() -> None:
+    from mosegpipe import cluster, track
+    from mosegpipe.cli import options
+
+    assert options.MAX_CORNERS == track.MAX_CORNERS
+    assert options.MAX_WIN_SIZE_PX == track.MAX_WIN_SIZE_PX
+    assert options.MAX_MIN_DISTANCE_PX == track.MAX_MIN_DISTANCE_PX
+    assert options.MAX_K == cluster.MAX_K
+    for bad in ({"max_corners": 3_000_000_000}, {"win_size_px": 100_001}, {"min_distance_px": 1e308}):
+        with pytest.raises(ValueError, match="must lie in"):
+            track.TrackConfig(**bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="quality_level=0"):
+        track.TrackConfig(quality_level=0.0)
+    with pytest.raises(InputError, match="k_max=65 is larger than 64"):
+        ClusterConfig(k_max=65)
+
+
+@pytest.mark.parametrize(
+    ("toml", "message"),
+    [
+        ("max-corners = 3000000000\n", "max-corners = 3000000000: Input should be less than or equal to 100000"),
+        ("min-distance = 1e308\n", "min-distance = 1e+308: Input should be less than or equal to 10000"),
+        ("[run]\nmask-median = 100001\n", "run.mask-median = 100001: Input should be less than or equal to 255"),
+        ("k-method = 'residual'\nk_method = 'silhouette'\n", "'k-method' and 'k_method' set the same option"),
+        ("[run]\nk_max = 3\nk-max = 4\n", "'run.k_max' and 'run.k-max' set the same option"),
+    ],
+)
+def test_config_files_hold_the_option_bounds(tmp_path: Path, toml: str, message: str) -> None:
+    (tmp_path / "c.toml").write_text(toml)
+    code, out, err = moseg("run", tmp_path / "x.avi", "--config", tmp_path / "c.toml")
+    assert code == 1 and message in one_error_line(err) and out == ""
+
+
+def test_top_level_and_table_may_set_one_option(tmp_path: Path) -> None:
+    (tmp_path / "c.toml").write_text("k-method = 'residual'\n[run]\nk_method = 'silhouette'\n")
+    code, _, err = moseg("run", tmp_path / "x.avi", "--config", tmp_path / "c.toml")
+    assert code == 1 and "x.avi: no such file or folder" in one_error_line(err)  # the config was accepted
+
+
+def test_api_misuse_of_issue_24() -> None:
+    from mosegpipe.track import track_klt
+    from mosegpipe.trajectories import build_trajectories
+    from mosegpipe.types import Tracks
+
+    with pytest.raises(InputError, match="only 1 frame; segmenting motion needs at least 2"):  # was an IndexError
+        segment_frames(Frames(images=render_scene(2).frames[:1], fps=0.0, source="", start=0), model=tiny_model(1))
+    tracks = Tracks(xy=np.zeros((5, 4, 2), np.float32), visible=np.ones((5, 3), bool), size_hw=(10, 10))
+    with pytest.raises(ValueError, match=r"xy \(5, 4, 2\) and visible \(5, 3\)"):
+        build_trajectories(tracks)
+    with pytest.raises(ValueError, match=r"H, W >= 1, got \(3, 0, 0, 3\)"):  # was an OpenCV assertion
+        track_klt(Frames(images=np.zeros((3, 0, 0, 3), np.uint8), fps=0.0, source="", start=0))

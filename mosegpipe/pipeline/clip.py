@@ -106,11 +106,16 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
 
     Raises:
         TooFewTracksError: fewer than cfg.min_tracks tracks live through all frames.
-        InputError: cfg.k larger than the number of tracks.
+        InputError: fewer than 2 frames, or cfg.k larger than the number of tracks.
         CheckpointError: no model given and no shipped weights.
     """
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
+    if frames.num_frames < 2:
+        # One frame has no motion to segment (it raised an IndexError deep in the pipeline).
+        raise InputError(
+            f"{frames.source or 'frames'}: only {frames.num_frames} frame; segmenting motion needs at least 2"
+        )
     model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     tracks = track_klt(frames, cfg.track)
