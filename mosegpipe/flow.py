@@ -159,11 +159,15 @@ class FrameMotion:
         fb_error: (T, h, w) float32 forward-backward disagreement (`forward_backward_error`), pixels;
             inf where the flow leaves the image.
         scale: the flow's scale (h / H).
+        forward: (T-1, h, w, 2) float32 flow from frame t to t+1, pixels (None when not kept).
+        backward: (T-1, h, w, 2) float32 flow from frame t+1 to t, pixels (None when not kept).
     """
 
     residual: npt.NDArray[np.float32]
     fb_error: npt.NDArray[np.float32]
     scale: float
+    forward: npt.NDArray[np.float32] | None = None
+    backward: npt.NDArray[np.float32] | None = None
 
 
 def frame_motion(images: npt.NDArray[np.uint8], cfg: FlowConfig = FlowConfig()) -> FrameMotion:
@@ -200,4 +204,10 @@ def frame_motion(images: npt.NDArray[np.uint8], cfg: FlowConfig = FlowConfig()) 
         gray = list(pool.map(lambda im: to_gray(im, cfg.scale), images))
         flows = list(pool.map(flow_between, pairs))
         found = list(pool.map(evidence, range(num)))
-    return FrameMotion(np.stack([r for r, _ in found]), np.stack([e for _, e in found]), cfg.scale)
+    return FrameMotion(
+        np.stack([r for r, _ in found]),
+        np.stack([e for _, e in found]),
+        cfg.scale,
+        np.stack(flows[: num - 1]),
+        np.stack(flows[num - 1 :]),
+    )

@@ -141,3 +141,26 @@ def test_video_frame_mask_uses_the_moving_pixels() -> None:
     assert (frame_mask(frame, MaskConfig(method="motion"))[moving] == MOVING_UNCLUSTERED).all()
     # another method ignores the moving pixels
     assert frame_mask(frame, MaskConfig(method="nearest"))[15, 40] == 0
+
+
+def test_scores_carried_along_the_flow_fill_a_frame_whose_flow_missed_the_mover() -> None:
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import moving_from_motion
+
+    num, h, w = 3, 40, 60
+    images = np.stack([_texture(h, w, 5)] * num)
+    residual = np.full((num, h, w), 0.05, np.float32)
+    residual[0, 10:20, 10:20] = residual[2, 10:20, 30:40] = 5.0  # frame 1's flow missed the square
+    residual[1, 30:35, 50:55] = 0.8  # and saw a speck of noise
+    # the square moves 10 px right per frame: frame 0 -> 1 -> 2
+    forward = np.zeros((num - 1, h, w, 2), np.float32)
+    forward[..., 0] = 10.0
+    backward = -forward
+    fb_error = np.zeros_like(residual)
+    motion = FrameMotion(residual, fb_error, 1.0, forward, backward)
+    base = dict(work_scale=1.0, superpixels=0, colour_weight=0.0, fb_weight=0.0, min_residual_px=0.0, min_component=0.0)
+    without = moving_from_motion(images, motion, MotionMaskConfig(temporal_weight=0.0, **base))
+    carried = moving_from_motion(images, motion, MotionMaskConfig(**base))
+    assert not without[1, 12:18, 22:28].any()
+    assert carried[1, 12:18, 22:28].all()  # where the square is in frame 1
+    assert carried[0, 12:18, 12:18].all() and carried[2, 12:18, 32:38].all()
