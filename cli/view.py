@@ -29,7 +29,11 @@ REPLAY_KINDS = ("clip", "video", "pair", "tracks")
 
 
 def _read_run_summary(path: Path) -> dict[str, Any]:
-    """A run's summary.json, checked enough to replay it (kind, source, model; config in the library)."""
+    """A run's summary.json, checked enough to replay it (kind, source, model; config in the library).
+
+    With a recorded `source_identity`, `source` is replaced by the identity's absolute path(s), checked
+    to hold what the run read.
+    """
     import json
 
     if not path.is_file():
@@ -49,12 +53,19 @@ def _read_run_summary(path: Path) -> dict[str, Any]:
     sources = source if kind == "pair" else [source]
     if not isinstance(sources, list) or not sources or not all(isinstance(s, str) and s for s in sources):
         raise InputError(f"{path}: 'source' is missing or not a path: {source!r}")
-    for s in sources:
-        if not Path(s).exists():
-            raise InputError(
-                f"{s}: no such file or folder (the source recorded in {path}; relative paths are taken from "
-                "the folder the run was started in)"
-            )
+    identities = data.get("source_identity")
+    # None: written before identities were recorded; [None, None]: a pair of images given from Python.
+    if identities is None or identities == [None, None]:
+        for s in sources:
+            if not Path(s).exists():
+                raise InputError(
+                    f"{s}: no such file or folder (the source recorded in {path}, which has no absolute path: a "
+                    "relative one is taken from this folder; replay from the folder the run was started in)"
+                )
+    else:
+        recorded = identities if kind == "pair" else [identities]
+        found = [_check_source_identity(path, identity) for identity in _source_identities(path, recorded, sources)]
+        data["source"] = found if kind == "pair" else found[0]
     model = data.get("model")
     if not isinstance(model, dict) or not isinstance(model.get("model_frames"), int):
         raise InputError(f"{path}: 'model' is missing or has no 'model_frames'")
@@ -65,6 +76,41 @@ def _read_run_summary(path: Path) -> dict[str, Any]:
         if kind in ("video", "tracks") and not isinstance(data.get(key, 0), int):
             raise InputError(f"{path}: {key!r} is not an integer: {data.get(key)!r}")
     return data
+
+
+def _source_identities(path: Path, recorded: Any, sources: list[str]) -> list[dict[str, Any]]:
+    """The recorded `source_identity` (one per source), checked to be what the summary builders write."""
+    if not isinstance(recorded, list) or len(recorded) != len(sources):
+        raise InputError(f"{path}: 'source_identity' does not match 'source': {recorded!r}")
+    for identity in recorded:
+        if not (
+            isinstance(identity, dict) and isinstance(identity.get("path"), str) and os.path.isabs(identity["path"])
+        ):
+            raise InputError(f"{path}: 'source_identity' has no absolute 'path': {identity!r}")
+    return recorded
+
+
+def _check_source_identity(path: Path, recorded: dict[str, Any]) -> str:
+    """The absolute path of a run's source, after checking it is still what the run read.
+
+    Raises:
+        InputError: the source is gone, or its size, first MiB or files differ from the recorded ones.
+    """
+    from mosegpipe.provenance import identity_differences, source_identity
+
+    where = recorded["path"]
+    now = source_identity(where)
+    if now is None:
+        raise InputError(f"{where}: no such file or folder (the source recorded in {path})")
+    differ = identity_differences(recorded, now)
+    if differ:
+        what = f"it is {differ[0]}" if differ[0].startswith("a ") else " and ".join(differ)
+        verb = "" if what.startswith("it ") else " differ" if len(differ) > 1 or differ == ["files"] else " differs"
+        raise InputError(
+            f"{path}: the source {where} changed since the run ({what}{verb}); replaying it would segment "
+            "another input: restore the run's input, or segment this one with a new run"
+        )
+    return where
 
 
 def _check_same_model(net: Any, recorded: dict[str, Any], where: Path) -> None:
@@ -102,7 +148,8 @@ def replay(
 ) -> None:
     """Run an earlier segmentation again with the settings its summary.json recorded.
 
-    Same input (the recorded source path), the same frames (--start, --frames; whole-video mode and
+    Same input (the recorded absolute source path, refused when the file or folder changed since the
+    run), the same frames (--start, --frames; whole-video mode and
     the frames it read), every pipeline setting (summary.json `config`: tracker, automatic K,
     masks, ...) and the same weights (the recorded --model file, or the shipped weights). Only the
     outputs (--out, --no-rrd) are chosen here. Prints whether K came out as recorded.

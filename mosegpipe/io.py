@@ -23,10 +23,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
+from mosegpipe.provenance import IMAGE_SUFFIXES  # defined there: the CLI lists frame folders without OpenCV
 from mosegpipe.types import Frames
-
-IMAGE_SUFFIXES: frozenset[str] = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
-"""File name endings (lower case) treated as images, in a frame folder or as a single image."""
 
 _VIDEO_FOURCC: dict[str, str] = {
     # opencv-python-headless has no H.264 encoder; MJPG writes and reads back frame-exact.

@@ -3,7 +3,8 @@
 Each folder is built under a temporary name and renamed when complete, so a failure never leaves half
 an output behind; `check_output_dir` lets a caller refuse an occupied folder before spending time on
 segmentation. One summary builder per kind of result (clip, pair, video); the folder layout and the
-summary.json schema are in docs/OUTPUTS.md.
+summary.json schema are in docs/OUTPUTS.md; each summary records its source's identity (absolute
+path and a fingerprint, mosegpipe.provenance) so that `moseg replay` reads the same input.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from mosegpipe.pipeline import (
     model_info,
     segment_video,
 )
+from mosegpipe.provenance import source_identity
 from mosegpipe.runtime import run_ahead
 
 if TYPE_CHECKING:
@@ -136,6 +138,7 @@ def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
         "schema": SUMMARY_SCHEMA,
         "kind": "clip",
         "source": result.frames.source,
+        "source_identity": source_identity(result.frames.source),
         "version": __version__,
         "start": result.frames.start,
         "frames": result.frames.num_frames,
@@ -215,6 +218,7 @@ def pair_summary(result: PairResult, cfg: PipelineConfig, sources: tuple[str, st
         "schema": SUMMARY_SCHEMA,
         "kind": "pair",
         "source": list(sources),
+        "source_identity": [source_identity(s) for s in sources],
         "version": __version__,
         "size_hw": [list(result.images[0].shape[:2]), list(result.images[1].shape[:2])],
         "k": c.k,
@@ -293,6 +297,7 @@ def video_summary(
         "schema": SUMMARY_SCHEMA,
         "kind": "video",
         "source": str(path),
+        "source_identity": source_identity(path),
         "version": __version__,
         "frames": num_frames,
         "size_hw": list(info["size_hw"]),
@@ -417,6 +422,7 @@ def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> di
         "schema": SUMMARY_SCHEMA,
         "kind": "tracks",
         "source": source,
+        "source_identity": source_identity(source),
         "version": __version__,
         "start": result.start,
         "frames": result.trajectories.data.shape[1] // 2,

@@ -29,6 +29,7 @@ from mosegpipe.masks import MASK_METHODS, MaskConfig
 from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_video
+from mosegpipe.provenance import source_identity
 from mosegpipe.rigid import RigidCheckConfig
 from mosegpipe.track import TrackConfig
 
@@ -204,7 +205,9 @@ def test_replay_refuses_what_it_cannot_replay(tmp_path: Path, long_avi: Path, mo
         (tmp_path / "batch_summary.json", "a batch summary; replay one clip's OUT/NAME/summary.json"),
         (_edited(summary, lambda d: d.pop("schema")), "not a moseg summary.json"),
         (_edited(summary, lambda d: d.update(kind="movie")), "kind 'movie' cannot be replayed"),
-        (_edited(summary, lambda d: d.update(source=str(tmp_path / "gone.avi"))), "gone.avi: no such file or folder"),
+        (_edited(summary, lambda d: d["source_identity"].update(path=str(tmp_path / "gone.avi"))), "gone.avi: no such file or folder"),
+        (_edited(summary, lambda d: d.update(source="gone.avi", source_identity=None)), "gone.avi: no such file or folder"),
+        (_edited(summary, lambda d: d.update(source_identity=["x"])), "'source_identity' has no absolute 'path'"),
         (_edited(summary, lambda d: d["model"].update(checkpoint=str(tmp_path / "m.pt"))), "m.pt: the checkpoint"),
         (_edited(summary, lambda d: d["model"].update(recipe="other")), "the run used a model with recipe 'other'"),
         (_edited(summary, lambda d: d["config"]["track"].update(max_corners="many")), "config.track.max_corners: expected an integer"),
@@ -216,6 +219,99 @@ def test_replay_refuses_what_it_cannot_replay(tmp_path: Path, long_avi: Path, mo
         code, stdout, stderr = moseg("replay", path, "-o", tmp_path / "again")
         assert code == 1 and stdout == "" and expected in one_error_line(stderr), (path, stderr)
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no output folder, nothing half-written
+
+
+def test_replay_from_another_folder_replays_the_recorded_source(
+    tmp_path: Path, long_avi: Path, models: dict[int, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A relative source is recorded with its absolute path: a replay started elsewhere reads the run's
+    input, not a file of the same name in its own folder (issue 24)."""
+    started, elsewhere = tmp_path / "started", tmp_path / "elsewhere"
+    started.mkdir()
+    elsewhere.mkdir()
+    (started / "clip.avi").write_bytes(long_avi.read_bytes())
+    write_avi(elsewhere / "clip.avi", render_scene(13, seed=5).frames)  # a different video, same relative path
+    monkeypatch.chdir(started)
+    code, _, stderr = moseg(
+        "run", "clip.avi", "--frames", "3", "--model", models[3], "-o", tmp_path / "run", "--no-rrd"
+    )
+    assert code == 0, stderr
+    recorded = summary_of(tmp_path / "run")
+    assert recorded["source"] == "clip.avi"  # as given
+    identity = recorded["source_identity"]
+    assert identity["path"] == str(started / "clip.avi") and identity["size"] == long_avi.stat().st_size
+    assert len(identity["sha256_first_mib"]) == 64
+    monkeypatch.chdir(elsewhere)
+    code, stdout, stderr = moseg("replay", tmp_path / "run" / "summary.json", "--no-rrd")
+    assert code == 0 and "as recorded" in stdout, stderr
+    again = summary_of(tmp_path / "run_replay")
+    assert again["source_identity"] == identity
+    assert np.array_equal(
+        np.load(tmp_path / "run" / "labels.npz")["xy"], np.load(tmp_path / "run_replay" / "labels.npz")["xy"]
+    )
+
+
+def test_replay_refuses_a_source_that_changed_or_went(
+    tmp_path: Path, long_avi: Path, models: dict[int, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "clip.avi").write_bytes(long_avi.read_bytes())
+    monkeypatch.chdir(tmp_path)
+    code, _, stderr = moseg("run", "clip.avi", "--frames", "3", "--model", models[3], "-o", "run", "--no-rrd")
+    assert code == 0, stderr
+    summary = tmp_path / "run" / "summary.json"
+    write_avi(tmp_path / "clip.avi", render_scene(13, seed=5).frames)  # replaced by another video, same name
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, stdout, stderr = moseg("replay", summary, "--no-rrd")
+    line = one_error_line(stderr)
+    assert code == 1 and stdout == ""
+    assert line.startswith(f"moseg: error: {summary}: the source {tmp_path / 'clip.avi'} changed since the run ("), line
+    assert "first MiB" in line
+    (tmp_path / "clip.avi").unlink()
+    code, stdout, stderr = moseg("replay", summary, "--no-rrd")
+    assert code == 1 and stdout == ""
+    assert f"{tmp_path / 'clip.avi'}: no such file or folder" in one_error_line(stderr)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [n for n in before if n != "clip.avi"]
+
+
+def test_replay_of_a_summary_without_source_identity(
+    tmp_path: Path, long_avi: Path, models: dict[int, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Summaries written before the identity existed: the source as recorded, a relative one from the working folder."""
+    (tmp_path / "clip.avi").write_bytes(long_avi.read_bytes())
+    monkeypatch.chdir(tmp_path)
+    code, _, stderr = moseg("run", "clip.avi", "--frames", "3", "--model", models[3], "-o", "run", "--no-rrd")
+    assert code == 0, stderr
+    old = _edited(tmp_path / "run" / "summary.json", lambda d: d.pop("source_identity"))
+    code, stdout, stderr = moseg("replay", old, "-o", "again", "--no-rrd")
+    assert code == 0 and "as recorded" in stdout, stderr
+    assert summary_of(tmp_path / "again")["source"] == "clip.avi"
+
+
+def test_source_identity_of_folders_pairs_and_tracks(tmp_path: Path) -> None:
+    folder = write_frames(tmp_path / "frames", render_scene(10).frames)
+    (folder / "notes.txt").write_text("not an image")
+    identity = source_identity(folder)
+    assert identity is not None and identity["path"] == str(folder)
+    assert [f["name"] for f in identity["files"]] == [f"{t:06d}.png" for t in range(8)]
+    assert identity["files"][0]["size"] == (folder / "000000.png").stat().st_size
+    assert source_identity("") is None and source_identity(tmp_path / "nope.avi") is None
+    samples = Path(__file__).resolve().parents[1] / "samples"
+    code, _, stderr = moseg(
+        "pair", samples / "basketball1.png", samples / "basketball2.png", "-o", tmp_path / "p", "--no-rrd"
+    )
+    assert code == 0, stderr
+    pair = summary_of(tmp_path / "p")["source_identity"]
+    assert [i["path"] for i in pair] == [str(samples / "basketball1.png"), str(samples / "basketball2.png")]
+    code, _, stderr = moseg("replay", tmp_path / "p" / "summary.json", "--no-rrd")
+    assert code == 0, stderr
+    rng = np.random.default_rng(0)
+    velocity = np.where(np.arange(60)[:, None] < 30, [[2.0, 0.0]], [[0.0, -3.0]])
+    xy = rng.uniform(0, 300, (60, 1, 2)) + np.arange(5)[None, :, None] * velocity[:, None, :]
+    np.savez(tmp_path / "tracks.npz", xy=xy.astype(np.float32))
+    code, _, stderr = moseg("tracks", tmp_path / "tracks.npz", "-o", tmp_path / "t")
+    assert code == 0, stderr
+    tracks = summary_of(tmp_path / "t")["source_identity"]
+    assert tracks["path"] == str(tmp_path / "tracks.npz") and tracks["size"] == (tmp_path / "tracks.npz").stat().st_size
 
 
 # ---------------------------------------------------------------------------------------------
