@@ -445,6 +445,10 @@ def main(argv: list[str] | None = None) -> None:
                 ]
             print("## (b) whole-video mode (`moseg run --whole`, windows of 5 frames)\n")
             print(video_table(runs, model, work) + "\n")
+        if "dense" not in args.skip and vtest.is_file():
+            video = write_video(resized_frames(vtest, args.video_frames, (854, 480)), work / "vtest_854.avi")
+            print("## (e) whole-video mode at 854x480 by dense-mask method (no recording)\n")
+            print(dense_table(video, model, work) + "\n", flush=True)
         if "startup" not in args.skip:
             print("## (d) start-up: `moseg run` on 5 frames from the shell\n")
             print(startup_tables(args.startup_clip.resolve(), work, args.startup_repeats) + "\n")
