@@ -47,6 +47,7 @@ import numpy.typing as npt
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
 from mosegpipe.evaluation.e2e import BOUNDARY_TOLERANCE, boundary_f, jaccard
+from mosegpipe.flow import DenseFlow, FlowConfig, camera_residual, fit_camera, to_gray
 from mosegpipe.masks import UNKNOWN
 from mosegpipe.pipeline import PipelineConfig, frame_mask, segment_clip, segment_video
 from mosegpipe.runtime import set_threads
@@ -199,26 +200,13 @@ class FlowHomographyConfig:
     close_px: int = 9
 
 
-_DIS_PRESETS = {"fast": cv2.DISOPTICAL_FLOW_PRESET_FAST, "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}
-
-
 def _residual_foreground(
-    dis: Any, a: npt.NDArray[np.uint8], b: npt.NDArray[np.uint8], cfg: FlowHomographyConfig
+    flow: DenseFlow, a: npt.NDArray[np.uint8], b: npt.NDArray[np.uint8], cfg: FlowHomographyConfig
 ) -> npt.NDArray[np.bool_]:
     """(H, W) pixels of gray image `a` whose flow to `b` the best homography does not explain."""
-    flow = dis.calc(a, b, None)
-    h, w = a.shape
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
-    xy = np.stack([xs, ys], axis=-1)
-    s = cfg.grid_step_px
-    src = xy[s // 2 :: s, s // 2 :: s].reshape(-1, 2)
-    hom, _ = cv2.findHomography(
-        src, src + flow[s // 2 :: s, s // 2 :: s].reshape(-1, 2), cv2.USAC_MAGSAC, cfg.ransac_px
-    )
-    if hom is None:
-        return np.zeros((h, w), dtype=bool)
-    predicted = cv2.perspectiveTransform(xy.reshape(1, -1, 2), hom).reshape(h, w, 2) - xy
-    residual = np.linalg.norm(flow - predicted, axis=-1)
+    fwd = flow(a, b)
+    fit = FlowConfig(preset=cfg.preset, grid_step_px=cfg.grid_step_px, ransac_px=cfg.ransac_px)
+    residual = camera_residual(fwd, fit_camera(fwd, None, fit))
     fg = (residual > max(cfg.threshold_px, cfg.noise_factor * 1.4826 * float(np.median(residual)))).astype(np.uint8)
     if cfg.open_px:
         fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, np.ones((cfg.open_px, cfg.open_px), np.uint8))
@@ -244,8 +232,9 @@ def flow_homography_labels(
     Returns:
         (T, H, W) uint8: 0 = background (camera motion), 1 = foreground. A single frame is all 0.
     """
-    gray = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in images]
-    dis = cv2.DISOpticalFlow.create(_DIS_PRESETS[check_choice("preset", cfg.preset, _DIS_PRESETS)])
+    check_choice("preset", cfg.preset, ("fast", "medium"))
+    gray = [to_gray(im, 1.0) for im in images]
+    dis = DenseFlow(FlowConfig(preset=cfg.preset))
     out = np.zeros(np.asarray(images).shape[:3], dtype=np.uint8)
     if len(gray) < 2:
         return out
