@@ -376,7 +376,10 @@ def write_video_outputs(
             if rrd:
                 from mosegpipe.viz import VIDEO_VIZ, VideoRecorder
 
-                recorder = stack.enter_context(VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps))
+                # A forced K has no runner-up: no margin chart.
+                recorder = stack.enter_context(
+                    VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps, margins=cfg.k is None)
+                )
 
             def overlays() -> Iterator[npt.NDArray[np.uint8]]:
                 """Writes each frame's mask (and recording) as the windows arrive; yields its overlay."""

@@ -7,8 +7,12 @@ without mixing, and each is written atomically (temporary file, closed, then ren
 Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`VideoRecorder`):
 
 - ``/``: AnnotationContext (static): class i "motion i" (motion label i; 0 = the dominant motion,
-  usually the background) and class 255 "unknown", with the colours of io.default_palette(): the
-  same values, names and colours as the mask PNGs and labels.npz.
+  usually the background) and class 255 "unknown", in the colours of the overlays' track dots
+  (:func:`point_colors`): the palette of the mask PNGs (io.default_palette()), motion 0 white.
+  Tracks, trails and embedding points take their colour from it.
+- ``video/mask`` (``image1/mask``, ``image2/mask``): AnnotationContext (static), the same classes in
+  the colours of the mask PNGs (:func:`mask_colors`), motion 0 transparent: the frame shows through
+  untinted, as in the overlays.
 - ``video/frame``: the frame. Clips: an EncodedImage (JPEG; a raw Image when jpeg_quality is 0).
   Videos: a VideoFrameReference into ``video/asset``, the frames as one H.264 MP4 (AssetVideo,
   static); or JPEG images as for clips with VizConfig(video_frames="jpeg").
@@ -25,6 +29,9 @@ Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`
   in the window (0 = left unlabelled) and its score minus the runner-up's (when the scores are given).
 
 Time-varying entities use the sequence timeline "frame" (index of the frame in the source video).
+Each file starts with its layout (a blueprint, sent as the default and active one, so that a viewer
+opens with it rather than a layout of its own from the first data), then the annotation contexts,
+logged once (a video names every class 0..254 up front: motions appear as it goes), then the data.
 An image pair (:func:`write_pair_recording`) is static, with ``image1/...`` and ``image2/...``
 in place of ``video/...`` and class 255 also standing for outlier matches.
 """
@@ -80,6 +87,9 @@ _SIDE_SHARES = {"summary": 1.0, "k_scores": 1.0, "embedding": 1.6}
 _CHOSEN_COLOR = (255, 190, 0)
 _OTHER_COLOR = (150, 150, 150)
 
+UNLABELLED_POINT_COLOR = (160, 160, 160)
+"""Colour of unlabelled / outlier points (class 255), as the overlays draw their crosses."""
+
 
 def class_ids_of(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.uint16]:
     """Class ids of point labels: the label itself, UNKNOWN_CLASS for -1 (unlabelled / outlier)."""
@@ -132,6 +142,33 @@ class VizConfig:
 
 VIDEO_VIZ = VizConfig(trail_frames=10, max_side_px=960)
 """Defaults of :class:`VideoRecorder`: short trails, frames at most 960 px wide, H.264 frames."""
+
+
+def mask_colors() -> npt.NDArray[np.uint8]:
+    """RGBA colour per mask value as the viewer draws the masks: the colours of the mask PNGs.
+
+    Returns:
+        (256, 4) uint8: io.default_palette(), opaque, except motion 0 (the dominant motion, usually
+        the background, black in the palette): fully transparent, so that the frame shows through
+        untinted, as overlay_mask leaves it.
+    """
+    rgba = np.concatenate([default_palette(), np.full((256, 1), 255, np.uint8)], axis=1)
+    rgba[0] = 0
+    return rgba
+
+
+def point_colors() -> npt.NDArray[np.uint8]:
+    """RGBA colour per class id as the viewer draws track points, trails and embedding points.
+
+    Returns:
+        (256, 4) uint8, opaque: the colour of the track dots in the overlays (masks.overlay_image):
+        io.default_palette() of the label, motion 0 white (its palette colour is black), class 255
+        (unlabelled / outlier) UNLABELLED_POINT_COLOR.
+    """
+    rgba = np.concatenate([default_palette(), np.full((256, 1), 255, np.uint8)], axis=1)
+    rgba[0, :3] = 255
+    rgba[UNKNOWN_CLASS, :3] = UNLABELLED_POINT_COLOR
+    return rgba
 
 
 def class_names(k: int, unknown: str = "unknown") -> dict[int, str]:
@@ -281,8 +318,8 @@ def _side_column(k_scores: Mapping[int, float]) -> rrb.Vertical:
     return rrb.Vertical(*views, row_shares=shares)
 
 
-def _annotation_context(num_classes: int, unknown: str = "unknown") -> rr.AnnotationContext:
-    """The class names and colours, built as an Arrow array of Rerun's own type.
+def _annotation_context(names: Mapping[int, str], colors: npt.NDArray[np.uint8]) -> rr.AnnotationContext:
+    """The class names and colours (RGBA per class id), built as an Arrow array of Rerun's own type.
 
     From ClassDescription objects Rerun casts the array, which imports pyarrow.compute: ~0.1 s of
     a recording's first-use cost (benchmarks/output_size.py --startup).
@@ -290,15 +327,26 @@ def _annotation_context(num_classes: int, unknown: str = "unknown") -> rr.Annota
     import pyarrow as pa
     import rerun as rr
 
-    palette = default_palette()
     rows = []
-    for i, name in class_names(num_classes, unknown).items():
-        r, g, b = (int(c) for c in palette[i])
-        info = {"id": i, "label": name, "color": (r << 24) | (g << 16) | (b << 8) | 0xFF}  # RGBA, packed
+    for i, name in names.items():
+        r, g, b, a = (int(c) for c in colors[i])
+        info = {"id": i, "label": name, "color": (r << 24) | (g << 16) | (b << 8) | a}  # RGBA, packed
         rows.append(
             {"class_id": i, "class_description": {"info": info, "keypoint_annotations": [], "keypoint_connections": []}}
         )
     return rr.AnnotationContext(pa.array([rows], type=rr.components.AnnotationContext.arrow_type()))
+
+
+def _log_annotation_contexts(rec: rr.RecordingStream, origins: Sequence[str], names: Mapping[int, str]) -> None:
+    """Once, static, before any data: the point colours at the root, the mask colours at each `origin/mask`.
+
+    Re-logging a static context as classes appeared left whole-video recordings in Rerun's own
+    colours (the background red, moving tracks blue): a context is logged once, with every class.
+    """
+    rec.log("/", _annotation_context(names, point_colors()), static=True)
+    masks = _annotation_context(names, mask_colors())
+    for origin in origins:
+        rec.log(f"{origin}/mask", masks, static=True)
 
 
 def _image_archetype(image: npt.NDArray[np.uint8], cfg: VizConfig) -> rr.Image | rr.EncodedImage:
@@ -471,8 +519,12 @@ class _Sink:
             self.send_blueprint(blueprint)
 
     def send_blueprint(self, blueprint: rrb.Blueprint) -> None:
-        """The recording's default layout (the viewer uses it until the user changes the layout)."""
-        self.rec.send_blueprint(blueprint, make_active=False, make_default=True)
+        """The recording's layout, as its default and the active one.
+
+        Sent before any data: a viewer that gets data first builds a layout of its own and keeps
+        it (a default that is not active only applies to a viewer that has none yet).
+        """
+        self.rec.send_blueprint(blueprint, make_active=True, make_default=True)
 
     def finish(self, write: bool = True) -> None:
         """Ends the stream; writes the recording to `tmp` when `write` (OSError when that fails)."""
@@ -592,7 +644,7 @@ def write_recording(
         sink = _Sink(tmp, app_id, final, blueprint)
         rec, written = sink.rec, False
         try:
-            rec.log("/", _annotation_context(k), static=True)
+            _log_annotation_contexts(rec, ["video"] if masks is not None else [], class_names(k))
             _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
             for t in range(frames.num_frames):
                 rec.set_time(TIMELINE, sequence=frames.start + t)
@@ -686,7 +738,8 @@ def write_pair_recording(
         sink = _Sink(tmp, app_id, final, blueprint)
         rec, written = sink.rec, False
         try:
-            rec.log("/", _annotation_context(num_classes, unknown="unknown / outlier"), static=True)
+            names = class_names(num_classes, unknown="unknown / outlier")
+            _log_annotation_contexts(rec, ["image1", "image2"] if masks is not None else [], names)
             _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
             for i, xy in enumerate((matches.xy1, matches.xy2)):
                 mask = None if masks is None else masks[i]
@@ -703,11 +756,26 @@ def write_pair_recording(
 # ---------------------------------------------------------------------------------------------
 
 
+def _video_blueprint(windows: bool, margins: bool) -> rrb.Blueprint:
+    """The frame with its mask and tracks above; K per window (and its score margin) under it."""
+    import rerun.blueprint as rrb
+
+    frame = rrb.Spatial2DView(origin="video", name="frame, tracks and masks")
+    if not windows:
+        return rrb.Blueprint(frame, *_panels(timeline=True))
+    series = [rrb.TimeSeriesView(origin="windows/k", name="K per window")]
+    if margins:
+        series.append(rrb.TimeSeriesView(origin="windows/k_margin", name="K score margin"))
+    return rrb.Blueprint(rrb.Vertical(frame, rrb.Horizontal(*series), row_shares=[5.0, 1.0]), *_panels(timeline=True))
+
+
 class VideoRecorder:
     """Streams a segmented video into one .rrd file, frame by frame, with flat memory.
 
-    Labels are global motion ids that may grow as the video goes on; the annotation context is
-    re-logged (static: the last one wins) whenever a new id appears. Track trails are kept for
+    Labels are global motion ids that may grow as the video goes on; the annotation contexts name
+    every class 0..254 from the start (logged once, before any data). The layout is sent first:
+    the frame with its mask and tracks above, K per window (and its score margin) under it. Track
+    trails are kept for
     the last `cfg.trail_frames` frames per track id. With cfg.video_frames "h264" the frames are
     encoded into one H.264 MP4 in memory as they come (about 8 kB a frame at 768x576) and logged
     at close() as an AssetVideo with a VideoFrameReference per frame; the masks, points and trails
@@ -720,6 +788,9 @@ class VideoRecorder:
         cfg: display settings.
         fps: frame rate stored in the video asset (the frames are shown on the "frame" timeline
             whatever it is).
+        windows: the layout has a chart of K per window (log_window).
+        margins: the layout has a chart of the K score margin per window (False when K is forced:
+            no window has a margin).
 
     Example:
         >>> with VideoRecorder("out/recording.rrd", fps=25.0) as rec:  # doctest: +SKIP
@@ -728,7 +799,13 @@ class VideoRecorder:
     """
 
     def __init__(
-        self, path: str | os.PathLike[str], app_id: str = "mosegpipe", cfg: VizConfig = VIDEO_VIZ, fps: float = 10.0
+        self,
+        path: str | os.PathLike[str],
+        app_id: str = "mosegpipe",
+        cfg: VizConfig = VIDEO_VIZ,
+        fps: float = 10.0,
+        windows: bool = True,
+        margins: bool = True,
     ) -> None:
         if not fps > 0:
             raise InputError(f"{path}: fps={fps} must be > 0")
@@ -737,9 +814,7 @@ class VideoRecorder:
         self._started = time.perf_counter()
         self._trail_len = cfg.trail_frames or 10**9
         self._trails: dict[int, list[npt.NDArray[np.float32]]] = {}
-        self._num_classes = 0
         self._num_frames = 0
-        self._has_margins = False
         self._num_windows = 0
         self._frame_times: list[int] = []
         self._encoder: H264Encoder | None = None
@@ -750,8 +825,8 @@ class VideoRecorder:
         self._target = atomic_write(self.path)
         tmp = self._target.__enter__()
         try:
-            # The layout is sent at close(): it shows the margin chart only when there are margins.
-            self._sink: _Sink | None = _Sink(tmp, app_id, self.path)
+            self._sink: _Sink | None = _Sink(tmp, app_id, self.path, _video_blueprint(windows, margins))
+            _log_annotation_contexts(self._sink.rec, ["video"], class_names(MAX_CLASSES))
         except BaseException as exc:
             self._close_encoder(flush=False)
             self._target.__exit__(type(exc), exc, exc.__traceback__)
@@ -783,7 +858,6 @@ class VideoRecorder:
         margin = k_margin(k_scores or {}, k) if k > 0 else None
         if margin is not None:
             rec.log("windows/k_margin", rr.Scalars(margin[0]))
-            self._has_margins = True
         self._num_windows += 1
 
     def log_frame(
@@ -821,10 +895,6 @@ class VideoRecorder:
             raise InputError(f"frame {t}: mask {mask.shape} and image {image.shape[:2]} sizes differ")
         image, mask, xy = self._downscale(image, mask, xy)
         rec = self._sink.rec
-        needed = int(labels.max()) + 1 if len(labels) else 0
-        if needed > self._num_classes or self._num_frames == 0:
-            self._num_classes = max(needed, self._num_classes, 1)
-            rec.log("/", _annotation_context(self._num_classes), static=True)
         rec.set_time(TIMELINE, sequence=int(t))
         class_ids = class_ids_of(labels)
         if self._encoder is not None:
@@ -890,19 +960,6 @@ class VideoRecorder:
             ),
         )
 
-    def _blueprint(self) -> rrb.Blueprint:
-        """The frame above, K per window (and its margin, when logged) under it."""
-        import rerun.blueprint as rrb
-
-        views: list[rrb.View] = [rrb.Spatial2DView(origin="video", name="video")]
-        if self._num_windows:
-            series = [rrb.TimeSeriesView(origin="windows/k", name="K per window")]
-            if self._has_margins:
-                series.append(rrb.TimeSeriesView(origin="windows/k_margin", name="K score margin"))
-            views.append(rrb.Horizontal(*series))
-            return rrb.Blueprint(rrb.Vertical(*views, row_shares=[5.0, 1.0]), *_panels(timeline=True))
-        return rrb.Blueprint(views[0], *_panels(timeline=True))
-
     def close(self) -> Path:
         """Finish the file and move it to its final name. Safe to call twice.
 
@@ -914,7 +971,6 @@ class VideoRecorder:
             try:
                 try:
                     self._log_video_asset(sink.rec)
-                    sink.send_blueprint(self._blueprint())
                 except BaseException:
                     self._close_encoder(flush=False)
                     sink.finish(write=False)

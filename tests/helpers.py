@@ -91,15 +91,58 @@ def best_permutation_accuracy(pred: npt.NDArray[np.int64], gt: npt.NDArray[np.in
 
 
 def read_rrd(path: Path) -> Counter[str]:
-    """Rows per entity path of a recording; RrdReader.store() fails on a file that was not closed."""
+    """Rows per entity path of a recording, not counting the annotation contexts (a mask's colour
+    table shares its entity); RrdReader.store() fails on a file that was not closed."""
     from rerun.chunk import RrdReader
 
     reader = RrdReader(path)
     reader.store()
     rows: Counter[str] = Counter()
     for chunk in reader.stream().to_chunks():
+        names = chunk.to_record_batch().schema.names
+        if chunk.entity_path != "/" and all(":" not in n or n.startswith("AnnotationContext:") for n in names):
+            continue
         rows[chunk.entity_path] += chunk.num_rows
     return rows
+
+
+_BLUEPRINT_ENTITIES = ("/view/", "/container/", "/viewport", "/blueprint_panel", "/selection_panel", "/time_panel")
+
+
+def rrd_messages(path: Path) -> list[str]:
+    """The messages of an .rrd in file order, as `rerun rrd print` lists them: "activate" for a
+    blueprint made active and default, "blueprint" for a layout chunk, else the chunk's entity path.
+
+    RrdReader gives the stores' chunks but neither their order in the file nor the activation.
+    """
+    import re
+    import shutil
+    import subprocess
+    import sys
+
+    beside = Path(sys.executable).with_name("rerun")
+    exe = str(beside) if beside.is_file() else shutil.which("rerun")
+    assert exe, "the rerun program of rerun-sdk is not installed"
+    done = subprocess.run([exe, "rrd", "print", str(path)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    messages = []
+    for line in done.stdout.splitlines():
+        if line.startswith("BlueprintActivationCommand("):
+            flags = dict(re.findall(r"(make_active|make_default): (true|false)", line))
+            messages.append("activate" if flags == {"make_active": "true", "make_default": "true"} else line)
+        elif line.startswith("Chunk("):
+            entity = line.split(" - ")[1]
+            messages.append("blueprint" if entity.startswith(_BLUEPRINT_ENTITIES) else entity)
+    return messages
+
+
+def assert_layout_first(path: Path) -> None:
+    """The recording's layout is sent once, made active and default, before any of its data."""
+    messages = rrd_messages(path)
+    assert messages.count("activate") == 1, messages[:40]
+    head = messages[: messages.index("activate")]
+    assert head and set(head) <= {"blueprint", "/__properties"}, head
+    assert "blueprint" not in messages[len(head) :]
 
 
 _RUNNER = CliRunner(env={"COLUMNS": "200"})

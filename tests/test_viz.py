@@ -22,6 +22,8 @@ from mosegpipe.viz import (
     write_recording,
 )
 
+from helpers import assert_layout_first
+
 T, H, W = 3, 24, 32
 
 
@@ -128,8 +130,9 @@ def test_recording_holds_every_entity(tmp_path: Path) -> None:
     assert len(got["recordings"]) == 1 and got["recordings"][0].application_id == "mosegpipe"
     assert len(got["blueprints"]) == 1
     rows = got["rows"]
-    for entity in ("/video/frame", "/video/mask", "/video/tracks", "/video/points"):
+    for entity in ("/video/frame", "/video/tracks", "/video/points"):
         assert rows[entity] == T, entity
+    assert len(_column(got["batches"]["/video/mask"], "SegmentationImage:buffer")) == T  # + its colours
     for entity in ("/", "/embedding", "/embedding/box", "/k_scores/k", "/k_scores/scores", "/summary"):
         assert rows[entity] == 1, entity
 
@@ -168,16 +171,80 @@ def test_clip_trails_follow_each_visible_track(tmp_path: Path) -> None:
 def test_annotation_context_matches_rerun_class_descriptions() -> None:
     import rerun as rr
 
-    palette = viz.default_palette()
+    colors = viz.mask_colors()
     expected = rr.AnnotationContext(
         [
-            rr.ClassDescription(info=rr.AnnotationInfo(id=i, label=name, color=tuple(int(c) for c in palette[i])))
+            rr.ClassDescription(info=rr.AnnotationInfo(id=i, label=name, color=tuple(int(c) for c in colors[i])))
             for i, name in class_names(3, "unknown / outlier").items()
         ]
     )
-    got = viz._annotation_context(3, "unknown / outlier")
+    got = viz._annotation_context(class_names(3, "unknown / outlier"), colors)
     assert got.context is not None and expected.context is not None
     assert got.context.pa_array.to_pylist() == expected.context.pa_array.to_pylist()
+
+
+def _contexts(path: Path) -> dict[str, dict[int, tuple[str, tuple[int, ...]]]]:
+    """Entity -> class id -> (name, RGBA) of each annotation context in a recording."""
+    got = _read(path)["batches"]
+    out = {}
+    for entity, batches in got.items():
+        rows = _column(batches, "AnnotationContext:context")
+        if rows:
+            assert len(rows) == 1, f"{entity}: the context is logged once"
+            out[entity] = {
+                c["class_id"]: (
+                    c["class_description"]["info"]["label"],
+                    tuple((c["class_description"]["info"]["color"] >> s) & 0xFF for s in (24, 16, 8, 0)),
+                )
+                for c in rows[0][0]  # the one row's one instance: the classes
+            }
+    return out
+
+
+def _assert_png_colours(path: Path, mask_entities: list[str], num_classes: int) -> None:
+    """Masks in the PNG palette (motion 0 transparent: untinted, as in the overlays); points as the
+    overlays' dots (palette, motion 0 white, unlabelled grey)."""
+    from mosegpipe.io import default_palette
+
+    palette = [tuple(int(c) for c in rgb) for rgb in default_palette()]
+    contexts = _contexts(path)
+    assert set(contexts) == {"/", *mask_entities}
+    for entity in mask_entities:
+        colours = {i: rgba for i, (_, rgba) in contexts[entity].items()}
+        assert set(colours) == {*range(num_classes), 255}
+        assert colours[0][3] == 0  # transparent: the frame shows through untinted
+        for i in [*range(1, num_classes), 255]:
+            assert colours[i] == (*palette[i], 255), (entity, i)
+    dots = {i: rgba for i, (_, rgba) in contexts["/"].items()}
+    assert dots[0] == (255, 255, 255, 255) and dots[255] == (*viz.UNLABELLED_POINT_COLOR, 255)
+    assert all(dots[i] == (*palette[i], 255) for i in range(1, num_classes))
+    assert dots[1] == (128, 0, 0, 255)  # motion 1 red, as in the mask PNGs and overlays
+
+
+def test_clip_colours_are_the_png_palette(tmp_path: Path) -> None:
+    _assert_png_colours(write_recording(tmp_path / "clip.rrd", **_inputs()), ["/video/mask"], 2)
+
+
+def test_pair_colours_are_the_png_palette(tmp_path: Path) -> None:
+    _assert_png_colours(_write_pair(tmp_path / "pair.rrd"), ["/image1/mask", "/image2/mask"], 3)
+
+
+def test_video_colours_are_the_png_palette(tmp_path: Path) -> None:
+    path = tmp_path / "video.rrd"
+    _record_video(path, VizConfig())  # motions 0, 1, then 2 from the fourth frame
+    _assert_png_colours(path, ["/video/mask"], 255)  # every class named up front, logged once
+    assert _contexts(path)["/"][254][0] == "motion 254"
+
+
+def test_overlay_and_viewer_draw_motion_0_alike() -> None:
+    from mosegpipe.masks import overlay_image
+
+    image = np.full((9, 9, 3), 90, np.uint8)
+    mask = np.zeros((9, 9), np.uint8)
+    out = overlay_image(image, mask, np.array([[4.0, 4.0]], np.float32), np.array([0]))
+    assert (out[0, 0] == image[0, 0]).all()  # the background untinted: transparent in the viewer
+    assert viz.mask_colors()[0, 3] == 0
+    assert tuple(out[4, 4]) == tuple(viz.point_colors()[0, :3]) == (255, 255, 255)  # a white dot
 
 
 def test_first_recording_does_not_import_pyarrow_compute(tmp_path: Path) -> None:
@@ -197,7 +264,9 @@ print("pyarrow.compute" in sys.modules)
 
 
 def test_clip_layout(tmp_path: Path) -> None:
-    layout = _layout(write_recording(tmp_path / "clip.rrd", **_inputs()))
+    path = write_recording(tmp_path / "clip.rrd", **_inputs())
+    assert_layout_first(path)
+    layout = _layout(path)
     views = layout["views"]
     assert {name: (v["class"], v["origin"]) for name, v in views.items()} == {
         "frame, tracks and masks": ("2D", "video"),
@@ -320,9 +389,8 @@ def test_class_names_match_mask_values() -> None:
     assert class_names(2) == {0: "motion 0 (dominant)", 1: "motion 1", 255: "unknown"}
 
 
-def test_pair_recording(tmp_path: Path) -> None:
+def _pair_inputs() -> tuple:
     from mosegpipe.types import Matches
-    from mosegpipe.viz import write_pair_recording
 
     rng = np.random.default_rng(3)
     img1 = rng.integers(0, 256, (20, 30, 3), dtype=np.uint8)
@@ -331,13 +399,38 @@ def test_pair_recording(tmp_path: Path) -> None:
     matches = Matches(xy1=xy1, xy2=xy1 + 1, score=np.zeros(6, np.float32), size1_hw=(20, 30), size2_hw=(24, 28))
     labels = np.array([0, 0, 1, 1, -1, 2])
     masks = [np.zeros((20, 30), np.uint8), np.ones((24, 28), np.uint8)]
-    path = write_pair_recording(
-        tmp_path / "pair.rrd", (img1, img2), matches, labels, rng.normal(size=(6, 2)), masks, {2: 0.1, 3: 0.2}, 3
-    )
+    return (img1, img2), matches, labels, rng.normal(size=(6, 2)), masks, {2: 0.1, 3: 0.2}, 3
+
+
+def _write_pair(path: Path) -> Path:
+    from mosegpipe.viz import write_pair_recording
+
+    return write_pair_recording(path, *_pair_inputs())
+
+
+def test_pair_layout(tmp_path: Path) -> None:
+    path = _write_pair(tmp_path / "pair.rrd")
+    assert_layout_first(path)
+    views = _layout(path)["views"]
+    assert {name: (v["class"], v["origin"]) for name, v in views.items()} == {
+        "image 1": ("2D", "image1"),
+        "image 2": ("2D", "image2"),
+        "summary": ("TextDocument", "summary"),
+        "score per K": ("2D", "k_scores"),
+        "embedding": ("3D", "embedding"),
+    }
+
+
+def test_pair_recording(tmp_path: Path) -> None:
+    from mosegpipe.viz import write_pair_recording
+
+    (img1, img2), matches, labels, _, _, _, _ = _pair_inputs()
+    path = _write_pair(tmp_path / "pair.rrd")
 
     got = _read(path)
-    for entity in ("/image1/frame", "/image1/mask", "/image1/points", "/image2/frame", "/image2/points", "/embedding"):
+    for entity in ("/image1/frame", "/image1/points", "/image2/frame", "/image2/points", "/embedding"):
         assert got["rows"][entity] == 1, entity
+    assert len(_column(got["batches"]["/image1/mask"], "SegmentationImage:buffer")) == 1  # + its colours
     class_ids = _column(got["batches"]["/image2/points"], "Points2D:class_ids")[0]
     assert class_ids == [0, 0, 1, 1, 255, 2]  # outlier -> class 255 (unknown)
     assert "unknown / outlier" in str(got["batches"]["/"])
@@ -398,7 +491,7 @@ def test_video_recorder_streams_frames_and_grows_classes(tmp_path: Path) -> None
     # Trails hold at most trail_frames=2 points.
     strips = _column(got["batches"]["/video/tracks"], "LineStrips2D:strips")
     assert max(len(s) for frame in strips if frame for s in frame) == 2
-    assert "motion 2" in str(got["batches"]["/"]) and "motion 3" not in str(got["batches"]["/"])
+    assert "motion 3" in str(got["batches"]["/"])  # every class named up front
 
 
 def test_video_recorder_stores_frames_as_one_h264_asset(tmp_path: Path) -> None:
@@ -441,23 +534,45 @@ def test_video_recorder_logs_k_per_window(tmp_path: Path) -> None:
     margins = [b for b in got["/windows/k_margin"] if "frame" in b]
     assert list(zip(_column(margins, "frame"), _column(margins, "Scalars:scalars"))) == [(100, [pytest.approx(0.3)])]
     layout = _layout(path)
+    assert layout["views"]["frame, tracks and masks"]["origin"] == "video"
     assert layout["views"]["K per window"]["class"] == "TimeSeries"
     assert layout["views"]["K per window"]["origin"] == "windows/k"
     assert layout["views"]["K score margin"]["origin"] == "windows/k_margin"
     assert layout["panels"] == {"blueprint_panel": 2, "selection_panel": 2, "time_panel": 3}
 
 
+def test_video_layout(tmp_path: Path) -> None:
+    path = tmp_path / "video.rrd"
+    _record_video(path, VizConfig())
+    assert_layout_first(path)
+    layout = _layout(path)
+    views = layout["views"]
+    assert {name: (v["class"], v["origin"]) for name, v in views.items()} == {
+        "frame, tracks and masks": ("2D", "video"),
+        "K per window": ("TimeSeries", "windows/k"),
+        "K score margin": ("TimeSeries", "windows/k_margin"),
+    }
+    # The frame view shows everything under video/: the frames, the masks and the tracks.
+    assert views["frame, tracks and masks"]["props"]["ViewContents"]["query"] == ["$origin/**"]
+    rows = _read(path)["rows"]
+    assert all(rows[f"/video/{e}"] for e in ("frame", "asset", "mask", "tracks", "points"))
+    (root,) = [c for c in layout["containers"].values() if c["row_shares"]]
+    assert root["contents"][0] == "frame, tracks and masks"
+    assert root["row_shares"][0] / sum(root["row_shares"]) >= 0.75
+
+
 def test_video_recorder_without_windows_or_margins(tmp_path: Path) -> None:
     from mosegpipe.viz import VideoRecorder
 
     path = tmp_path / "plain.rrd"
-    with VideoRecorder(path) as rec:
+    with VideoRecorder(path, windows=False) as rec:
         rec.log_frame(0, np.zeros((8, 8, 3), np.uint8), np.zeros((1, 2)), np.array([0]), np.array([0]))
-    assert set(_layout(path)["views"]) == {"video"}
-    with VideoRecorder(path) as rec:
+    assert set(_layout(path)["views"]) == {"frame, tracks and masks"}
+    with VideoRecorder(path, margins=False) as rec:
         rec.log_window(0, 3)  # no scores (K forced): K per window only
         rec.log_frame(0, np.zeros((8, 8, 3), np.uint8), np.zeros((1, 2)), np.array([0]), np.array([0]))
-    assert set(_layout(path)["views"]) == {"video", "K per window"}
+    assert set(_layout(path)["views"]) == {"frame, tracks and masks", "K per window"}
+    assert_layout_first(path)
 
 
 def test_video_recorder_rejects_a_size_change_in_h264(tmp_path: Path) -> None:
