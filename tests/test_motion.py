@@ -158,7 +158,15 @@ def test_scores_carried_along_the_flow_fill_a_frame_whose_flow_missed_the_mover(
     backward = -forward
     fb_error = np.zeros_like(residual)
     motion = FrameMotion(residual, fb_error, 1.0, forward, backward)
-    base = dict(work_scale=1.0, superpixels=0, colour_weight=0.0, fb_weight=0.0, min_residual_px=0.0, min_component=0.0)
+    base = dict(
+        work_scale=1.0,
+        superpixels=0,
+        colour_weight=0.0,
+        fb_weight=0.0,
+        min_residual_px=0.0,
+        noise_factor=0.0,
+        min_component=0.0,
+    )
     without = moving_from_motion(images, motion, MotionMaskConfig(temporal_weight=0.0, **base))
     carried = moving_from_motion(images, motion, MotionMaskConfig(**base))
     assert not without[1, 12:18, 22:28].any()
