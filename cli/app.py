@@ -1,7 +1,7 @@
 """The Typer app and the error policy of every moseg command, in one place.
 
 Only the CLI prints, and only here does a MosegError (or an OS error, Ctrl-C, SIGTERM) become one
-line on stderr and exit code 1 (`_friendly`, `_fail`); usage errors are one line with exit code 2
+line on stderr and exit code 1, 130 or 143 (`_friendly`, `_fail`); usage errors are one line with exit code 2
 (`_MosegGroup`). `_setup` sets logging, native log levels and threads before a command imports the
 library; `--version` is the app's callback. The commands live in the modules beside this one and are
 registered, in the order --help lists them, by cli/main.py.
@@ -21,7 +21,7 @@ from collections.abc import Callable
 from typing import Annotated, Any, TypeVar
 
 import typer
-from typer.core import TyperGroup
+from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from mosegpipe import __version__
 from mosegpipe.errors import MosegError
@@ -32,8 +32,93 @@ except ImportError:  # pragma: no cover - older Typer uses the click package
     import click as _click  # type: ignore[no-redef]
 
 
-EXIT_CODES = {0: "success", 1: "bad input, a failed or interrupted run (one 'moseg: error:' line)", 2: "usage error"}
-"""Exit codes of every moseg command (README, docs/OUTPUTS.md)."""
+EXIT_CODES = {
+    0: "success (also when stdout was closed early, as by `| head`)",
+    1: "bad input or a failed run (one 'moseg: error:' line)",
+    2: "usage error",
+    130: "interrupted by Ctrl-C (one 'moseg: error: interrupted' line)",
+    143: "terminated by SIGTERM (one 'moseg: error: terminated (SIGTERM)' line)",
+}
+"""Exit codes of every moseg command (README, docs/CLI.md): 128 + the signal for a signal, as shells do."""
+
+INTERRUPTED = 130
+TERMINATED = 143
+
+
+def _stdout_closed() -> bool:
+    """Whether stdout is a pipe whose reader went away (`moseg ... | head -1`): its write end
+    reports an error to poll(). Where poll() is missing, any broken pipe is taken for stdout."""
+    import select
+
+    if not hasattr(select, "poll"):
+        return True
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(event & select.POLLERR for _, event in poller.poll(0))
+    except (OSError, ValueError):  # no real file behind sys.stdout (tests, a closed stream)
+        return False
+
+
+def _silence_stdout() -> None:
+    """Points stdout at /dev/null, so that the flush at exit does not fail again (Python's docs on
+    SIGPIPE advise this)."""
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
+class _Argument(TyperArgument):
+    """An argument named in capitals in the usage line (`CLIP`, `[NAME]` when optional), as Click and
+    argparse write them, not Typer's `{clip}`; a long list of choices the help text names itself
+    shows as `<name>` in the type column (the list wrapped into a narrow column otherwise)."""
+
+    def _usage_display_name(self) -> str:
+        name = self.display_name_raw.upper()
+        name = name if self.required else f"[{name}]"
+        return name + ("..." if self.nargs != 1 else "")
+
+    def display_type_rich(self, ctx: Any) -> str | None:
+        shown = self.display_type(ctx)
+        return "<name>" if _named_in_help(self, shown) else shown
+
+
+class _Option(TyperOption):
+    """An option without the `<bool>` of a flag (its choices stay listed: `--help` is where they are read)."""
+
+    def display_type_rich(self, ctx: Any) -> str | None:
+        if self.is_flag and self.metavar is None:
+            return None
+        return super().display_type_rich(ctx)
+
+
+def _named_in_help(param: Any, shown: str) -> bool:
+    choices = shown.strip("<>").split("|")
+    help_text = param.help or ""
+    return len(shown) > 24 and len(choices) > 1 and all(c in help_text for c in choices)
+
+
+class MosegCommand(TyperCommand):
+    """A moseg command: its parameters shown as in `_Argument` and `_Option` (every command is
+    registered with it, in cli/main.py)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        for param in self.params:
+            _reclass(param)
+
+    def get_help_option(self, ctx: Any) -> Any:
+        return _reclass(super().get_help_option(ctx))
+
+
+def _reclass(param: Any) -> Any:
+    """Typer's own parameter classes -> ours (same attributes, other display)."""
+    if type(param) is TyperArgument:
+        param.__class__ = _Argument
+    elif type(param) is TyperOption:
+        param.__class__ = _Option
+    return param
 
 
 def _one_line(text: str) -> str:
@@ -65,8 +150,18 @@ class _MosegGroup(TyperGroup):
     """The moseg command group: usage errors are one line on stderr, not Click's framed box.
 
     Click's own exit code 2 is kept for usage errors (a bad option value, a missing argument, an
-    unknown option); everything a command reports itself exits with 1 (see EXIT_CODES).
+    unknown option); everything a command reports itself exits with 1 (see EXIT_CODES). A stdout
+    closed by its reader (`moseg ... | head -1`) ends the command quietly with 0, and Ctrl-C with
+    130 and one line, wherever they happen (Click would print a blank line and exit 1).
     """
+
+    def make_context(self, *args: Any, **kwargs: Any) -> Any:
+        with _quiet_ends():
+            return super().make_context(*args, **kwargs)
+
+    def invoke(self, ctx: Any) -> Any:
+        with _quiet_ends():
+            return super().invoke(ctx)
 
     def main(
         self,
@@ -100,7 +195,7 @@ class _MosegGroup(TyperGroup):
             code = exc.exit_code
         except typer.Abort:
             typer.echo("moseg: error: interrupted", err=True)
-            code = 1
+            code = INTERRUPTED
         if standalone_mode:
             sys.exit(code)
         return code
@@ -120,10 +215,31 @@ app = typer.Typer(
 F = TypeVar("F", bound=Callable[..., Any])
 
 
-def _fail(message: str) -> None:
+@contextlib.contextmanager
+def _quiet_ends() -> Any:
+    """A closed stdout -> exit 0 with nothing printed; Ctrl-C -> one line and exit 130."""
+    try:
+        yield
+    except BrokenPipeError:
+        if not _stdout_closed():
+            raise
+        _silence_stdout()
+        raise typer.Exit(0) from None
+    except KeyboardInterrupt:
+        _WARNINGS.drop()
+        typer.echo("moseg: error: interrupted", err=True)
+        raise typer.Exit(INTERRUPTED) from None
+    except SystemExit as exc:
+        # Rich (the help pages) meets a closed stdout by pointing it at /dev/null and exiting with 1.
+        if exc.code == 1 and isinstance(exc.__context__, BrokenPipeError):
+            raise typer.Exit(0) from None
+        raise
+
+
+def _fail(message: str, code: int = 1) -> None:
     _WARNINGS.drop()
     typer.echo(f"moseg: error: {message}", err=True)
-    raise typer.Exit(code=1)
+    raise typer.Exit(code=code)
 
 
 def _shown_path(name: object) -> str:
@@ -174,8 +290,9 @@ _WARNINGS = _DeferredWarnings()
 
 def _friendly(fn: F) -> F:
     """Turns MosegError, OS errors (a full disk, a read-only folder), Ctrl-C and SIGTERM into one
-    line on stderr and exit code 1; the library's warnings are shown after a success only. Anything
-    else is a bug and keeps its traceback."""
+    line on stderr and exit code 1 (130 for Ctrl-C, 143 for SIGTERM); a stdout closed by its reader
+    ends quietly with 0 (see _MosegGroup). The library's warnings are shown after a success only.
+    Anything else is a bug and keeps its traceback."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -189,11 +306,17 @@ def _friendly(fn: F) -> F:
             return result
         except MosegError as exc:
             _fail(_one_line(str(exc)))
+        except BrokenPipeError:
+            if _stdout_closed():  # the reader of our output went away: not an error of ours
+                raise
+            _fail("Broken pipe")
         except OSError as exc:
             where = f"{_shown_path(exc.filename)}: " if exc.filename else ""
             _fail(f"{where}{exc.strerror or exc}")
         except KeyboardInterrupt as exc:
-            _fail("terminated (SIGTERM)" if isinstance(exc, _Terminated) else "interrupted")
+            if isinstance(exc, _Terminated):
+                _fail("terminated (SIGTERM)", TERMINATED)
+            _fail("interrupted", INTERRUPTED)
         finally:
             if previous is not None:
                 signal.signal(signal.SIGTERM, previous)

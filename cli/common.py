@@ -93,6 +93,14 @@ def _print_summary(summary: dict[str, Any], out: Path) -> None:
         ", recording.rrd" if (out / "recording.rrd").exists() else ""
     )
     typer.echo(f"wrote {out}/ ({files})")
+    _print_view_hint(out)
+
+
+def _print_view_hint(out: Path) -> None:
+    """How to look at the recording just written (stdout, after the `wrote` line; also with --quiet,
+    which only turns off the progress bar)."""
+    if (out / "recording.rrd").exists():
+        typer.echo(f"open it with `moseg view {out / 'recording.rrd'}`")
 
 
 def _print_video_summary(summary: dict[str, Any], out: Path, rrd: bool) -> None:
@@ -102,6 +110,7 @@ def _print_video_summary(summary: dict[str, Any], out: Path, rrd: bool) -> None:
     )
     typer.echo(f"{summary['seconds']:.1f} s, {summary['processing_fps']:.1f} frames/s")
     typer.echo(f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.mp4" + (", recording.rrd)" if rrd else ")"))
+    _print_view_hint(out)
 
 
 def _print_tracks_summary(summary: dict[str, Any], out: Path) -> None:

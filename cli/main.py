@@ -8,7 +8,7 @@ are app.py's; the options several commands share are defined once in options.py,
 
 from __future__ import annotations
 
-from mosegpipe.cli.app import EXIT_CODES, app
+from mosegpipe.cli.app import EXIT_CODES, MosegCommand, app
 from mosegpipe.cli.batch import batch
 from mosegpipe.cli.clip import pair, run, tracks
 from mosegpipe.cli.evaluate import eval_, study, train
@@ -18,9 +18,9 @@ __all__ = ["EXIT_CODES", "app"]
 
 if not app.registered_commands:  # once per process, also when this file runs as __main__ beside an import
     for command in (run, pair, tracks, batch, replay, view, train):
-        app.command()(command)
-    app.command("eval")(eval_)
-    app.command()(study)
+        app.command(cls=MosegCommand)(command)
+    app.command("eval", cls=MosegCommand)(eval_)
+    app.command(cls=MosegCommand)(study)
 
 if __name__ == "__main__":
     app()

@@ -96,6 +96,7 @@ def test_run_writes_every_output(tmp_path: Path, clip_avi: Path, models: dict[in
     assert " tracks over 5 frames -> K = 3 (silhouette)" in lines[0]
     assert lines[1].startswith("scores per K: ") and "K=3: " in lines[1] and lines[2].startswith("timings: read ")
     assert lines[3] == f"wrote {out}/ (summary.json, labels.npz, masks/, overlay/, recording.rrd)"
+    assert lines[4] == f"open it with `moseg view {out}/recording.rrd`"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["kind"] == "clip" and summary["k"] == 3 and summary["source"] == str(clip_avi)
     assert summary["model"]["recipe"] == "test-displacement-f5"
@@ -107,9 +108,10 @@ def test_run_writes_every_output(tmp_path: Path, clip_avi: Path, models: dict[in
 
 def test_default_output_folder_and_overwrite(tmp_path: Path, scene: RenderedClip, models: dict[int, Path]) -> None:
     clip = write_frames(tmp_path / "walk", scene.frames[:5])
-    code, _, _ = moseg("run", clip, "--model", models[5], "--k", "3", "--no-rrd")
+    code, stdout, _ = moseg("run", clip, "--model", models[5], "--k", "3", "--no-rrd")
     out = tmp_path / "walk_moseg"
     assert code == 0 and (out / "summary.json").exists() and not (out / "recording.rrd").exists()
+    assert "moseg view" not in stdout  # no recording, no hint
     (out / "stale.txt").write_text("old")
     code, _, stderr = moseg("run", clip, "--model", models[5], "--k", "3", "--no-rrd")
     assert code == 1 and stderr == f"moseg: error: {out}: already holds results; pass --overwrite to replace them\n"
@@ -379,3 +381,66 @@ def test_choices_are_enums_listed_in_help() -> None:
     assert code == 0 and "process|ray|inline" in out
     code, out, _ = moseg("--help")
     assert code == 0 and "--install-completion" in out
+
+
+# ---------------------------------------------------------------------------------------------
+# A closed stdout, Ctrl-C, help at 80 columns
+# ---------------------------------------------------------------------------------------------
+
+
+def _moseg_process(*args: object, code: str = "") -> subprocess.Popen[str]:
+    """moseg in a fresh process (after `code`, e.g. a patch) whose stdout is a pipe nobody reads:
+    closed before moseg writes, as `moseg ... | head -1` does after its line."""
+    script = (
+        f"import sys\n{code}\nfrom mosegpipe.cli.main import app\nsys.argv = {['moseg', *map(str, args)]!r}\napp()\n"
+    )
+    env = {**os.environ, "COLUMNS": "80", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
+    assert proc.stdout is not None
+    proc.stdout.close()
+    return proc
+
+
+def test_a_closed_stdout_ends_quietly(tmp_path: Path, clip_avi: Path, models: dict[int, Path]) -> None:
+    out = tmp_path / "out"
+    for args in (["run", clip_avi, "--model", models[5], "-o", out], ["run", "--help"], ["--version"]):
+        proc = _moseg_process(*args)
+        _, stderr = proc.communicate(timeout=120)
+        assert (proc.returncode, stderr) == (0, ""), args
+    assert (out / "recording.rrd").exists()  # the run itself was complete
+
+
+def test_ctrl_c_exits_130_with_one_line(tmp_path: Path, clip_avi: Path, models: dict[int, Path]) -> None:
+    patch = (
+        "import os, signal\nimport mosegpipe.outputs as outputs\n"
+        "def interrupted(*args, **kwargs):\n    os.kill(os.getpid(), signal.SIGINT)\n"
+        "outputs.write_npz = interrupted"
+    )
+    proc = _moseg_process("run", clip_avi, "--model", models[5], "-o", tmp_path / "out", code=patch)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and stderr == "moseg: error: interrupted\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["run", "batch", "pair", "tracks", "replay", "view", "train", "eval", "study"])
+def test_help_at_80_columns_reads_well(command: str) -> None:
+    result = CliRunner(env={"COLUMNS": "80"}).invoke(app, [command, "--help"])
+    assert result.exit_code == 0
+    usage = next(line for line in result.stdout.splitlines() if "Usage:" in line)
+    assert "{" not in usage and "<bool>" not in result.stdout, usage  # CLIP, not {clip}; flags have no type
+    if command == "run":
+        assert usage.split() == ["Usage:", "moseg", "run", "[OPTIONS]", "CLIP"]
+
+
+def test_eval_help_lists_protocols_by_name_at_80_columns() -> None:
+    from mosegpipe.evaluation.protocols import PROTOCOLS
+
+    result = CliRunner(env={"COLUMNS": "80"}).invoke(app, ["eval", "--help"])
+    assert result.exit_code == 0
+    text = result.stdout
+    arguments = text[text.index("Arguments") : text.index("Options")]
+    assert "<name>" in arguments and "|" not in arguments.replace("│", "")  # no choice list in a sliver
+    words = arguments.replace("│", " ").replace(",", " ").replace(".", " ").replace(";", " ").split()
+    assert set(PROTOCOLS) <= set(words)  # every name, whole
