@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -395,8 +396,15 @@ def _moseg_process(*args: object, code: str = "") -> subprocess.Popen[str]:
         f"import sys\n{code}\nfrom mosegpipe.cli.main import app\nsys.argv = {['moseg', *map(str, args)]!r}\napp()\n"
     )
     env = {**os.environ, "COLUMNS": "80", "OMP_NUM_THREADS": "1"}
+    # Run outside the repository: `python -c` puts the working folder first on sys.path, and there the
+    # source tree's mosegpipe/ (without cli/, which installs as mosegpipe.cli) would shadow the installed one.
     proc = subprocess.Popen(
-        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        [sys.executable, "-c", script],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=tempfile.gettempdir(),
     )
     assert proc.stdout is not None
     proc.stdout.close()
