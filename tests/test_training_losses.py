@@ -17,6 +17,7 @@ from mosegpipe.training.losses import (
     l2_balanced_affinity_loss,
     lifted_structured_loss,
     mimi_loss,
+    mimi_point_loss,
     triplet_loss,
 )
 
@@ -33,27 +34,87 @@ CROSS = [[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]]
 
 
 def test_mimi_hand_computed() -> None:
-    # Group 0 = {(1,0), (1,0)}: mean (1,0), spread 0. Group 1 = {(-1,0), (0,-1)}: mean (-.5,-.5),
-    # spread |(-.5,.5)|^2 = .5. Inter = |(1.5, .5)|^2 = 2.5.
-    z, lab, mask = _batch([[1, 0], [1, 0], [-1, 0], [0, -1]], [0, 0, 1, 1])
-    expected = -0.3 * math.log(2.5 + MIMI_EPS) + 0.7 * math.log(0.5 + MIMI_EPS)
-    assert mimi_loss(z, lab, mask, alpha=0.3).item() == pytest.approx(expected, abs=1e-12)
+    # Group 0 = {(0,0), (2,0)}: mean (1,0), scatter 1 + 1 = 2. Group 1 = {(5,0), (5,2), (5,4)}:
+    # mean (5,2), scatter 4 + 0 + 4 = 8. Intra = max(2, 8) = 8 (the worst single point is only 4 away).
+    # Inter = |(1,0) - (5,2)|^2 = 16 + 4 = 20.
+    z, lab, mask = _batch([[0, 0], [2, 0], [5, 0], [5, 2], [5, 4]], [0, 0, 1, 1, 1])
+    expected = -0.3 * math.log(20.0 + MIMI_EPS) + 0.7 * math.log(8.0 + MIMI_EPS)
+    assert mimi_loss(z, lab, mask, alpha=0.3).item() == pytest.approx(expected, abs=1e-6)
+    # The per-point variant takes the farthest point instead: 4 (a point of group 1, 2 away from (5,2)).
+    point = -0.3 * math.log(20.0 + MIMI_EPS) + 0.7 * math.log(4.0 + MIMI_EPS)
+    assert mimi_point_loss(z, lab, mask, alpha=0.3).item() == pytest.approx(point, abs=1e-6)
 
 
-def test_mimi_three_groups_uses_closest_pair_and_worst_spread() -> None:
+def test_mimi_widest_group_is_the_largest_sum_not_the_worst_point() -> None:
+    # Group 0: two points 1.5 apart from their mean (0,0): scatter 2.25 + 2.25 = 4.5, worst point 2.25.
+    # Group 1: five points, mean (10,0), four of them 1 away: scatter 4, worst point 1.
+    # The paper's intra is group 0's 4.5; with four more points 1.1 away group 1 would win instead.
+    pts = [[-1.5, 0], [1.5, 0], [10, 0], [11, 0], [9, 0], [10, 1], [10, -1]]
+    z, lab, mask = _batch(pts, [0, 0, 1, 1, 1, 1, 1])
+    inter = 100.0
+    expected = -0.5 * math.log(inter + MIMI_EPS) + 0.5 * math.log(4.5 + MIMI_EPS)
+    assert mimi_loss(z, lab, mask).item() == pytest.approx(expected, abs=1e-6)
+    wide = [[10, 0], [11.1, 0], [8.9, 0], [10, 1.1], [10, -1.1]]  # scatter 4 * 1.21 = 4.84 > 4.5
+    z, lab, mask = _batch(pts[:2] + wide, [0, 0, 1, 1, 1, 1, 1])
+    expected = -0.5 * math.log(inter + MIMI_EPS) + 0.5 * math.log(4.84 + MIMI_EPS)
+    assert mimi_loss(z, lab, mask).item() == pytest.approx(expected, abs=1e-6)
+
+
+def test_mimi_intra_gradient_flows_through_every_point_of_the_widest_group_only() -> None:
+    # alpha = 0 leaves the intra term alone: loss = log(s + eps), so dloss/dz_i = 2 (z_i - mu_l) / (s + eps)
+    # for the points of the widest group l and 0 for every other point.
+    gen = torch.Generator().manual_seed(5)
+    labels = torch.tensor([[2, 0, 2, 1, 0, 2, 1, 0, 2]])
+    z = torch.randn(1, 9, 3, generator=gen, dtype=torch.float64)
+    z[0, labels[0] == 2] *= 3.0  # group 2 the widest by far
+    z.requires_grad_(True)
+    mimi_loss(z, labels, labels >= 0, alpha=0.0).backward()
+    assert z.grad is not None
+    widest = labels[0] == 2
+    pts = z.detach()[0, widest]
+    centred = pts - pts.mean(0)
+    scatter = float((centred**2).sum())
+    others = [
+        float(((z.detach()[0, labels[0] == k] - z.detach()[0, labels[0] == k].mean(0)) ** 2).sum()) for k in (0, 1)
+    ]
+    assert scatter > max(others)
+    torch.testing.assert_close(z.grad[0, widest], 2 * centred / (scatter + MIMI_EPS), rtol=1e-10, atol=1e-12)
+    assert (z.grad[0, ~widest] == 0).all()
+    assert (z.grad[0, widest].abs().sum(1) > 0).all()  # every point of the widest group, not one
+
+
+def test_mimi_point_gradient_follows_the_farthest_point() -> None:
+    # Group 1 = {(5,0), (5,2), (5,5)}: mean (5, 7/3); the farthest point (5,5) is d = (0, 8/3) away.
+    # With alpha = 0, loss = log(|d|^2 + eps): that point gets 2 d (1 - 1/3) / (|d|^2 + eps), the other two
+    # (only through the mean) -2 d / 3 / (|d|^2 + eps), and group 0 nothing.
+    z, lab, mask = _batch([[0, 0], [2, 0], [5, 0], [5, 2], [5, 5]], [0, 0, 1, 1, 1])
+    z.requires_grad_(True)
+    mimi_point_loss(z, lab, mask, alpha=0.0).backward()
+    assert z.grad is not None
+    d = torch.tensor([0.0, 8.0 / 3.0], dtype=torch.float64)
+    norm = float((d**2).sum()) + MIMI_EPS
+    expected = torch.stack([torch.zeros(2), torch.zeros(2), -2 * d / 3, -2 * d / 3, 2 * d * 2 / 3]).double() / norm
+    torch.testing.assert_close(z.grad[0], expected, rtol=1e-10, atol=1e-12)
+
+
+def test_mimi_three_groups_uses_closest_pair_and_widest_scatter() -> None:
     # Means (0,0), (3,0), (0,1) (labels need not be contiguous): closest pair distance^2 = 1.
-    # Spreads: group 7 points at (0,+-0.2) -> 0.04; group 2 at (3,+-0.5) -> 0.25; group 5 single -> 0.
+    # Scatters: group 7 points at (0,+-0.2) -> 0.08; group 2 at (3,+-0.5) -> 0.5; group 5 single -> 0.
     z, lab, mask = _batch([[0, 0.2], [0, -0.2], [3, 0.5], [3, -0.5], [0, 1]], [7, 7, 2, 2, 5])
-    expected = -0.5 * math.log(1.0 + MIMI_EPS) + 0.5 * math.log(0.25 + MIMI_EPS)
+    expected = -0.5 * math.log(1.0 + MIMI_EPS) + 0.5 * math.log(0.5 + MIMI_EPS)
     assert mimi_loss(z, lab, mask).item() == pytest.approx(expected, abs=1e-12)
+    # Per point: the worst single spread, 0.25.
+    point = -0.5 * math.log(1.0 + MIMI_EPS) + 0.5 * math.log(0.25 + MIMI_EPS)
+    assert mimi_point_loss(z, lab, mask).item() == pytest.approx(point, abs=1e-12)
 
 
 def test_mimi_single_cluster_drops_inter_term() -> None:
-    # One group {(1,0), (0,1)}: mean (.5,.5), spread .5; no pair of means -> intra term only.
+    # One group {(1,0), (0,1)}: mean (.5,.5), scatter .5 + .5 = 1 (worst point .5); no pair of means.
     z, lab, mask = _batch([[1, 0], [0, 1]], [3, 3])
-    expected = 0.6 * math.log(0.5 + MIMI_EPS)
-    assert mimi_loss(z, lab, mask, alpha=0.4).item() == pytest.approx(expected, abs=1e-12)
+    assert mimi_loss(z, lab, mask, alpha=0.4).item() == pytest.approx(0.6 * math.log(1.0 + MIMI_EPS), abs=1e-12)
+    assert mimi_point_loss(z, lab, mask, alpha=0.4).item() == pytest.approx(0.6 * math.log(0.5 + MIMI_EPS), abs=1e-12)
     assert torch.isfinite(mimi_loss(*_batch([[1, 0], [1, 0]], [0, 0])))
+    assert torch.isfinite(mimi_point_loss(*_batch([[1, 0], [1, 0]], [0, 0])))
 
 
 def test_l2_hand_computed() -> None:
@@ -181,6 +242,8 @@ def test_bad_shapes_and_arguments_raise() -> None:
         mimi_loss(z, lab[:, :3], mask[:, :3])
     with pytest.raises(InputError, match="alpha=1.5"):
         mimi_loss(z, lab, mask, alpha=1.5)
+    with pytest.raises(InputError, match="mimi_point_loss alpha=-0.1"):
+        mimi_point_loss(z, lab, mask, alpha=-0.1)
     with pytest.raises(InputError, match="scale=0"):
         ce_affinity_loss(z, lab, mask, scale=0.0)
 

@@ -10,9 +10,9 @@ without any real point gives 0 (still attached to the graph). Labels need not be
 Tensors of the wrong shape are a bug in the caller (ValueError); bad settings are a ConfigError.
 
 `LOSSES` names them for `--loss`: the paper's MaxInterMinIntra ("mimi"), the affinity losses "l2"
-and "ce", and the metric-learning baselines of the paper's Table 2: "triplet" (FaceNet, semi-hard
+and "ce", the metric-learning baselines of the paper's Table 2: "triplet" (FaceNet, semi-hard
 negatives), "lifted" (lifted structured embedding) and "facility" (the clustering-quality /
-facility-location loss).
+facility-location loss), and "mimi-point" (MIMI with the worst point's spread as its intra term).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from torch import Tensor
 from mosegpipe.errors import ConfigError
 
 # Added inside the logarithms of MIMI. Embeddings are unit vectors, so squared distances lie in
-# [0, 4]; a perfectly collapsed group has intra spread 0 and log(0) = -inf. 1e-6 bounds the loss
+# [0, 4] (a group's scatter in [0, its size]); a perfectly collapsed group has intra spread 0 and log(0) = -inf. 1e-6 bounds the loss
 # below (log 1e-6 = -13.8) and its gradient 1/(s + eps) above, and it sits just above the float32
 # rounding noise of squared distances between unit vectors (~1e-7), so the loss stops rewarding
 # spreads that float32 cannot resolve anyway.
@@ -72,14 +72,18 @@ def _mean_over_clips(per_clip: Tensor, has_points: Tensor, z: Tensor) -> Tensor:
 
 
 def mimi_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Tensor:
-    """MaxInterMinIntra loss: push group means apart, pull every point towards its group's mean.
+    """MaxInterMinIntra loss as the paper defines it (Xu, Cheong, Li, ICCV 2019).
 
     Per clip, with mu_k the mean embedding of group k:
-        inter = min over pairs m != n of ||mu_m - mu_n||^2      (closest pair of groups)
-        intra = max over groups l, points i in l of ||z_i - mu_l||^2   (worst spread)
+        inter = min over pairs m != n of ||mu_m - mu_n||^2            (closest pair of groups)
+        s_l   = sum over points i in group l of ||z_i - mu_l||^2      (scatter of group l)
+        intra = max over groups l of s_l                                (widest group)
         loss  = -alpha * log(inter + eps) + (1 - alpha) * log(intra + eps),   eps = MIMI_EPS.
+    The intra gradient flows through every point of the widest group: d s_l / d z_i = 2 (z_i - mu_l)
+    (the mean's own dependence on z_i cancels in the sum) and 0 for the other groups' points.
     A clip with a single group has no pair of means: its loss is the intra term alone,
     (1 - alpha) * log(intra + eps), which still pulls the group together.
+    `mimi_point_loss` is the earlier variant whose intra term is the single worst point.
 
     Args:
         z: (B, N, E) embeddings.
@@ -90,9 +94,33 @@ def mimi_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Te
     Returns:
         Scalar tensor, mean over clips.
     """
+    return _mimi(z, labels, mask, alpha, "mimi_loss", per_point=False)
+
+
+def mimi_point_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Tensor:
+    """MaxInterMinIntra with a per-point intra term ("mimi-point"; our loss before it followed the paper).
+
+    As `mimi_loss`, except intra = max over groups l, points i in l of ||z_i - mu_l||^2: the single
+    point farthest from its group's mean, so the intra gradient reaches that one point only.
+    The shipped two-view weights were trained with it (through the synthetic-f2 recipe).
+
+    Args:
+        z: (B, N, E) embeddings.
+        labels: (B, N) int64 groups, -1 on padding.
+        mask: (B, N) bool, True on real points.
+        alpha: weight of the inter term, in [0, 1].
+
+    Returns:
+        Scalar tensor, mean over clips.
+    """
+    return _mimi(z, labels, mask, alpha, "mimi_point_loss", per_point=True)
+
+
+def _mimi(z: Tensor, labels: Tensor, mask: Tensor, alpha: float, name: str, per_point: bool) -> Tensor:
+    """The two MIMI losses: intra is the widest group's scatter, or with per_point the worst point."""
     z = _channels_first(z)
     if not 0.0 <= alpha <= 1.0:
-        raise ConfigError(f"mimi_loss alpha={alpha}: must lie in [0, 1]")
+        raise ConfigError(f"{name} alpha={alpha}: must lie in [0, 1]")
     valid = _valid_points(z, labels, mask)
     terms = []
     # A Python loop over clips: B is small (<= 8) and each clip has its own number of groups.
@@ -104,7 +132,8 @@ def mimi_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Te
         _, group = torch.unique(labels[b][keep], return_inverse=True)
         onehot = F.one_hot(group).to(zb.dtype)  # (n, K)
         means = (onehot.transpose(0, 1) @ zb) / onehot.sum(0).unsqueeze(1)  # (K, E)
-        intra = ((zb - means[group]) ** 2).sum(-1).max()
+        spread = ((zb - means[group]) ** 2).sum(-1)  # (n,) squared distance of each point to its mean
+        intra = spread.max() if per_point else (onehot.transpose(0, 1) @ spread).max()
         loss = (1.0 - alpha) * torch.log(intra + MIMI_EPS)
         num_groups = means.shape[0]
         if num_groups > 1:
@@ -463,4 +492,5 @@ LOSSES: dict[str, Callable[..., Tensor]] = {
     "triplet": triplet_loss,
     "lifted": lifted_structured_loss,
     "facility": facility_location_loss,
+    "mimi-point": mimi_point_loss,
 }
