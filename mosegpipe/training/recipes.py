@@ -116,7 +116,9 @@ RECIPES: dict[str, Recipe] = {
         Recipe(
             "synthetic-f2",
             "two-view model from synthetic pairs only (zero-shot on AdelaideRMF)",
-            TrainConfig(frames=2, steps=2000, batch_size=8, lr=1e-3, loss="mimi"),
+            # "mimi-point": the worst-point MaxInterMinIntra that built the shipped two-view weights' starting
+            # point (before "mimi" became the paper's sum-scatter form); kept so that pair-f2 rebuilds them.
+            TrainConfig(frames=2, steps=2000, batch_size=8, lr=1e-3, loss="mimi-point"),
             _F2,
             (("synthetic-pair", 1.0),),
         ),
