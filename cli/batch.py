@@ -126,7 +126,7 @@ def batch(
     from rich.markup import escape
     from rich.progress import Progress
 
-    from mosegpipe.batch import ENGINES, plan, run_batch
+    from mosegpipe.batch import ENGINES, check_ray, plan, run_batch
     from mosegpipe.inference import load_model
 
     cfg = _pipeline_cfg(
@@ -144,6 +144,8 @@ def batch(
         raise InputError(f"--engine {engine!r}: choose {', '.join(map(repr, ENGINES))}")
     if address is not None and engine != "ray":
         raise InputError("--address only applies with --engine ray")
+    if engine == "ray":
+        check_ray(address)  # before the model is loaded and --out created
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: exists and is not a folder; choose another --out")
     items = plan(folder, out)

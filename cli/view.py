@@ -42,6 +42,8 @@ def _read_run_summary(path: Path) -> dict[str, Any]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
         raise InputError(f"{path}: not a JSON file ({_one_line(str(exc))})") from exc
+    except RecursionError:  # json gives up on nesting deeper than Python's recursion limit
+        raise InputError(f"{path}: not a moseg summary.json (nested too deeply to read)") from None
     if not isinstance(data, dict) or not str(data.get("schema", "")).startswith("mosegpipe.summary/"):
         if isinstance(data, dict) and "clips" in data or path.name == "batch_summary.json":
             raise InputError(f"{path}: a batch summary; replay one clip's OUT/NAME/summary.json, or re-run the batch")

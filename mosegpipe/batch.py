@@ -55,6 +55,8 @@ IMAGE_EXTENSIONS = IMAGE_SUFFIXES
 ENGINES = ("process", "ray", "inline")
 SUMMARY_FILES = ("batch_summary.csv", "batch_summary.json")
 LOCK_FILE = ".moseg-batch.lock"
+MAX_CLIP_TIMEOUT_S = 1e6
+"""Largest clip_timeout (11.6 days): beyond it a float of seconds overflows the workers' timers."""
 FIELDS = ("name", "status", "k", "tracks", "seconds", "output", "error")
 #: Output folder names longer than this (bytes) are shortened and get a hash suffix (NAME_MAX is 255).
 MAX_NAME_BYTES = 200
@@ -535,6 +537,20 @@ def _import_ray() -> Any:
     return ray
 
 
+def check_ray(address: str | None) -> None:
+    """Fails before any work when --engine ray cannot run: Ray missing, or a ray:// address without
+    Ray Client (its gRPC transport, the extra 'ray[client]')."""
+    ray = _import_ray()
+    if address is not None and address.strip().startswith("ray://") and not ray.is_initialized():
+        try:
+            import grpc  # noqa: F401  (what Ray Client connects with)
+        except ImportError:
+            raise InputError(
+                f"--address {address}: a ray:// address needs Ray Client, which is not installed "
+                "(no grpc module): pip install 'ray[client]'"
+            ) from None
+
+
 def _ray_failure(ray: Any, exc: BaseException) -> str:
     exceptions = ray.exceptions
     if isinstance(exc, getattr(exceptions, "OutOfMemoryError", ())):
@@ -570,7 +586,7 @@ def _run_ray(
             kwargs["num_cpus"] = jobs or _usable_cores()
         try:
             ray.init(address=address, **kwargs)
-        except ConnectionError as exc:
+        except (ConnectionError, ValueError) as exc:  # ValueError: a bad address, Ray Client missing
             raise InputError(f"--address {address}: cannot connect to a Ray cluster ({_one_line(exc)})") from None
         started = True
     try:
@@ -739,18 +755,21 @@ def run_batch(
         tracks, seconds, output, error.
 
     Raises:
-        InputError: no clips, a bad engine, jobs or timeout, Ray missing or unreachable, or another
-            batch writing into `out`.
+        InputError: no clips, a bad engine, jobs or timeout, Ray missing or unreachable (checked
+            before `out` is created, as far as it can be without connecting), or another batch
+            writing into `out`.
         CheckpointError: no model given and no shipped weights.
     """
     if engine not in ENGINES:
         raise InputError(f"--engine {engine!r}: choose {', '.join(map(repr, ENGINES))}")
     if jobs is not None and jobs < 1:
         raise InputError(f"--jobs {jobs} must be >= 1")
-    if clip_timeout is not None and clip_timeout <= 0:
-        raise InputError(f"--clip-timeout {clip_timeout:g} must be > 0")
+    if clip_timeout is not None and not 0 < clip_timeout <= MAX_CLIP_TIMEOUT_S:  # also refuses NaN
+        raise InputError(f"--clip-timeout {clip_timeout:g} must be > 0 and at most {MAX_CLIP_TIMEOUT_S:g} seconds")
     if clip_timeout is not None and engine == "inline":
         raise InputError("--clip-timeout needs worker processes; use --engine process or ray")
+    if engine == "ray":
+        check_ray(address)
     out = Path(out)
     if isinstance(paths, (str, os.PathLike)):
         if Path(paths).is_dir():

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -374,14 +375,26 @@ class SubspaceNet(nn.Module):
             src = str(path)
             if not path.is_file():
                 raise CheckpointError(f"{path}: checkpoint file not found")
-            try:
-                ckpt = torch.load(path, weights_only=True, map_location="cpu")
-            except Exception as e:  # torch raises many types for corrupt or foreign files
-                logger.debug("torch.load(%s) failed: %s", path, e)
+            # torch warns about what it is about to refuse (a raw pickle's protocol): recorded here,
+            # so that a refused file gives just its error line; a loaded one passes them on.
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    ckpt = torch.load(path, weights_only=True, map_location="cpu")
+                except Exception as e:  # torch raises many types for corrupt or foreign files
+                    failed: Exception | None = e
+                else:
+                    failed = None
+            if failed is not None:
+                for w in caught:
+                    logger.debug("torch.load(%s) warned: %s", path, w.message)
+                logger.debug("torch.load(%s) failed: %s", path, failed)
                 raise CheckpointError(
                     f"{path}: cannot read checkpoint: corrupt, truncated, or holding objects "
-                    f"other than plain data ({type(e).__name__})"
-                ) from e
+                    f"other than plain data ({type(failed).__name__})"
+                ) from failed
+            for w in caught:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
         if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
             found = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
             raise CheckpointError(

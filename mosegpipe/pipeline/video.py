@@ -151,6 +151,10 @@ class WindowResult:
 AMBIGUOUS_K_NOTE = "the K choice is ambiguous"
 """How cluster_auto_k's note (and warning) for an ambiguous K choice starts."""
 
+MIN_VIDEO_SIDE_PX = 12
+"""Smallest frame width and height whole-video mode takes: OpenCV's DIS flow (the motion masks)
+refuses a smaller image, and no window of a smaller one holds enough tracks to segment."""
+
 
 def check_video_settings(cfg: PipelineConfig, max_frames: int | None) -> None:
     """Fails early on settings a whole-video run cannot use.
@@ -203,7 +207,8 @@ def segment_video(
         WindowResult per window, in order; together their `frames` cover every frame read once.
 
     Raises:
-        InputError: unreadable input, fewer than F frames, F < 2 or max_frames < 1.
+        InputError: unreadable input, frames smaller than MIN_VIDEO_SIDE_PX on a side, fewer than F
+            frames, F < 2 or max_frames < 1.
         TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
             the video is exhausted).
 
@@ -227,6 +232,13 @@ def segment_video(
     model = model or load_model(cfg.frames)
     with decode_errors(path):
         info = video_info(path)
+    size_hw = info.get("size_hw")
+    if size_hw is not None and min(size_hw) < MIN_VIDEO_SIDE_PX:
+        height, width = size_hw
+        raise InputError(
+            f"{path}: frames of {width}x{height} px are too small to track "
+            f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
+        )
     run = _VideoRun()
     for window, first_labelled in _read_windows(path, cfg, run, max_frames):
         yield _label_window(window, first_labelled, cfg, model, run, masks)
