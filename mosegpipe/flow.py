@@ -29,6 +29,14 @@ DIS_PRESETS = {
 }
 """The DIS presets `FlowConfig.preset` accepts."""
 
+MIN_FLOW_SIDE_PX = 16
+"""OpenCV's DIS refuses images under 12 px a side; smaller frames (after FlowConfig.scale) get no flow."""
+
+
+def flow_fits(size_hw: tuple[int, int], cfg: FlowConfig) -> bool:
+    """Whether frames of this (H, W) are large enough for dense flow at cfg.scale."""
+    return min(size_hw) * cfg.scale >= MIN_FLOW_SIDE_PX
+
 
 @dataclass(frozen=True)
 class FlowConfig:

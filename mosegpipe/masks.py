@@ -19,7 +19,8 @@ Methods (`MaskConfig.method`):
   pixels take the background's label (the one most tracks carry), moving pixels the label of the
   nearest track of a moving motion, or MOVING_UNCLUSTERED (254) when no track of a moving motion is
   in the frame (the flow found a mover the clustering did not). It needs the frames of a clip or
-  window (`motion_masks`); without them (a single frame, image pairs) it falls back to "watershed".
+  window (`motion_masks`); without them (a single frame, image pairs, frames too small for dense flow:
+  `flow.flow_fits`) it falls back to "watershed".
   On the 20 dev clips of DAVIS-2016 train: mean J 0.58 against 0.26 for "watershed"
   (docs/RESULTS.md, "Real video"). No pixel is left unknown.
 

@@ -172,3 +172,23 @@ def test_scores_carried_along_the_flow_fill_a_frame_whose_flow_missed_the_mover(
     assert not without[1, 12:18, 22:28].any()
     assert carried[1, 12:18, 22:28].all()  # where the square is in frame 1
     assert carried[0, 12:18, 12:18].all() and carried[2, 12:18, 32:38].all()
+
+
+def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
+    from dataclasses import replace
+
+    from mosegpipe.flow import flow_fits
+    from mosegpipe.masks import labels_to_masks
+    from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.pipeline.clip import clip_masks
+    from mosegpipe.types import Tracks
+
+    images = np.stack([_texture(10, 40, 7)] * 3)  # 10 px high: OpenCV's DIS refuses it
+    xy = np.array([[[5, 5]] * 3, [[30, 5]] * 3], np.float32)
+    tracks = Tracks(xy=xy, visible=np.ones((2, 3), bool), size_hw=(10, 40))
+    ids, labels = np.arange(2), np.array([0, 1])
+    cfg = PipelineConfig()
+    assert cfg.mask.method == "motion" and not flow_fits((10, 40), cfg.mask.motion.flow)
+    masks = clip_masks(images, tracks, ids, labels, cfg)
+    watershed = replace(cfg.mask, method="watershed", extra_tracks=0)
+    assert np.array_equal(masks, labels_to_masks(tracks, ids, labels, watershed, images))

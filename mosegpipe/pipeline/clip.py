@@ -13,6 +13,7 @@ import numpy.typing as npt
 
 from mosegpipe.cluster import cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.flow import flow_fits
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder
 from mosegpipe.io import check_images, read_video, video_info
@@ -157,7 +158,7 @@ def clip_masks(
     Returns:
         (T, H, W) uint8 masks, 255 = unknown.
     """
-    if cfg.mask.method == "motion" and images.shape[0] >= 2:
+    if cfg.mask.method == "motion" and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.mask.motion.flow):
         return motion_masks(images, tracks, track_ids, labels, cfg.mask)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:

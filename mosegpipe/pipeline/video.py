@@ -29,6 +29,7 @@ import numpy.typing as npt
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
+from mosegpipe.flow import flow_fits
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
@@ -408,7 +409,7 @@ def _label_window(
     )
     by_id = found.by_id()
     moving: npt.NDArray[np.bool_] | list[None] = [None] * len(window)
-    if cfg.mask.method == "motion" and len(window) >= 2:
+    if cfg.mask.method == "motion" and len(window) >= 2 and flow_fits(window[0][1].shape[:2], cfg.mask.motion.flow):
         moving = moving_masks(np.stack([img for _, img, _, _ in window]), cfg.mask.motion)
     skip = 1 if first_labelled else 0
     labelled = tuple(
