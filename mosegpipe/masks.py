@@ -37,7 +37,7 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.io import default_palette
-from mosegpipe.motion import MotionMaskConfig, background_label, label_moving_pixels, moving_masks
+from mosegpipe.motion import MotionMaskConfig, moving_masks
 from mosegpipe.types import Tracks
 
 MAX_LABEL = 254
@@ -415,6 +415,50 @@ def overlay_image(
     colours[labels[inl] == 0] = 255
     _stamp(out, xy_int[inl], _DOT_RING, np.zeros_like(colours))
     _stamp(out, xy_int[inl], _DOT_FILL, colours)
+    return out
+
+
+def background_label(labels: npt.NDArray[np.int64]) -> int:
+    """The label most tracks carry (the camera's motion); -1 when there are no labelled tracks."""
+    labels = labels[labels >= 0]
+    return int(np.bincount(labels).argmax()) if labels.size else -1
+
+
+def label_moving_pixels(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    new_label: int,
+) -> npt.NDArray[np.uint8]:
+    """One frame's label image: static pixels get the background label, moving ones a moving motion's.
+
+    A moving pixel takes the label of the nearest track of a motion other than the background (the
+    "nearest" partition of those tracks); with no such track in the frame it takes `new_label` (a
+    motion the camera fit found that the tracks' clustering did not).
+
+    Args:
+        moving: (H, W) bool moving pixels.
+        xy: (N, 2) float32 track positions in this frame (pixels).
+        labels: (N,) int64 their motion labels (-1 = unlabelled, ignored).
+        background: the background motion's label.
+        new_label: label for moving pixels when no track of a moving motion is in the frame.
+
+    Returns:
+        (H, W) uint8 label image.
+    """
+    height, width = moving.shape
+    out = np.full((height, width), max(background, 0), np.uint8)
+    if not moving.any():
+        return out
+    keep = (labels >= 0) & (labels != background)
+    pts = np.round(xy[keep]).astype(np.int64)
+    inside = (pts[:, 0] >= 0) & (pts[:, 0] < width) & (pts[:, 1] >= 0) & (pts[:, 1] < height)
+    if not inside.any():
+        out[moving] = new_label
+        return out
+    nearest = _nearest(pts[inside], labels[keep][inside].astype(np.uint8), (height, width), np.inf)
+    out[moving] = nearest[moving]
     return out
 
 

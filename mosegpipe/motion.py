@@ -20,8 +20,8 @@ video"; the 10 val clips were not used to choose anything):
    background's own noise, large under parallax).
 Steps 3-5 together took the dev clips from J 0.46 to 0.53 (0.57 with full-resolution flow).
 
-`label_moving_pixels` then gives the moving pixels the labels of the tracks' motions, so that a
-pipeline's masks carry motion labels as the other mask methods' do.
+`mosegpipe.masks` (`motion_masks`, `moving_to_labels`) then gives the moving pixels the labels of the
+tracks' motions, so that a pipeline's masks carry motion labels as the other mask methods' do.
 """
 
 from __future__ import annotations
@@ -257,56 +257,3 @@ def moving_masks(images: npt.NDArray[np.uint8], cfg: MotionMaskConfig = MotionMa
         (T, H, W) bool, True = moving.
     """
     return moving_from_motion(images, frame_motion(images, cfg.flow), cfg)
-
-
-def background_label(labels: npt.NDArray[np.int64]) -> int:
-    """The label most tracks carry (the camera's motion); -1 when there are no labelled tracks."""
-    labels = labels[labels >= 0]
-    return int(np.bincount(labels).argmax()) if labels.size else -1
-
-
-def label_moving_pixels(
-    moving: npt.NDArray[np.bool_],
-    xy: npt.NDArray[np.float32],
-    labels: npt.NDArray[np.int64],
-    background: int,
-    new_label: int,
-) -> npt.NDArray[np.uint8]:
-    """One frame's label image: static pixels get the background label, moving ones a moving motion's.
-
-    A moving pixel takes the label of the nearest track of a motion other than the background; with
-    no such track in the frame it takes `new_label` (a motion the camera fit found that the tracks'
-    clustering did not).
-
-    Args:
-        moving: (H, W) bool moving pixels.
-        xy: (N, 2) float32 track positions in this frame (pixels).
-        labels: (N,) int64 their motion labels (-1 = unlabelled, ignored).
-        background: the background motion's label.
-        new_label: label for moving pixels when no track of a moving motion is in the frame.
-
-    Returns:
-        (H, W) uint8 label image.
-    """
-    height, width = moving.shape
-    out = np.full((height, width), max(background, 0), np.uint8)
-    if not moving.any():
-        return out
-    keep = (labels >= 0) & (labels != background)
-    pts = np.round(xy[keep]).astype(np.int64)
-    inside = (pts[:, 0] >= 0) & (pts[:, 0] < width) & (pts[:, 1] >= 0) & (pts[:, 1] < height)
-    pts, lab = pts[inside], labels[keep][inside]
-    if not lab.size:
-        out[moving] = new_label
-        return out
-    seeds = np.ones((height, width), np.uint8)
-    seeds[pts[:, 1], pts[:, 0]] = 0
-    _, nearest = cv2.distanceTransformWithLabels(seeds, cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL)
-    # distanceTransformWithLabels numbers the zero pixels 1.. in row-major order.
-    seed_label = np.zeros(height * width + 1, np.int64)
-    order = np.flatnonzero(seeds.ravel() == 0)
-    label_at = np.zeros(height * width, np.int64)
-    label_at[pts[:, 1] * width + pts[:, 0]] = lab
-    seed_label[1 : order.size + 1] = label_at[order]
-    out[moving] = seed_label[nearest[moving]].astype(np.uint8)
-    return out

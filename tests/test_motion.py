@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from mosegpipe.flow import FlowConfig, camera_residual, fit_camera, frame_motion
-from mosegpipe.motion import MotionMaskConfig, background_label, label_moving_pixels, moving_masks
+from mosegpipe.masks import background_label, label_moving_pixels
+from mosegpipe.motion import MotionMaskConfig, moving_masks
 
 
 def _texture(h: int, w: int, seed: int) -> np.ndarray:

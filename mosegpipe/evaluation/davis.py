@@ -4,7 +4,9 @@ Usage (from the repository root, data in ../shared/data)::
 
     from mosegpipe.evaluation.davis import run_davis, format_table
     report = run_davis("../shared/data/davis2016-train", mode="clip5", method="flow-homography")
-    print(format_table(report))
+    table = format_table(report)  # plain text, one line per clip; report.to_dict() for JSON
+
+or from the shell: `moseg eval davis --out DIR` (whole video) / `moseg eval davis-clip5 --out DIR`.
 
 Modes (`MODES`): "clip5" runs a method on the first 5 frames of each clip and scores those 5;
 "whole" runs it on all frames of the clip (25 here; the pipeline's whole-video mode) and scores all.
