@@ -378,3 +378,21 @@ def test_cli_eval_unknown_protocol_one_line(tmp_path: Path, monkeypatch: pytest.
     assert len(lines) == 1 and lines[0].startswith("moseg: error: PROTOCOL: 'nope' is not one of 'kt3d-test'")
     assert "kt3d-loo" in lines[0]
     assert not (tmp_path / "d").exists()
+
+
+def test_run_protocol_loo_retrains_folds_of_a_redefined_loss(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fake_data: list[Any]
+) -> None:
+    from mosegpipe.training import losses
+
+    out = tmp_path / "out"
+    cfg = loo_config(train=TrainConfig(frames=2, steps=2, batch_size=2, warmup=0, loss="mimi"))
+    run_named(cfg, tmp_path, out, init=None)
+    said: list[str] = []
+    run_named(cfg, tmp_path, out, init=None, progress=said.append)
+    assert all(m.endswith("re-scored") for m in said) and len(said) == 2
+    # Fold models trained under an earlier definition of the loss are trained again.
+    monkeypatch.setitem(losses.LOSS_REVISIONS, "mimi", losses.LOSS_REVISIONS["mimi"] + 1)
+    said.clear()
+    run_named(cfg, tmp_path, out, init=None, progress=said.append)
+    assert len(said) == 2 and all(" trained 2 steps" in m for m in said)

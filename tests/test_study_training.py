@@ -143,3 +143,43 @@ def test_training_study_trains_per_fold_without_its_test_clips_and_resumes(
     longer = dataclasses.replace(spec, budgets={"cpu": st.TrainingBudget(steps=4)})
     with pytest.raises(AssertionError, match="retrained"):
         st.run_training_study(longer, study, req)
+
+
+def test_a_redefined_loss_retrains_only_its_own_parts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mosegpipe.training import losses
+
+    test = [_clip(n, i) for i, n in enumerate(["pairA", "pairB"])]
+    data = st.StudyData("adelaidermf", 2, (("adelaide", 1.0),), ModelConfig(in_dim=4, width=8, num_blocks=1))
+    monkeypatch.setattr(recipes, "source_clips", lambda source, root, frames, exclude=(): test)
+    monkeypatch.setattr(st, "_datasets", lambda: {"adelaidermf": data})
+    monkeypatch.setattr(st, "scored_clips", lambda data, root, budget: test)
+    spec = st.TrainingStudy(
+        "tiny",
+        (st.Variant("L2"), st.Variant("MIMI", loss="mimi")),
+        ("adelaidermf",),
+        {"cpu": st.TrainingBudget(steps=2), "full": st.TrainingBudget(steps=2, folds="loo")},
+    )
+    study = get_study("losses")
+    req = StudyRequest(out_dir=tmp_path / "tiny", data_root=tmp_path)
+    st.run_training_study(spec, study, req)
+    trained: list[str] = []
+    real = st.train_and_score
+
+    def record(data: st.StudyData, variant: st.Variant, *args: Any, **kwargs: Any) -> dict[str, Any]:
+        trained.append(variant.label)
+        return real(data, variant, *args, **kwargs)
+
+    monkeypatch.setattr(st, "train_and_score", record)
+    st.run_training_study(spec, study, req)
+    assert trained == []  # nothing changed: every part reused
+    monkeypatch.setitem(losses.LOSS_REVISIONS, "mimi", losses.LOSS_REVISIONS["mimi"] + 1)
+    st.run_training_study(spec, study, req)
+    assert trained == ["MIMI", "MIMI"]  # both folds of the redefined loss, none of L2
+
+
+def test_losses_study_compares_both_mimi_forms() -> None:
+    assert {(v.label, v.loss) for v in st.LOSSES_STUDY.variants} >= {
+        ("L2 regression", "l2"),
+        ("MaxInterMinIntra", "mimi"),
+        ("MaxInterMinIntra, worst point", "mimi-point"),
+    }

@@ -28,6 +28,7 @@ from mosegpipe.evaluation.report import summarize, write_results
 from mosegpipe.io import atomic_write
 from mosegpipe.model import SubspaceNet
 from mosegpipe.training.loop import TrainConfig
+from mosegpipe.training.losses import LOSS_REVISIONS
 from mosegpipe.training.run import train_sources
 from mosegpipe.types import LabeledClip
 
@@ -176,7 +177,10 @@ def run_protocol(
     fold_dir.mkdir(parents=True, exist_ok=True)
     # Folds are keyed by what training depends on: re-running with other clustering settings or
     # baselines re-scores the stored fold models instead of training again.
-    chash = _config_hash({k: v for k, v in config.items() if k not in ("cluster", "baselines", "folds")})
+    keyed = {k: v for k, v in config.items() if k not in ("cluster", "baselines", "folds")}
+    if cfg.train.loss in LOSS_REVISIONS:  # fold models of an earlier definition of the loss are not reused
+        keyed["loss_revision"] = LOSS_REVISIONS[cfg.train.loss]
+    chash = _config_hash(keyed)
     rows = []
     assert protocol.train_source is not None
     source = (protocol.train_source(cfg.variant), 1.0)

@@ -320,6 +320,7 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
     """Trains and scores every (variant, dataset, fold, trial) of `spec`, then writes the table and plot."""
     from mosegpipe.evaluation import study_common as st
     from mosegpipe.runtime import limited_threads
+    from mosegpipe.training.losses import LOSS_REVISIONS
 
     budget_name: Budget = st._check_budget(req)
     budget = spec.budgets[budget_name]
@@ -328,11 +329,16 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
     parts: list[dict[str, Any]] = []
     computed = 0
     t_start = time.perf_counter()
+    prepared = {}
     for dname in spec.datasets:
-        data = datasets[dname]
-        clips = scored_clips(data, req.data_root, budget)
-        folds = make_folds(clips, data, budget)
-        for variant in spec.variants:
+        clips = scored_clips(datasets[dname], req.data_root, budget)
+        prepared[dname] = (clips, make_folds(clips, datasets[dname], budget))
+    # Variant-major: the first rows of the table are complete on every dataset first (an interrupted
+    # run resumes from the parts either way).
+    for variant in spec.variants:
+        for dname in spec.datasets:
+            data = datasets[dname]
+            clips, folds = prepared[dname]
             for trial in range(budget.trials):
                 for fold, held_out in folds:
                     test = [c for c in clips if not data.folds_by_name or fold_key(c) in held_out]
@@ -347,6 +353,12 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
                             "held_out": held_out,
                             "test": [c.name for c in test],
                             "trial": trial,
+                            # A loss whose definition changed gets new parts (mimi: the paper's sum-scatter).
+                            **(
+                                {"loss_revision": LOSS_REVISIONS[variant.loss]}
+                                if variant.loss in LOSS_REVISIONS
+                                else {}
+                            ),
                         }
                     )
                     path = st._part_path(req, key, ".json")
@@ -462,6 +474,7 @@ LOSSES_STUDY = TrainingStudy(
             ("L2 regression", "l2"),
             ("cross-entropy", "ce"),
             ("MaxInterMinIntra", "mimi"),
+            ("MaxInterMinIntra, worst point", "mimi-point"),
             ("semi-hard triplet", "triplet"),
             ("lifted structured", "lifted"),
             ("facility location", "facility"),

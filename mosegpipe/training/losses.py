@@ -494,3 +494,7 @@ LOSSES: dict[str, Callable[..., Tensor]] = {
     "facility": facility_location_loss,
     "mimi-point": mimi_point_loss,
 }
+
+LOSS_REVISIONS: dict[str, int] = {"mimi": 2}
+"""Losses whose definition changed after results were stored: cached study parts key on the revision.
+mimi 2: the paper's sum-scatter intra term (1 was today's "mimi-point")."""
