@@ -3,9 +3,13 @@ viewer)."""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import os
+import signal
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -221,10 +225,25 @@ def replay(
     _print_total(started)
 
 
+WEB_PORT = 9090
+"""The web viewer's HTTP port when it is free (a free one otherwise): the port README's ssh line forwards."""
+
+VIEWER_START_S = 30.0
+"""How long `moseg view --web` waits for the viewer to listen before it reports a failure."""
+
+
 def _find_viewer() -> str | None:
-    """The `rerun` executable: on PATH, else beside this Python (a virtualenv not on PATH)."""
+    """The native `rerun` program: rerun-sdk's own binary (its `rerun` script is a Python wrapper that
+    would outlive a SIGTERM), else `rerun` on PATH or beside this Python (a virtualenv not on PATH)."""
+    import importlib.util
     import shutil
 
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        folder = Path(spec.origin).parent
+        for name in ("Rerun.app/Contents/MacOS/Rerun", "rerun.exe" if os.name == "nt" else "rerun"):
+            if (folder / name).is_file():
+                return str(folder / name)
     beside = Path(sys.executable).with_name("rerun")
     return shutil.which("rerun") or (str(beside) if beside.is_file() else None)
 
@@ -233,6 +252,165 @@ def _has_display() -> bool:
     if sys.platform.startswith("linux"):
         return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     return True
+
+
+def _check_bind(value: str) -> str:
+    """--bind: an IP address (the viewer takes no host names; `localhost` is 127.0.0.1)."""
+    import ipaddress
+
+    address = "127.0.0.1" if value == "localhost" else value
+    try:
+        ipaddress.ip_address(address)
+    except ValueError:
+        raise typer.BadParameter("not an IP address (e.g. 127.0.0.1, 0.0.0.0 or ::)") from None
+    return address
+
+
+def _reserve_ports(bind: str, wanted: list[tuple[str, int | None, int]]) -> list[int]:
+    """The ports the viewer will listen on, each checked free on `bind` now.
+
+    `wanted` holds (option, port given or None, preferred port): a port given must be free (0 = any
+    free port); without one the preferred port is taken when free, a free port otherwise. The
+    sockets stay open until all ports are chosen, so no two coincide.
+
+    Raises:
+        InputError: a port given is taken, or nothing can listen on `bind` on this machine.
+    """
+    import socket
+
+    family = socket.AF_INET6 if ":" in bind else socket.AF_INET
+    held: list[socket.socket] = []
+    ports: list[int] = []
+    try:
+        for option, given, preferred in wanted:
+            tries = [given] if given is not None else [preferred, 0] if preferred else [0]
+            for i, port in enumerate(tries):
+                sock = socket.socket(family, socket.SOCK_STREAM)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the viewer's server binds
+                try:
+                    sock.bind((bind, port))
+                except OSError as exc:
+                    sock.close()
+                    if exc.errno == errno.EADDRINUSE and i + 1 < len(tries):
+                        continue
+                    if exc.errno == errno.EADDRINUSE:
+                        raise InputError(
+                            f"{option} {port}: the port is taken on {bind} (another viewer or server listens "
+                            f"there); pass another port, or {option} 0 for any free one"
+                        ) from None
+                    raise InputError(f"--bind {bind}: cannot listen there ({exc.strerror or exc})") from None
+                held.append(sock)
+                ports.append(sock.getsockname()[1])
+                break
+    finally:
+        for sock in held:
+            sock.close()
+    return ports
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec
+    """The viewer gets SIGTERM when `moseg view` dies, even by SIGKILL (Linux)."""
+    import ctypes
+
+    pr_set_pdeathsig = 1
+    ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGTERM)
+
+
+def _last_error(lines: Any) -> str:
+    """The viewer's own reason for stopping, from its last log lines (colour codes removed)."""
+    import re
+
+    plain = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in list(lines)]
+    for line in reversed(plain):
+        if "Error" in line or " WARN " in line or " ERROR " in line:
+            return _one_line(re.sub(r"^\S+Z\s+(WARN|ERROR)\s+\S+:\s*", "", line))
+    return _one_line(plain[-1]) if plain else "no message"
+
+
+@contextlib.contextmanager
+def _one_start_at_a_time() -> Iterator[None]:
+    """Viewers start one at a time (per user of this machine): each finds its ports free and listens on
+    them before the next looks, so two `moseg view --web` started together do not pick the same port."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield
+        return
+    import tempfile
+
+    try:
+        lock = open(Path(tempfile.gettempdir()) / f"moseg-view-{os.getuid()}.lock", "a")  # noqa: SIM115
+    except OSError:  # a read-only temporary folder: start unlocked
+        yield
+        return
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
+
+
+def _serve_web(exe: str, recording: Path, bind: str, ports: list[tuple[str, int | None, int]]) -> None:
+    """Runs the web viewer as a child of this process until it ends, or this process is stopped.
+
+    `ports` are the web page's and the data's, as `_reserve_ports` takes them. Ctrl-C and SIGTERM
+    reach this process as KeyboardInterrupt (cli/app.py); the viewer is ended before they
+    propagate, and on Linux it also ends when this process is killed.
+
+    Raises:
+        InputError: a port is taken, the viewer stopped on its own with an error, or it did not start
+            listening.
+    """
+    import collections
+    import socket
+    import subprocess
+    import threading
+    from urllib.parse import quote
+
+    host = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(bind, bind)
+    shown = f"[{host}]" if ":" in host else host
+    log: collections.deque[str] = collections.deque(maxlen=20)  # the viewer's log, kept for its error
+    proc: subprocess.Popen[str] | None = None
+    try:
+        with _one_start_at_a_time():
+            web_port, grpc_port = _reserve_ports(bind, ports)
+            args = [exe, "--web-viewer", "--bind", bind, "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
+            proc = subprocess.Popen(
+                [*args, str(recording)],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                text=True,
+                errors="replace",
+                preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None,
+            )
+            reader = threading.Thread(target=lambda: log.extend(proc.stderr or ()), daemon=True)
+            reader.start()
+            deadline = time.monotonic() + VIEWER_START_S
+            while proc.poll() is None:
+                try:
+                    socket.create_connection((host, web_port), timeout=0.5).close()
+                    break
+                except OSError:
+                    if time.monotonic() > deadline:
+                        raise InputError(
+                            f"the Rerun viewer did not start listening on {shown}:{web_port} in {VIEWER_START_S:.0f} s"
+                        ) from None
+                    time.sleep(0.05)
+        if proc.poll() is None:
+            data = quote(f"rerun+http://{shown}:{grpc_port}/proxy", safe="")
+            typer.echo(f"serving {recording} at http://{shown}:{web_port}/?url={data}")
+            typer.echo(f"(the viewer at http://{shown}:{web_port}, its data on port {grpc_port}; Ctrl-C stops it)")
+        code = proc.wait()
+        reader.join(timeout=1.0)
+        if code != 0:
+            raise InputError(f"the Rerun viewer stopped (exit code {code}): {_last_error(log)}")
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 @_friendly
@@ -246,22 +424,45 @@ def view(
         str,
         typer.Option(
             "--bind",
-            help="With --web: the address to listen on. 127.0.0.1 (default) serves this machine only; "
-            "0.0.0.0 serves every network it is on (anyone who can reach the port sees the recording).",
+            callback=_check_bind,
+            help="With --web: the IP address to listen on. 127.0.0.1 (default) serves this machine only; "
+            "0.0.0.0 serves every network it is on (anyone who can reach the ports sees the recording).",
         ),
     ] = "127.0.0.1",
     web_port: Annotated[
-        int, typer.Option("--web-port", min=0, max=65535, help="With --web: the HTTP port (0 = any free port).")
-    ] = 9090,
+        int | None,
+        typer.Option(
+            "--web-port",
+            min=0,
+            max=65535,
+            show_default=False,
+            help=f"With --web: the HTTP port of the viewer page (default: {WEB_PORT}, or any free port when it is "
+            "taken; 0 = any free port).",
+        ),
+    ] = None,
+    grpc_port: Annotated[
+        int,
+        typer.Option(
+            "--grpc-port",
+            min=0,
+            max=65535,
+            help="With --web: the port the page reads the data from (0 = any free port).",
+        ),
+    ] = 0,
 ) -> None:
     """Open a recording in the Rerun viewer (the 'rerun' program that ships with rerun-sdk).
 
     Headless (no display, over SSH): `moseg view --web REC` serves the viewer on
-    http://127.0.0.1:9090 of this machine; forward the port (`ssh -L 9090:localhost:9090 HOST`)
-    or pass `--bind 0.0.0.0` to serve it to the network.
+    http://127.0.0.1:9090 of this machine (another free port when a viewer already uses it) and
+    prints the address to open; the viewer stops with `moseg view` (Ctrl-C, or SIGTERM). Forward the
+    two printed ports (`ssh -L 9090:localhost:9090 -L PORT:localhost:PORT HOST`, with a fixed
+    --grpc-port) or pass `--bind 0.0.0.0` to serve it to the network.
     """
     if not recording.is_file():
         raise InputError(f"{recording}: no such recording")
+    with recording.open("rb") as f:
+        if f.read(3) != b"RRF":  # every .rrd version starts so
+            raise InputError(f"{recording}: not a Rerun recording (.rrd)")
     exe = _find_viewer()
     if exe is None:
         raise InputError(
@@ -270,9 +471,9 @@ def view(
         )
     if not web and not _has_display():
         raise InputError(f"no display to open a window on (DISPLAY is unset); try 'moseg view --web {recording}'")
-    if not web and (bind != "127.0.0.1" or web_port != 9090):
-        raise InputError("--bind and --web-port only apply with --web")
-    web_args = ["--web-viewer", "--bind", bind, "--web-viewer-port", str(web_port)]
-    args = [exe, *web_args, str(recording)] if web else [exe, str(recording)]
-    sys.stdout.flush()
-    os.execv(exe, args)
+    if not web and (bind != "127.0.0.1" or web_port is not None or grpc_port != 0):
+        raise InputError("--bind, --web-port and --grpc-port only apply with --web")
+    if not web:
+        sys.stdout.flush()
+        os.execv(exe, [exe, str(recording)])
+    _serve_web(exe, recording, bind, [("--web-port", web_port, WEB_PORT), ("--grpc-port", grpc_port, 0)])

@@ -334,7 +334,10 @@ def test_view_reports_missing_recording_viewer_and_display(tmp_path: Path, monke
     rec = tmp_path / "recording.rrd"
     code, _, stderr = moseg("view", rec)
     assert code == 1 and stderr == f"moseg: error: {rec}: no such recording\n"
-    rec.write_bytes(b"")
+    rec.write_bytes(b"PNG")
+    code, _, stderr = moseg("view", "--web", rec)
+    assert code == 1 and stderr == f"moseg: error: {rec}: not a Rerun recording (.rrd)\n"
+    rec.write_bytes(b"RRF2")
     monkeypatch.setattr(cli_view, "_find_viewer", lambda: None)
     code, _, stderr = moseg("view", rec)
     assert code == 1 and "the Rerun viewer ('rerun') was not found" in stderr and stderr.count("\n") == 1
@@ -344,9 +347,11 @@ def test_view_reports_missing_recording_viewer_and_display(tmp_path: Path, monke
     assert code == 1 and f"try 'moseg view --web {rec}'" in stderr
 
 
-def test_view_starts_the_viewer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_view_opens_a_window_as_the_viewer_itself(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a display, `moseg view` becomes the viewer (nothing of it to outlive); the web options
+    need --web. The web viewer: tests/test_view.py."""
     rec = tmp_path / "recording.rrd"
-    rec.write_bytes(b"")
+    rec.write_bytes(b"RRF2")
     calls: list[list[str]] = []
 
     def fake_execv(exe: str, args: list[str]) -> None:
@@ -357,14 +362,19 @@ def test_view_starts_the_viewer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     monkeypatch.setattr(cli_view, "_has_display", lambda: True)
     monkeypatch.setattr(cli_view.os, "execv", fake_execv)
     assert moseg("view", rec)[0] == 0
-    assert moseg("view", "--web", rec)[0] == 0
-    assert moseg("view", "--web", "--bind", "0.0.0.0", "--web-port", "8000", rec)[0] == 0
-    web = ["/opt/rerun", "/opt/rerun", "--web-viewer", "--bind"]
-    assert calls == [
-        ["/opt/rerun", "/opt/rerun", str(rec)],
-        [*web, "127.0.0.1", "--web-viewer-port", "9090", str(rec)],  # this machine only, by default
-        [*web, "0.0.0.0", "--web-viewer-port", "8000", str(rec)],
-    ]
+    assert calls == [["/opt/rerun", "/opt/rerun", str(rec)]]
+    for extra in (["--bind", "0.0.0.0"], ["--web-port", "8000"], ["--grpc-port", "9000"]):
+        code, _, stderr = moseg("view", *extra, rec)
+        assert code == 1 and stderr == "moseg: error: --bind, --web-port and --grpc-port only apply with --web\n"
+
+
+def test_view_runs_the_native_viewer() -> None:
+    """rerun-sdk's `rerun` script is a Python wrapper that leaves the viewer running when it gets SIGTERM:
+    the binary itself is run."""
+    exe = cli_view._find_viewer()
+    assert exe is not None
+    with open(exe, "rb") as f:
+        assert f.read(2) != b"#!"
 
 
 def test_choices_are_enums_listed_in_help() -> None:
