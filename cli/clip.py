@@ -243,7 +243,16 @@ def tracks(
     method: Method = MethodChoice.subspacenet,
     rigid_check: RigidCheck = True,
     model: ModelOpt = None,
+    video: Annotated[
+        Path | None,
+        typer.Option(
+            "--video",
+            help="The video (or frame folder) the tracks were made on, frame t of the tracks = its frame t: also "
+            "write masks/, overlay/, overlay.mp4 and recording.rrd, as moseg run does.",
+        ),
+    ] = None,
     overwrite: Overwrite = False,
+    no_rrd: NoRrd = False,
     config: ConfigOpt = None,
     threads: Threads = 1,
     verbose: Verbose = False,
@@ -252,16 +261,18 @@ def tracks(
 
     Tracks visible in every frame of the window (--frames frames from --start) are segmented;
     summary.json and labels.npz (label of every track, -1 = not visible throughout) go into the
-    output folder.
+    output folder; with --video, also the masks, overlays and recording of the window's frames.
     """
     started = time.perf_counter()
     if not file.is_file():
         raise InputError(f"{file}: no such file")
+    if video is not None and not video.exists():
+        raise InputError(f"{video}: no such file or folder")
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.inference import load_embedder
     from mosegpipe.outputs import check_output_dir, write_tracks_outputs
-    from mosegpipe.pipeline import segment_tracks
+    from mosegpipe.pipeline import segment_tracks, tracks_clip
 
     xy, visible = read_tracks_file(file)
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
@@ -273,6 +284,7 @@ def tracks(
         result = segment_tracks(xy, visible, cfg, net, start=start, frames=frames)
     except InputError as exc:  # everything segment_tracks refuses is in the file: name it
         raise type(exc)(f"{file}: {exc}") from exc
-    summary = write_tracks_outputs(result, out, cfg, source=str(file), overwrite=overwrite)
+    clip = None if video is None else tracks_clip(result, video, cfg)
+    summary = write_tracks_outputs(result, out, cfg, source=str(file), overwrite=overwrite, clip=clip, rrd=not no_rrd)
     _print_tracks_summary(summary, out)
     _print_total(started)

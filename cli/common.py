@@ -89,9 +89,8 @@ def _print_summary(summary: dict[str, Any], out: Path) -> None:
     if summary.get("k_note"):
         typer.echo(f"note: {summary['k_note']}")
     typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in summary["timings_s"].items()))
-    files = "summary.json, labels.npz, masks/, overlay/" + (
-        ", recording.rrd" if (out / "recording.rrd").exists() else ""
-    )
+    files = "summary.json, labels.npz, masks/, overlay/" + (", overlay.mp4" if (out / "overlay.mp4").exists() else "")
+    files += ", recording.rrd" if (out / "recording.rrd").exists() else ""
     typer.echo(f"wrote {out}/ ({files})")
     _print_view_hint(out)
 
@@ -120,4 +119,6 @@ def _print_tracks_summary(summary: dict[str, Any], out: Path) -> None:
     )
     if summary["k_note"]:
         typer.echo(f"note: {summary['k_note']}")
-    typer.echo(f"wrote {out}/ (summary.json, labels.npz)")
+    views = [name for name in ("masks/", "overlay/", "overlay.mp4", "recording.rrd") if (out / name).exists()]
+    typer.echo(f"wrote {out}/ ({', '.join(['summary.json', 'labels.npz', *views])})")
+    _print_view_hint(out)

@@ -171,7 +171,7 @@ def replay(
         write_tracks_outputs,
         write_video_outputs,
     )
-    from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_pair, segment_tracks
+    from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_pair, segment_tracks, tracks_clip
 
     kind, source = recorded["kind"], recorded["source"]
     cfg = PipelineConfig.from_dict(recorded.get("config", {}), f"{summary}: config")
@@ -214,7 +214,15 @@ def replay(
     else:
         xy, visible = read_tracks_file(Path(source))
         segmented = segment_tracks(xy, visible, cfg, net, start=recorded.get("start", 0), frames=recorded.get("frames"))
-        written = write_tracks_outputs(segmented, out, cfg, source=source, overwrite=overwrite)
+        views = None
+        if isinstance(recorded.get("video"), str):  # run with --video: its masks, overlays and recording again
+            video = recorded["video"]
+            if isinstance(recorded.get("video_identity"), dict):
+                video = _check_source_identity(summary, recorded["video_identity"])
+            views = tracks_clip(segmented, video, cfg)
+        written = write_tracks_outputs(
+            segmented, out, cfg, source=source, overwrite=overwrite, clip=views, rrd=not no_rrd
+        )
         _print_tracks_summary(written, out)
     same = written["k"] == recorded.get("k")
     typer.echo(

@@ -8,6 +8,7 @@ The public API, stage by stage (see README.md):
     model = SubspaceNet.default(frames=5)                # shipped weights, offline, eval mode
     result = cluster_auto_k(model.embed(traj))           # Clustering labels (N,), k, scores
     seg = segment_clip("clip.mp4")                       # the whole recipe in one call
+    Segmenter()("clip.mp4", out="clip_moseg")            # ... and every output written (docs/OUTPUTS.md)
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ _EXPORTS = {
     "mosegpipe.model": ("ModelConfig", "SubspaceNet"),
     "mosegpipe.outputs": ("write_clip_outputs", "write_pair_outputs", "write_video_outputs"),
     "mosegpipe.rigid": ("RigidCheckConfig", "split_by_rigid_motion"),
+    "mosegpipe.segmenter": ("Segmenter",),
     "mosegpipe.pipeline": ("PipelineConfig", "segment_clip", "segment_frames", "segment_pair", "segment_video"),
     "mosegpipe.track": ("KLTTracker", "TrackConfig", "track_klt"),
     "mosegpipe.trajectories": ("build_trajectories", "resample_frames", "trajectories_from_matches"),

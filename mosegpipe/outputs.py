@@ -114,14 +114,47 @@ def _write_masks_and_overlays(
     masks: Any,
     xys: list[npt.NDArray[np.float32]],
     labels: npt.NDArray[np.int64],
+    fps: float | None = None,
 ) -> None:
-    """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source."""
+    """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source;
+    with `fps` (0.0 = unknown), the overlays also as overlay.mp4 (H.264, as whole videos write it)."""
     palette = default_palette()
     (folder / "masks").mkdir()
     (folder / "overlay").mkdir()
-    for index, image, mask, xy in zip(indices, images, masks, xys):
-        write_palette_png(folder / "masks" / f"{index:06d}.png", mask, palette)
-        write_jpeg(folder / "overlay" / f"{index:06d}.jpg", overlay_image(image, mask, xy, labels), quality=90)
+
+    def overlays() -> Iterator[npt.NDArray[np.uint8]]:
+        for index, image, mask, xy in zip(indices, images, masks, xys):
+            write_palette_png(folder / "masks" / f"{index:06d}.png", mask, palette)
+            overlay = overlay_image(image, mask, xy, labels)
+            write_jpeg(folder / "overlay" / f"{index:06d}.jpg", overlay, quality=90)
+            yield overlay
+
+    if fps is None:
+        for _ in overlays():
+            pass
+    else:
+        write_video(folder / "overlay.mp4", overlays(), fps or _FALLBACK_FPS)
+
+
+def _write_clip_views(folder: Path, result: ClipResult, summary: dict[str, Any], rrd: bool) -> None:
+    """A clip's masks/, overlay/, overlay.mp4 and (rrd) recording.rrd into `folder`; the recording's
+    seconds go into summary["timings_s"]."""
+    traj = result.trajectories
+    _write_masks_and_overlays(
+        folder,
+        [result.frames.start + t for t in range(result.frames.num_frames)],
+        result.frames.images,
+        result.masks,
+        [result.tracks.xy[traj.track_ids, t] for t in range(result.frames.num_frames)],
+        result.clustering.labels,
+        fps=result.frames.fps,
+    )
+    if rrd:
+        from mosegpipe.viz import write_recording
+
+        c = result.clustering
+        clip_args = (result.frames, result.tracks, traj.track_ids, c.labels, result.embeddings, result.masks)
+        _timed_recording(summary, write_recording, folder / "recording.rrd", *clip_args, c.scores, c.k)
 
 
 def _timed_recording(summary: dict[str, Any], write: Callable[..., Any], *args: Any) -> None:
@@ -163,7 +196,8 @@ def write_clip_outputs(
     overwrite: bool = False,
     rrd: bool = True,
 ) -> dict[str, Any]:
-    """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg and recording.rrd atomically.
+    """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg, overlay.mp4 and recording.rrd
+    atomically.
 
     The folder layout and every field are documented in docs/OUTPUTS.md. Mask and overlay files are
     named after the source frame index (000000.png, ...).
@@ -191,20 +225,7 @@ def write_clip_outputs(
             xy=result.tracks.xy[traj.track_ids],
             embeddings=result.embeddings,
         )
-        _write_masks_and_overlays(
-            tmp,
-            [result.frames.start + t for t in range(result.frames.num_frames)],
-            result.frames.images,
-            result.masks,
-            [result.tracks.xy[traj.track_ids, t] for t in range(result.frames.num_frames)],
-            result.clustering.labels,
-        )
-        if rrd:
-            from mosegpipe.viz import write_recording
-
-            c = result.clustering
-            clip_args = (result.frames, result.tracks, traj.track_ids, c.labels, result.embeddings, result.masks)
-            _timed_recording(summary, write_recording, tmp / "recording.rrd", *clip_args, c.scores, c.k)
+        _write_clip_views(tmp, result, summary, rrd)
         write_json(tmp / "summary.json", summary)
     return summary
 
@@ -443,15 +464,29 @@ def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> di
 
 
 def write_tracks_outputs(
-    result: TracksResult, out_dir: str | Path, cfg: PipelineConfig, source: str = "", overwrite: bool = False
+    result: TracksResult,
+    out_dir: str | Path,
+    cfg: PipelineConfig,
+    source: str = "",
+    overwrite: bool = False,
+    clip: ClipResult | None = None,
+    rrd: bool = True,
 ) -> dict[str, Any]:
     """Writes summary.json and labels.npz (labels (N,) of every given track, -1 = not segmented;
     track_ids (M,) and embeddings (M, E) of the segmented ones) atomically.
+
+    With `clip` (pipeline.tracks_clip: the tracks over the frames of the video they were made on),
+    also masks/, overlay/, overlay.mp4 and (rrd) recording.rrd as a clip writes them; summary.json
+    then records the video ("video", "video_identity").
 
     Raises:
         OutputExistsError, InputError: see check_output_dir.
     """
     summary = tracks_summary(result, cfg, source)
+    if clip is not None:
+        summary["video"] = str(Path(clip.frames.source).absolute())
+        summary["video_identity"] = source_identity(clip.frames.source)
+        summary["timings_s"]["masks"] = round(clip.timings.get("masks", 0.0), 4)
     with _OutputDir(Path(out_dir), overwrite) as tmp:
         write_npz(
             tmp / "labels.npz",
@@ -459,5 +494,7 @@ def write_tracks_outputs(
             track_ids=result.trajectories.track_ids,
             embeddings=result.embeddings,
         )
+        if clip is not None:
+            _write_clip_views(tmp, clip, summary, rrd)
         write_json(tmp / "summary.json", summary)
     return summary

@@ -96,7 +96,7 @@ def test_run_writes_every_output(tmp_path: Path, clip_avi: Path, models: dict[in
     lines = stdout.splitlines()
     assert " tracks over 5 frames -> K = 3 (silhouette)" in lines[0]
     assert lines[1].startswith("scores per K: ") and "K=3: " in lines[1] and lines[2].startswith("timings: read ")
-    assert lines[3] == f"wrote {out}/ (summary.json, labels.npz, masks/, overlay/, recording.rrd)"
+    assert lines[3] == f"wrote {out}/ (summary.json, labels.npz, masks/, overlay/, overlay.mp4, recording.rrd)"
     assert lines[4] == f"open it with `moseg view {out}/recording.rrd`"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["kind"] == "clip" and summary["k"] == 3 and summary["source"] == str(clip_avi)

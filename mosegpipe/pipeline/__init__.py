@@ -18,7 +18,7 @@ from mosegpipe.pipeline.common import check_rigid, decode_errors, embed_at_model
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels
 from mosegpipe.pipeline.pair import PairResult, segment_pair
-from mosegpipe.pipeline.tracks import TracksResult, segment_tracks
+from mosegpipe.pipeline.tracks import TracksResult, segment_tracks, tracks_clip
 from mosegpipe.pipeline.video import (
     AMBIGUOUS_K_NOTE,
     VideoFrame,
@@ -52,5 +52,6 @@ __all__ = [
     "segment_pair",
     "segment_tracks",
     "segment_video",
+    "tracks_clip",
     "video_frames_to_read",
 ]

@@ -1,8 +1,11 @@
-"""Point tracks made elsewhere (CoTracker, TAPIR, ...): `segment_tracks` and its `TracksResult`."""
+"""Point tracks made elsewhere (CoTracker, TAPIR, ...): `segment_tracks` and its `TracksResult`; `tracks_clip`
+for their masks over the video they were made on."""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -10,11 +13,12 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.inference import Embedder
-from mosegpipe.pipeline.clip import group_tracks
-from mosegpipe.pipeline.common import _check_k, _model_or_default, model_info
+from mosegpipe.io import read_video
+from mosegpipe.pipeline.clip import ClipResult, clip_masks, group_tracks
+from mosegpipe.pipeline.common import _check_k, _model_or_default, decode_errors, model_info
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.trajectories import build_trajectories
-from mosegpipe.types import Clustering, Tracks, Trajectories
+from mosegpipe.types import Clustering, Frames, Tracks, Trajectories
 
 # Pixel coordinates beyond this are not pixels (a 1e300 became inf in float32 and then crashed the
 # image size); the largest video frames are a few 10^4 px wide.
@@ -116,3 +120,54 @@ def segment_tracks(
     labels = np.full(num, -1, dtype=np.int64)
     labels[traj.track_ids] = clustering.labels
     return TracksResult(tracks, traj, start, emb, clustering, labels, timings, model_info(model))
+
+
+def tracks_clip(result: TracksResult, video: str | Path | Frames, cfg: PipelineConfig = PipelineConfig()) -> ClipResult:
+    """The segmentation of tracks as a clip over the frames they were made on: dense masks from the
+    labelled tracks (`clip_masks`), for the same outputs as a clip (masks, overlays, recording).
+
+    Args:
+        result: what segment_tracks returned.
+        video: the video file or frame folder the tracks were made on (frame t of the tracks = its
+            frame t; the window's frames are read), or the window's frames themselves.
+        cfg: mask settings.
+
+    Returns:
+        ClipResult over the window: the tracks cut to it (same rows), the trajectories, embeddings
+        and clustering of `result`, and the masks; timings gain "masks".
+
+    Raises:
+        InputError: the frames are not the window's (another count), or the tracks reach far beyond
+            them (made on another video or at another resolution).
+    """
+    window = result.trajectories.num_frames
+    if isinstance(video, Frames):
+        frames = video
+    else:
+        with decode_errors(video):
+            frames = read_video(video, max_frames=window, start=result.start)
+    if frames.num_frames != window:
+        raise InputError(
+            f"{frames.source or 'frames'}: {frames.num_frames} frames from frame {frames.start}; the tracks' window "
+            f"is {window} frames from frame {result.start}"
+        )
+    span = slice(result.start, result.start + window)
+    xy, visible = result.tracks.xy[:, span], result.tracks.visible[:, span]
+    height, width = frames.size_hw
+    seen = xy[visible]
+    if seen.size and (
+        seen.min() < -0.1 * max(height, width) or np.any(seen.max(axis=0) > 1.1 * np.array([width, height]))
+    ):
+        raise InputError(
+            f"{frames.source or 'frames'}: the tracks reach x = {seen[:, 0].min():.0f}..{seen[:, 0].max():.0f}, "
+            f"y = {seen[:, 1].min():.0f}..{seen[:, 1].max():.0f}, far beyond the {width}x{height} frames (tracks "
+            "of another video, or of another resolution?)"
+        )
+    tracks = Tracks(xy=np.ascontiguousarray(xy), visible=np.ascontiguousarray(visible), size_hw=frames.size_hw)
+    timings = dict(result.timings)
+    t0 = time.perf_counter()
+    masks = clip_masks(frames.images, tracks, result.trajectories.track_ids, result.clustering.labels, cfg)
+    timings["masks"] = time.perf_counter() - t0
+    return ClipResult(
+        frames, tracks, result.trajectories, result.embeddings, result.clustering, masks, timings, result.model_info
+    )
