@@ -26,7 +26,8 @@ Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`
   chosen K in a colour of its own), ``k_scores/stems`` the stems and the zero line.
 - ``summary``: TextDocument (static): K, its margin over the runner-up, the counts.
 - ``windows/k``, ``windows/k_margin`` (videos): Scalars at each window's first frame, the K chosen
-  in the window (0 = left unlabelled) and its score minus the runner-up's (when the scores are given).
+  in the window (0 = left unlabelled) and how clearly its scores chose (`score_lead`: the best score
+  minus the next best, >= 0; when the scores are given).
 
 Time-varying entities use the sequence timeline "frame" (index of the frame in the source video).
 Each file starts with its layout (a blueprint, sent as the default and active one, so that a viewer
@@ -246,6 +247,14 @@ def k_margin(k_scores: Mapping[int, float], k: int) -> tuple[float, int] | None:
     return finite[k] - finite[runner_up], runner_up
 
 
+def score_lead(k_scores: Mapping[int, float]) -> float | None:
+    """How clearly the scores pick a K: the best score minus the next best (>= 0; 0 = a tie), None
+    with fewer than two finite scores. Unlike `k_margin` it never dips below 0 when the K kept is not
+    the best-scoring one (the rigid-motion check split a motion off, or K was capped)."""
+    finite = sorted((float(v) for v in k_scores.values() if np.isfinite(v)), reverse=True)
+    return finite[0] - finite[1] if len(finite) >= 2 else None
+
+
 @dataclass(frozen=True)
 class KChart:
     """Geometry of the K-score stem chart, in the 2-D view's coordinates (x right = K, y down).
@@ -278,10 +287,11 @@ def k_chart(k_scores: Mapping[int, float]) -> KChart:
     height = 0.45 * (len(ks) + 1)
     y = -scores / top * height if top > 0 else np.zeros_like(scores)
     tips = np.stack([ks.astype(np.float64), y], axis=1).astype(np.float32)
-    label_y = float(max(0.0, float(y.max()) if len(y) else 0.0)) + 0.35
-    x_lo, x_hi = (float(ks.min()) - 0.8, float(ks.max()) + 0.8) if len(ks) else (-1.0, 1.0)
-    y_lo = min(0.0, float(y.min()) if len(y) else 0.0) - 0.45
-    return KChart(ks, scores, tips, label_y, (x_lo, x_hi), (y_lo, label_y + 0.45))
+    label_y = float(max(0.0, float(y.max()) if len(y) else 0.0)) + 0.45
+    x_lo, x_hi = (float(ks.min()) - 1.0, float(ks.max()) + 1.0) if len(ks) else (-1.0, 1.0)
+    # Room for the text drawn under each point: the score under the highest tip, the K labels at the bottom.
+    y_lo = min(0.0, float(y.min()) if len(y) else 0.0) - 0.6
+    return KChart(ks, scores, tips, label_y, (x_lo, x_hi), (y_lo, label_y + 1.0))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -442,7 +452,7 @@ def _log_k_chart(rec: rr.RecordingStream, k_scores: Mapping[int, float], k: int)
             chart.tips,
             colors=colors,
             radii=rr.Radius.ui_points([6.0 if c == k else 4.0 for c in chart.ks]),
-            labels=[f"{v:.3g}" for v in chart.scores],
+            labels=[f"{v:.2g}" for v in chart.scores],  # short: neighbouring labels do not run together
             show_labels=True,
         ),
         static=True,
@@ -765,7 +775,7 @@ def _video_blueprint(windows: bool, margins: bool) -> rrb.Blueprint:
         return rrb.Blueprint(frame, *_panels(timeline=True))
     series = [rrb.TimeSeriesView(origin="windows/k", name="K per window")]
     if margins:
-        series.append(rrb.TimeSeriesView(origin="windows/k_margin", name="K score margin"))
+        series.append(rrb.TimeSeriesView(origin="windows/k_margin", name="how clear K is (score lead)"))
     return rrb.Blueprint(rrb.Vertical(frame, rrb.Horizontal(*series), row_shares=[5.0, 1.0]), *_panels(timeline=True))
 
 
@@ -833,7 +843,8 @@ class VideoRecorder:
             raise
 
     def log_window(self, start: int, k: int, k_scores: Mapping[int, float] | None = None) -> None:
-        """Log the K chosen in a window (and its score margin), at the window's first frame.
+        """Log the K chosen in a window (and how clearly its scores chose it, `score_lead`), at the window's
+        first frame.
 
         Args:
             start: frame index of the window's first frame (the "frame" timeline).
@@ -851,13 +862,15 @@ class VideoRecorder:
         if self._num_windows == 0:
             rec.log("windows/k", rr.SeriesLines(names="K", interpolation_mode="StepAfter"), static=True)
             rec.log("windows/k", rr.SeriesPoints(names="K", markers="circle", marker_sizes=3.0), static=True)
-            style = rr.SeriesLines(names="score margin over the runner-up", interpolation_mode="StepAfter")
+            style = rr.SeriesLines(
+                names="best K's score minus the next K's (0 = a tie)", interpolation_mode="StepAfter"
+            )
             rec.log("windows/k_margin", style, static=True)
         rec.set_time(TIMELINE, sequence=int(start))
         rec.log("windows/k", rr.Scalars(float(k)))
-        margin = k_margin(k_scores or {}, k) if k > 0 else None
+        margin = score_lead(k_scores or {}) if k > 0 else None
         if margin is not None:
-            rec.log("windows/k_margin", rr.Scalars(margin[0]))
+            rec.log("windows/k_margin", rr.Scalars(margin))
         self._num_windows += 1
 
     def log_frame(

@@ -19,6 +19,7 @@ from mosegpipe.viz import (
     fit_in_box,
     k_chart,
     k_margin,
+    score_lead,
     write_recording,
 )
 
@@ -321,6 +322,15 @@ def test_k_chart_and_margin_helpers() -> None:
     assert k_margin({2: 0.5}, 2) is None and k_margin({}, 2) is None and k_margin({1: 0.1, 2: 0.5}, 3) is None
     assert k_margin({1: float("nan"), 2: 0.5, 3: 0.3}, 2) == pytest.approx((0.2, 3))  # NaN scores do not compete
     assert k_margin({1: 0.1, 2: float("nan")}, 2) is None
+    # The video's chart: how clearly the scores chose, never below 0 (a K the rigid check raised
+    # trails the best-scoring K: as a margin it read -0.6, like an error).
+    assert score_lead({1: 0.1, 2: 0.7, 3: 0.2}) == pytest.approx(0.5)
+    assert k_margin({1: 0.1, 2: 0.7, 3: 0.2}, 3) == pytest.approx((-0.5, 2))
+    assert score_lead({2: 0.5, 3: 0.5}) == 0.0 and score_lead({2: 0.5, 3: float("nan")}) is None
+    # Room in the view for the text drawn under the points: the K labels and the top score are not cut.
+    chart = k_chart({1: 0.3, 2: 0.9, 3: -0.4})
+    assert chart.y_range[1] - chart.label_y >= 0.9 and chart.tips[:, 1].min() - chart.y_range[0] >= 0.5
+    assert chart.x_range == (0.0, 4.0)
 
 
 def test_embedding_is_framed_in_the_cube(tmp_path: Path) -> None:
@@ -537,7 +547,7 @@ def test_video_recorder_logs_k_per_window(tmp_path: Path) -> None:
     assert layout["views"]["frame, tracks and masks"]["origin"] == "video"
     assert layout["views"]["K per window"]["class"] == "TimeSeries"
     assert layout["views"]["K per window"]["origin"] == "windows/k"
-    assert layout["views"]["K score margin"]["origin"] == "windows/k_margin"
+    assert layout["views"]["how clear K is (score lead)"]["origin"] == "windows/k_margin"
     assert layout["panels"] == {"blueprint_panel": 2, "selection_panel": 2, "time_panel": 3}
 
 
@@ -550,7 +560,7 @@ def test_video_layout(tmp_path: Path) -> None:
     assert {name: (v["class"], v["origin"]) for name, v in views.items()} == {
         "frame, tracks and masks": ("2D", "video"),
         "K per window": ("TimeSeries", "windows/k"),
-        "K score margin": ("TimeSeries", "windows/k_margin"),
+        "how clear K is (score lead)": ("TimeSeries", "windows/k_margin"),
     }
     # The frame view shows everything under video/: the frames, the masks and the tracks.
     assert views["frame, tracks and masks"]["props"]["ViewContents"]["query"] == ["$origin/**"]
