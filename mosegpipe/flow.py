@@ -14,8 +14,10 @@ patches or a weaker smoothness term at half resolution did not help.
 
 from __future__ import annotations
 
+import functools
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -95,8 +97,12 @@ class DenseFlow:
         return self._dis.calc(gray0, gray1, None)
 
 
-def _pixel_grid(h: int, w: int) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+@functools.lru_cache(maxsize=4)
+def pixel_grid(h: int, w: int) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """(x, y) float32 coordinates of every pixel of an (h, w) image, read-only (cached: a video's frames share them)."""
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    xs.flags.writeable = False
+    ys.flags.writeable = False
     return xs, ys
 
 
@@ -109,7 +115,7 @@ def forward_backward_error(
     smoke), whose flow is not a consistent motion.
     """
     h, w = forward.shape[:2]
-    xs, ys = _pixel_grid(h, w)
+    xs, ys = pixel_grid(h, w)
     x1, y1 = xs + forward[..., 0], ys + forward[..., 1]
     back = cv2.remap(backward, x1, y1, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     err = np.hypot(forward[..., 0] + back[..., 0], forward[..., 1] + back[..., 1])
@@ -149,7 +155,7 @@ def fit_camera(
 def camera_residual(flow: npt.NDArray[np.float32], hom: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
     """(h, w) float32: |flow - the displacement the homography predicts| per pixel, in pixels."""
     h, w = flow.shape[:2]
-    xs, ys = _pixel_grid(h, w)
+    xs, ys = pixel_grid(h, w)
     hm = hom.astype(np.float32)
     den = hm[2, 0] * xs + hm[2, 1] * ys + hm[2, 2]
     den = np.where(np.abs(den) < 1e-6, 1e-6, den)
@@ -178,6 +184,115 @@ class FrameMotion:
     backward: npt.NDArray[np.float32] | None = None
 
 
+def _evidence(
+    forward: npt.NDArray[np.float32], backward: npt.NDArray[np.float32], cfg: FlowConfig
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """(camera residual, forward-backward error) of the first image of a pair from its two flows."""
+    err = forward_backward_error(forward, backward)
+    return camera_residual(forward, fit_camera(forward, err < cfg.fb_max_px, cfg)), err
+
+
+@dataclass(frozen=True)
+class _Pair:
+    """Frames t and t+1 of one shot: the flows both ways and frame t's evidence from them."""
+
+    forward: npt.NDArray[np.float32]
+    backward: npt.NDArray[np.float32]
+    residual: npt.NDArray[np.float32]
+    fb_error: npt.NDArray[np.float32]
+
+
+class FlowStream:
+    """The flows of a stream of frames and each frame's evidence, computed on worker threads as frames arrive.
+
+    `add` hands each frame over as it is read: the flows to and from the frame before (one job per
+    pair of frames, `cfg.workers` threads, each with its own DIS) start at once, so they overlap with
+    whatever the caller does next (tracking the next frames, clustering the window before). `motion`
+    then collects a run of consecutive frames' evidence: exactly what `frame_motion` computes on the
+    same frames. Pairs are kept until `forget`; use it as a context manager (the threads end on exit).
+    """
+
+    def __init__(self, cfg: FlowConfig = FlowConfig()) -> None:
+        self.cfg = cfg
+        self._pool = ThreadPoolExecutor(max_workers=cfg.workers, thread_name_prefix="moseg-flow")
+        self._local = threading.local()
+        self._pairs: dict[int, tuple[int, Future[_Pair]]] = {}  # frame -> (the next frame, their pair)
+        self._last: tuple[int, npt.NDArray[np.uint8]] | None = None
+        self._lock = threading.Lock()  # frames are added on one thread, collected and forgotten on another
+
+    def __enter__(self) -> FlowStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Ends the worker threads (pending jobs are cancelled) and drops every pair."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        with self._lock:
+            self._pairs.clear()
+        self._last = None
+
+    def _flow(self, gray0: npt.NDArray[np.uint8], gray1: npt.NDArray[np.uint8]) -> npt.NDArray[np.float32]:
+        if not hasattr(self._local, "flow"):
+            self._local.flow = DenseFlow(self.cfg)
+        flow: npt.NDArray[np.float32] = self._local.flow(gray0, gray1)
+        return flow
+
+    def _pair(self, gray0: npt.NDArray[np.uint8], gray1: npt.NDArray[np.uint8]) -> _Pair:
+        forward, backward = self._flow(gray0, gray1), self._flow(gray1, gray0)
+        return _Pair(forward, backward, *_evidence(forward, backward, self.cfg))
+
+    def add(self, index: int, image: npt.NDArray[np.uint8], new_shot: bool = False) -> None:
+        """Hands over the next frame.
+
+        Args:
+            index: the frame's index, larger than the frame before's (a stream that drops frames may
+                skip indices: the flow then runs from the frame before to this one).
+            image: (H, W, 3) uint8 RGB or (H, W) gray.
+            new_shot: the frame starts a new shot: no flow to the frame before (a shot cut).
+        """
+        gray = to_gray(image, self.cfg.scale)
+        if self._last is not None and not new_shot:
+            before, gray0 = self._last
+            if index <= before:
+                raise ValueError(f"frame {index} follows frame {before}: frames must come in increasing order")
+            job = self._pool.submit(self._pair, gray0, gray)
+            with self._lock:
+                self._pairs[before] = (index, job)
+        self._last = (index, gray)
+
+    def motion(self, indices: Sequence[int]) -> FrameMotion:
+        """FrameMotion of successive frames (at least 2, added one after the other in one shot), waiting for their flows.
+
+        Frame t uses its flow to the next frame (checked by the flow back); the last frame its flow
+        back to the frame before (checked by the flow forward), as `frame_motion` does.
+        """
+        if len(indices) < 2:
+            raise ValueError(f"motion needs at least 2 frames, got {len(indices)}")
+        with self._lock:
+            jobs = [self._pairs.get(a, (None, None)) for a in indices[:-1]]
+        for (after, job), a, b in zip(jobs, indices, indices[1:]):
+            if after != b or job is None:
+                raise ValueError(f"no flow from frame {a} to frame {b} (not added in turn, forgotten or a shot cut)")
+        pairs = [job.result() for _, job in jobs if job is not None]
+        last = pairs[-1]
+        residual, fb_error = _evidence(last.backward, last.forward, self.cfg)
+        return FrameMotion(
+            np.stack([p.residual for p in pairs] + [residual]),
+            np.stack([p.fb_error for p in pairs] + [fb_error]),
+            self.cfg.scale,
+            np.stack([p.forward for p in pairs]),
+            np.stack([p.backward for p in pairs]),
+        )
+
+    def forget(self, before: int) -> None:
+        """Drops the pairs that start before frame `before` (a window done with them)."""
+        with self._lock:
+            for t in [t for t in self._pairs if t < before]:
+                self._pairs.pop(t)[1].cancel()
+
+
 def frame_motion(images: npt.NDArray[np.uint8], cfg: FlowConfig = FlowConfig()) -> FrameMotion:
     """The camera residual and flow consistency of every frame of a stack.
 
@@ -193,29 +308,7 @@ def frame_motion(images: npt.NDArray[np.uint8], cfg: FlowConfig = FlowConfig()) 
     """
     if images.shape[0] < 2:
         raise ValueError(f"frame_motion needs at least 2 frames, got {images.shape[0]}")
-    local = threading.local()
-
-    def flow_between(pair: tuple[int, int]) -> npt.NDArray[np.float32]:
-        if not hasattr(local, "flow"):
-            local.flow = DenseFlow(cfg)
-        return local.flow(gray[pair[0]], gray[pair[1]])
-
-    num = images.shape[0]
-    pairs = [(t, t + 1) for t in range(num - 1)] + [(t + 1, t) for t in range(num - 1)]
-
-    def evidence(t: int) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
-        fwd, bwd = (flows[t], flows[num - 1 + t]) if t + 1 < num else (flows[2 * num - 3], flows[num - 2])
-        err = forward_backward_error(fwd, bwd)
-        return camera_residual(fwd, fit_camera(fwd, err < cfg.fb_max_px, cfg)), err
-
-    with ThreadPoolExecutor(max_workers=cfg.workers) as pool:
-        gray = list(pool.map(lambda im: to_gray(im, cfg.scale), images))
-        flows = list(pool.map(flow_between, pairs))
-        found = list(pool.map(evidence, range(num)))
-    return FrameMotion(
-        np.stack([r for r, _ in found]),
-        np.stack([e for _, e in found]),
-        cfg.scale,
-        np.stack(flows[: num - 1]),
-        np.stack(flows[num - 1 :]),
-    )
+    with FlowStream(cfg) as stream:
+        for t, image in enumerate(images):
+            stream.add(t, image)
+        return stream.motion(range(images.shape[0]))

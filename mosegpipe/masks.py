@@ -493,7 +493,9 @@ def moving_to_labels(
         background = max(background_label(labels), 0)
     out = label_moving_pixels(moving, xy, labels, background, MOVING_UNCLUSTERED)
     keep = labels >= 0
-    if image is not None and moving.any() and np.any(labels[keep] != background):
+    # The flood only decides between two or more moving motions: with one, every moving pixel has its
+    # label already (the nearest-track partition above).
+    if image is not None and moving.any() and np.unique(labels[keep & (labels != background)]).size >= 2:
         flood = labels_to_mask(xy[keep], labels[keep], moving.shape, replace(cfg, method="watershed"), image)
         take = moving & (flood != background) & (flood != UNKNOWN)
         out[take] = flood[take]

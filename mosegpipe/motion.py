@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion
+from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, pixel_grid
 
 
 @dataclass(frozen=True)
@@ -174,7 +174,7 @@ def _carried_along_flow(
 ) -> list[npt.NDArray[np.float32]]:
     """Each score averaged with the previous and next frames' scores at the pixels the flow leads to."""
     assert motion.forward is not None and motion.backward is not None
-    ys, xs = np.mgrid[0 : hw[0], 0 : hw[1]].astype(np.float32)
+    xs, ys = pixel_grid(*hw)
 
     def sample(score: npt.NDArray[np.float32], flow: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
         f = _resize(flow, hw) * to_work
@@ -194,7 +194,7 @@ def _carried_along_flow(
 
 
 def moving_from_motion(
-    images: npt.NDArray[np.uint8], motion: FrameMotion, cfg: MotionMaskConfig = MotionMaskConfig()
+    images: npt.NDArray[np.uint8], motion: FrameMotion, cfg: MotionMaskConfig = MotionMaskConfig(), first: int = 0
 ) -> npt.NDArray[np.bool_]:
     """Masks of the moving pixels from the frames' flow evidence (steps 1-5 of the module docstring).
 
@@ -202,9 +202,12 @@ def moving_from_motion(
         images: (T, H, W, 3) uint8 RGB.
         motion: camera residuals and forward-backward errors of the T frames (`flow.frame_motion`).
         cfg: mask settings.
+        first: masks of frames first..T-1 only; the frames before are evidence (their scores are
+            carried along the flow and train the colour model) but get no mask of their own: a whole
+            video's window starts on a frame the window before already masked.
 
     Returns:
-        (T, H, W) bool, True = moving.
+        (T - first, H, W) bool, True = moving.
     """
     from skimage.filters import threshold_otsu
 
@@ -233,9 +236,12 @@ def moving_from_motion(
     if cfg.colour_weight > 0:
         ratios = _colour_log_ratio(small, scores, cfg)
         scores = [z + np.float32(cfg.colour_weight) * a for z, a in zip(scores, ratios)]
+    if not 0 <= first < num:
+        raise ValueError(f"first={first} must be in 0..{num - 1}")
+    small, scores, res = small[first:], scores[first:], res[first:]
     if cfg.superpixels > 0:
         scores = [_superpixel_mean(im, z, cfg) for im, z in zip(small, scores)]
-    masks = np.zeros((num, height, width), bool)
+    masks = np.zeros((num - first, height, width), bool)
     for t, (z, r) in enumerate(zip(scores, res)):
         moving = z > 0
         floor = max(cfg.min_residual_px, cfg.noise_factor * float(np.median(r)))
@@ -246,14 +252,17 @@ def moving_from_motion(
     return masks
 
 
-def moving_masks(images: npt.NDArray[np.uint8], cfg: MotionMaskConfig = MotionMaskConfig()) -> npt.NDArray[np.bool_]:
+def moving_masks(
+    images: npt.NDArray[np.uint8], cfg: MotionMaskConfig = MotionMaskConfig(), first: int = 0
+) -> npt.NDArray[np.bool_]:
     """Masks of what moves against the camera's motion in a stack of frames.
 
     Args:
         images: (T, H, W, 3) uint8 RGB, T >= 2.
         cfg: flow and mask settings.
+        first: masks of frames first..T-1 only (`moving_from_motion`).
 
     Returns:
-        (T, H, W) bool, True = moving.
+        (T - first, H, W) bool, True = moving.
     """
-    return moving_from_motion(images, frame_motion(images, cfg.flow), cfg)
+    return moving_from_motion(images, frame_motion(images, cfg.flow), cfg, first)

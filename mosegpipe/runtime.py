@@ -14,7 +14,7 @@ import os
 import queue
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from typing import Any, TypeVar
 
 
@@ -109,7 +109,7 @@ _T = TypeVar("_T")
 _DONE = object()
 
 
-def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Iterator[_T]:
+def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Generator[_T, None, None]:
     """Runs the iterator `items` on a background thread, at most `depth` items ahead of the consumer.
 
     Whole-video mode spends its time in OpenCV, PyAV and BLAS calls that release the GIL, so its

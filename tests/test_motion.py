@@ -193,3 +193,67 @@ def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
     masks = clip_masks(images, tracks, ids, labels, cfg)
     watershed = replace(cfg.mask, method="watershed", extra_tracks=0)
     assert np.array_equal(masks, labels_to_masks(tracks, ids, labels, watershed, images))
+
+
+def test_flow_stream_gives_what_frame_motion_gives_and_keeps_to_its_pairs() -> None:
+    from mosegpipe.flow import FlowStream
+
+    images, _ = _scene(frames=6, h=96, w=160)
+    whole = frame_motion(images[1:5], FlowConfig())
+    with FlowStream(FlowConfig()) as stream:
+        for t, im in enumerate(images):
+            stream.add(10 + t, im, new_shot=t == 3)  # a cut before frame 13
+        with pytest.raises(ValueError, match="from frame 12 to frame 13"):
+            stream.motion([11, 12, 13])
+        part = stream.motion([10, 11, 12])
+        np.testing.assert_array_equal(part.forward, frame_motion(images[:3], FlowConfig()).forward)
+        stream.forget(12)
+        with pytest.raises(ValueError, match="from frame 11"):
+            stream.motion([11, 12])
+        assert stream.motion([13, 14, 15]).residual.shape == (3, 96, 160)
+    with FlowStream(FlowConfig(workers=1)) as stream:
+        for t in range(1, 5):
+            stream.add(t, images[t])
+        got = stream.motion(range(1, 5))
+    for name in ("residual", "fb_error", "forward", "backward"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(whole, name))
+    # a stream that dropped frames: the flow runs from the frame before to the next one added
+    with FlowStream(FlowConfig()) as stream:
+        stream.add(0, images[0])
+        stream.add(2, images[2])
+        np.testing.assert_array_equal(stream.motion([0, 2]).forward, frame_motion(images[[0, 2]]).forward)
+        with pytest.raises(ValueError, match="increasing"):
+            stream.add(1, images[1])
+
+
+def test_masks_of_the_later_frames_only_are_those_of_the_whole_stack() -> None:
+    from mosegpipe.motion import moving_from_motion
+
+    images, _ = _scene()
+    motion = frame_motion(images, FlowConfig())
+    cfg = MotionMaskConfig(superpixels=100)
+    all_frames = moving_from_motion(images, motion, cfg)
+    later = moving_from_motion(images, motion, cfg, first=1)
+    assert later.shape == (4, *images.shape[1:3])
+    np.testing.assert_array_equal(later, all_frames[1:])
+    with pytest.raises(ValueError, match="first=5"):
+        moving_from_motion(images, motion, cfg, first=5)
+
+
+def test_moving_pixels_of_one_moving_motion_all_take_its_label_and_two_split_along_the_image() -> None:
+    from mosegpipe.masks import moving_to_labels
+
+    h, w = 60, 80
+    image = np.zeros((h, w, 3), np.uint8)
+    image[:, 40:] = 200  # an edge at x = 40
+    moving = np.zeros((h, w), bool)
+    moving[10:50, 20:60] = True
+    bg = np.array([[2.0, 2.0], [77.0, 57.0], [2.0, 57.0]], np.float32)
+    one = np.concatenate([bg, np.array([[25.0, 30.0]], np.float32)])
+    out = moving_to_labels(moving, one, np.array([0, 0, 0, 3]), image=image)
+    assert (out[moving] == 3).all() and (out[~moving] == 0).all()
+    # two moving motions, their tracks both left of the edge: the flood's border follows the edge,
+    # where the nearest-track border would run halfway between the tracks (x = 32)
+    two = np.concatenate([bg, np.array([[22.0, 30.0], [42.0, 30.0]], np.float32)])
+    out = moving_to_labels(moving, two, np.array([0, 0, 0, 3, 5]), image=image)
+    assert (out[10:50, 20:40] == 3).mean() > 0.9 and (out[10:50, 40:60] == 5).mean() > 0.9

@@ -19,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -29,15 +29,16 @@ import numpy.typing as npt
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.flow import flow_fits
+from mosegpipe.flow import FlowStream, flow_fits
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
 from mosegpipe.masks import MaskConfig, labels_to_mask, moving_to_labels
-from mosegpipe.motion import moving_masks
+from mosegpipe.motion import moving_from_motion
 from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels
+from mosegpipe.runtime import run_ahead
 from mosegpipe.track import KLTTracker, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import Trajectories
@@ -104,7 +105,7 @@ class WindowResult:
             for the first window), with labels and masks.
         num_motions: global labels handed out so far.
         num_labels_reused: labels handed out again so far (only after 255 labels).
-        num_frames_read: frames read from the source so far.
+        num_frames_read: frames of the source done so far (those of this window and the windows before).
         k_note: automatic K's note on this window (Clustering.note: e.g. the K choice was
             ambiguous); "" when none.
         k_scores: automatic K's score per candidate K in this window (Clustering.scores); empty
@@ -193,6 +194,7 @@ def segment_video(
     model: Embedder | None = None,
     max_frames: int | None = None,
     masks: bool = True,
+    frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
 ) -> Iterator[WindowResult]:
     """Segments a whole video window by window, streamed: yields each window as soon as it is labelled.
 
@@ -203,6 +205,10 @@ def segment_video(
         max_frames: stop after this many frames (None = whole video).
         masks: compute each frame's dense mask; False leaves VideoFrame.mask None for the caller
             to compute with `frame_mask` (e.g. on another thread, as outputs.write_video_outputs does).
+        frames: the frames themselves, (index, (H, W, 3) uint8 RGB) in increasing index order, read
+            in place of `path`, which then only names the source in messages (a live source:
+            mosegpipe.live); cfg.start and max_frames do not apply, and the caller checks the frame
+            size.
 
     Yields:
         WindowResult per window, in order; together their `frames` cover every frame read once.
@@ -231,8 +237,10 @@ def segment_video(
     """
     check_video_settings(cfg, max_frames)
     model = model or load_model(cfg.frames)
-    with decode_errors(path):
-        info = video_info(path)
+    info: dict[str, Any] = {"kind": "stream"}
+    if frames is None:
+        with decode_errors(path):
+            info = video_info(path)
     size_hw = info.get("size_hw")
     if size_hw is not None and min(size_hw) < MIN_VIDEO_SIDE_PX:
         height, width = size_hw
@@ -241,9 +249,16 @@ def segment_video(
             f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
     run = _VideoRun()
-    for window, first_labelled in _read_windows(path, cfg, run, max_frames):
-        yield _label_window(window, first_labelled, cfg, model, run, masks)
-        del window  # from here on its frames live only in the result: at most F frames are held
+    with contextlib.ExitStack() as stack:
+        # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
+        # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
+        stream = stack.enter_context(FlowStream(cfg.mask.motion.flow)) if cfg.mask.method == "motion" else None
+        windows = stack.enter_context(
+            contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
+        )
+        for window, first_labelled in windows:
+            yield _label_window(window, first_labelled, cfg, model, run, masks, stream)
+            del window  # from here on its frames live only in the result: a few windows' frames are held
     _report_video_end(path, cfg, info, run, max_frames)
 
 
@@ -259,7 +274,8 @@ class _VideoRun:
             (the next window's preferred K; 0 = none yet).
         num_windows: windows yielded so far.
         num_labelled: windows labelled so far.
-        num_frames: frames read so far.
+        num_frames: frames read so far (by the reading thread, which runs a window ahead).
+        num_done: frames of the windows labelled so far.
         cuts: frames that start a new shot.
         ambiguous: (first, last) frame of each window whose K was ambiguous.
     """
@@ -270,6 +286,7 @@ class _VideoRun:
     num_windows: int = 0
     num_labelled: int = 0
     num_frames: int = 0
+    num_done: int = 0
     cuts: set[int] = field(default_factory=set)
     ambiguous: list[tuple[int, int]] = field(default_factory=list)
 
@@ -302,9 +319,17 @@ class _WindowLabels:
 
 
 def _read_windows(
-    path: str | Path, cfg: PipelineConfig, run: _VideoRun, max_frames: int | None
+    path: str | Path,
+    cfg: PipelineConfig,
+    run: _VideoRun,
+    max_frames: int | None,
+    frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
+    stream: FlowStream | None = None,
 ) -> Iterator[tuple[list[_Frame], bool]]:
     """Reads and tracks the frames and cuts them into windows, each as soon as it is complete.
+
+    Each frame is handed to `stream` (when given and the frames are large enough for dense flow),
+    which starts its flows to and from the frame before at once (not across a shot cut).
 
     Yields:
         (the window's frames, whether its first frame was labelled by the window before: windows
@@ -317,7 +342,7 @@ def _read_windows(
     tracker = KLTTracker(replace(cfg.track, reseed=True, reseed_every=f - 1))
     window: list[_Frame] = []
     first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
-    frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames)
+    frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames) if frames is None else iter(frames)
     while True:
         with decode_errors(path):
             item = next(frames_iter, None)
@@ -326,7 +351,12 @@ def _read_windows(
         t, frame = item
         ids, xy = tracker.step(frame)
         run.num_frames += 1
-        if window and _is_cut(window[-1][2], ids, cfg):
+        if stream is not None and not flow_fits(frame.shape[:2], stream.cfg):
+            stream = None
+        cut = bool(window) and _is_cut(window[-1][2], ids, cfg)
+        if stream is not None:
+            stream.add(t, frame, new_shot=cut)
+        if cut:
             # A shot cut: the window ends on the frame before, a new one starts on this frame with
             # tracks detected afresh (the few that survived the cut landed on unrelated content).
             run.cuts.add(t)
@@ -398,9 +428,18 @@ def _cluster_window(
 
 
 def _label_window(
-    window: list[_Frame], first_labelled: bool, cfg: PipelineConfig, model: Embedder, run: _VideoRun, masks: bool
+    window: list[_Frame],
+    first_labelled: bool,
+    cfg: PipelineConfig,
+    model: Embedder,
+    run: _VideoRun,
+    masks: bool,
+    stream: FlowStream | None = None,
 ) -> WindowResult:
-    """Clusters one window and labels its frames (all but the first when the window before labelled that one)."""
+    """Clusters one window and labels its frames (all but the first when the window before labelled that one).
+
+    With the motion masks, the window's flows come from `stream` (handed every frame by `_read_windows`).
+    """
     before = run.prev  # the last labelled window's labels: tracks that end inside this window keep theirs
     common, found = _cluster_window(window, cfg, model, run)
     note = found.note
@@ -408,15 +447,18 @@ def _label_window(
         "frames %d-%d: %d tracks, K = %d%s", window[0][0], window[-1][0], common.size, found.k, note and f"; {note}"
     )
     by_id = found.by_id()
-    moving: npt.NDArray[np.bool_] | list[None] = [None] * len(window)
-    if cfg.mask.method == "motion" and len(window) >= 2 and flow_fits(window[0][1].shape[:2], cfg.mask.motion.flow):
-        moving = moving_masks(np.stack([img for _, img, _, _ in window]), cfg.mask.motion)
     skip = 1 if first_labelled else 0
+    moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
+    if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
+        indices = [t for t, _, _, _ in window]
+        images = np.stack([img for _, img, _, _ in window])
+        moving = moving_from_motion(images, stream.motion(indices), cfg.mask.motion, first=skip)
+        stream.forget(indices[-1])  # the next window starts on this one's last frame
     labelled = tuple(
-        _labelled_frame(item, by_id, before, cfg.mask, masks, moved)
-        for item, moved in zip(window[skip:], moving[skip:])
+        _labelled_frame(item, by_id, before, cfg.mask, masks, moved) for item, moved in zip(window[skip:], moving)
     )
     run.num_windows += 1
+    run.num_done += len(labelled)
     result = WindowResult(
         start=window[0][0],
         num_frames=len(window),
@@ -427,7 +469,7 @@ def _label_window(
         frames=labelled,
         num_motions=run.book.next_label,
         num_labels_reused=run.book.num_reused,
-        num_frames_read=run.num_frames,
+        num_frames_read=run.num_done,
         k_note=note,
         k_scores=found.scores,
         shot_start=window[0][0] in run.cuts,
