@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import shutil
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -30,6 +30,7 @@ from mosegpipe.pipeline import (
     PairResult,
     PipelineConfig,
     TracksResult,
+    VideoFrame,
     WindowResult,
     check_video_settings,
     decode_errors,
@@ -195,6 +196,7 @@ def write_clip_outputs(
     cfg: PipelineConfig = PipelineConfig(),
     overwrite: bool = False,
     rrd: bool = True,
+    extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg, overlay.mp4 and recording.rrd
     atomically.
@@ -208,6 +210,7 @@ def write_clip_outputs(
         cfg: the settings the result was computed with (recorded in summary.json).
         overwrite: replace an existing moseg output folder.
         rrd: also write the Rerun recording.
+        extra: more summary.json fields (a batch records its config hash there).
 
     Returns:
         The summary dict that was written.
@@ -215,7 +218,7 @@ def write_clip_outputs(
     Raises:
         OutputExistsError, InputError: see check_output_dir.
     """
-    summary = clip_summary(result, cfg)
+    summary = {**clip_summary(result, cfg), **(extra or {})}
     with _OutputDir(Path(out_dir), overwrite) as tmp:
         traj = result.trajectories
         write_npz(
@@ -352,6 +355,9 @@ def write_video_outputs(
     max_frames: int | None = None,
     on_window: Callable[[WindowResult], None] | None = None,
     viz: VizConfig | None = None,
+    frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
+    info: dict[str, Any] | None = None,
+    on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None = None,
 ) -> dict[str, Any]:
     """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
 
@@ -372,6 +378,11 @@ def write_video_outputs(
             (its `frames` emptied; `num_frames_read` counts the frames done): a progress display.
         viz: settings of the recording (None = viz.VIDEO_VIZ: frames of at most 960 px as one H.264
             video asset).
+        frames: the frames themselves, read in place of `path` (a live source; see segment_video).
+        info: what video_info says of the source, "fps" (0.0 unknown) and "size_hw" (None: read from
+            `path`; given with `frames`).
+        on_frame: called in this thread with each frame and its mask once they were written (a live
+            view).
 
     Returns:
         The summary dict written to summary.json.
@@ -384,8 +395,9 @@ def write_video_outputs(
     check_video_settings(cfg, max_frames)
     check_output_dir(out_dir, overwrite)
     model = model or load_embedder(cfg.frames)
-    with decode_errors(path):
-        info = video_info(path)
+    if info is None:
+        with decode_errors(path):
+            info = video_info(path)
     fps = float(info.get("fps") or 0.0) or _FALLBACK_FPS
     palette = default_palette()
     windows: list[WindowResult] = []
@@ -405,7 +417,9 @@ def write_video_outputs(
             def overlays() -> Iterator[npt.NDArray[np.uint8]]:
                 """Writes each frame's mask (and recording) as the windows arrive; yields its overlay."""
                 for window in run_ahead(
-                    segment_video(path, cfg, model, max_frames, masks=False), _WINDOWS_AHEAD, "moseg-segment"
+                    segment_video(path, cfg, model, max_frames, masks=False, frames=frames),
+                    _WINDOWS_AHEAD,
+                    "moseg-segment",
                 ):
                     # Keep what the summary and labels.npz need, not the images (flat memory).
                     windows.append(replace(window, frames=()))
@@ -419,6 +433,8 @@ def write_video_outputs(
                             recorder.log_frame(
                                 fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask
                             )
+                        if on_frame is not None:
+                            on_frame(fr, mask)
                         yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
                     if on_window is not None:
                         on_window(windows[-1])

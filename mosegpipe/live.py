@@ -1,0 +1,747 @@
+"""Live mode: a camera, a stream, a video file played in real time or frames piped on stdin, segmented as
+the frames arrive and shown in a Rerun viewer.
+
+The frames go through the whole-video machinery unchanged (`segment_video` reads them from a
+`LiveFrames` iterator in place of a file: windows, stable labels, shot cuts); with an output folder,
+`write_video_outputs` writes it as `moseg run --whole` does. What is live is around it:
+
+- `open_source` opens the source (`parse_source` tells a camera index, a URL, a file and `-` apart);
+  `SourceReader` reads it on a thread of its own into a `FrameBuffer` of a few frames. When the
+  pipeline falls behind a live source, the buffer drops its oldest frame for each new one (whole
+  frames, counted): latency stays bounded and memory flat; it never grows a queue. A file read
+  as fast as possible (no real-time pacing) waits instead, so that no frame is lost.
+- `LiveFrames` hands the frames to the pipeline and ends the stream when the source ends, stalls
+  (no frame for `stall_timeout_s`) or is told to stop (Ctrl-C): the pipeline then finishes the
+  window in hand, so the outputs are complete.
+- `LiveView` streams each frame, its mask, its tracks and each window's K to the viewer's sinks
+  (a spawned viewer, a running viewer over gRPC, a web viewer), with the layout and colours of a
+  whole-video recording (mosegpipe.viz).
+- `LiveStats` measures frames/s, the latency from a frame's arrival to its mask leaving for the
+  viewer, and the dropped frames, in constant memory.
+
+Stdin takes raw frames, 8-bit BGR (what `ffmpeg ... -f rawvideo -pix_fmt bgr24 -` writes), of a
+size given beside it (`parse_source(stdin_size=...)`).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any, Literal
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.errors import InputError
+from mosegpipe.pipeline import PipelineConfig, VideoFrame, WindowResult, frame_mask, segment_video
+from mosegpipe.pipeline.video import MIN_VIDEO_SIDE_PX
+from mosegpipe.runtime import run_ahead
+
+if TYPE_CHECKING:
+    import rerun as rr
+
+    from mosegpipe.inference import Embedder
+    from mosegpipe.viz import VizConfig
+
+log = logging.getLogger(__name__)
+
+SourceKind = Literal["camera", "url", "file", "stdin"]
+
+BUFFER_FRAMES = 4
+"""Frames the reader may hold for the pipeline: they bridge the pause of a window's clustering (the
+tracker waits for it); once the pipeline falls behind, each held frame adds a frame's time of
+latency."""
+
+DEFAULT_FPS = 25.0
+"""Frame rate assumed for the outputs of a source that does not state one (stdin, some cameras)."""
+
+_WINDOWS_AHEAD = 1
+"""Windows the segmenting thread may run ahead of the view (latency: a window's frames each)."""
+
+_POLL_S = 0.1
+"""How often a waiting reader or pipeline looks at the stop signal."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Sources
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LiveSource:
+    """What to read.
+
+    Attributes:
+        name: the source as given (camera index, URL, path or "-").
+        kind: "camera" (an index), "url" (anything with "://": rtsp, http, ...), "file" or "stdin".
+        realtime: a file is played at its own frame rate (live-like: frames are dropped when the
+            pipeline falls behind); False reads it as fast as the pipeline takes it.
+        stdin_size: (width, height) of the raw BGR frames on stdin.
+        fps: frame rate to assume (None: what the source says, else DEFAULT_FPS).
+        drop: drop frames (True) or wait for the pipeline (False) when it falls behind; None: drop
+            for every source but a file read as fast as possible.
+    """
+
+    name: str
+    kind: SourceKind
+    realtime: bool = False
+    stdin_size: tuple[int, int] | None = None
+    fps: float | None = None
+    drop: bool | None = None
+
+    @property
+    def drops(self) -> bool:
+        """Whether frames are dropped (not waited for) when the pipeline falls behind."""
+        return self.drop if self.drop is not None else self.kind != "file" or self.realtime
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """`640x480` -> (640, 480).
+
+    Raises:
+        InputError: not WIDTHxHEIGHT with positive integers.
+    """
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts) or min(int(p) for p in parts) < 1:
+        raise InputError(f"--stdin-size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 640x480")
+    return int(parts[0]), int(parts[1])
+
+
+def parse_source(
+    text: str,
+    realtime: bool = False,
+    stdin_size: tuple[int, int] | None = None,
+    fps: float | None = None,
+    drop: bool | None = None,
+) -> LiveSource:
+    """Tells a camera index, a URL, stdin ("-") and a file apart, and checks the options that go with each.
+
+    Raises:
+        InputError: a missing file, stdin without a frame size, a frame size or --realtime that does
+            not apply, a frame rate that is not positive.
+    """
+    if fps is not None and not (np.isfinite(fps) and fps > 0):
+        raise InputError(f"--fps {fps}: must be a positive number")
+    kind: SourceKind
+    if text == "-":
+        kind = "stdin"
+        if stdin_size is None:
+            raise InputError("SOURCE '-' (raw frames on stdin) needs --stdin-size WIDTHxHEIGHT")
+    elif text.isdigit():
+        kind = "camera"
+    elif "://" in text:
+        kind = "url"
+    else:
+        if not Path(text).is_file():
+            raise InputError(f"{text}: no such file (SOURCE is a camera index, a URL, a video file or '-')")
+        kind = "file"
+    if stdin_size is not None and kind != "stdin":
+        raise InputError("--stdin-size only applies to SOURCE '-' (raw frames on stdin)")
+    if realtime and kind != "file":
+        raise InputError(f"--realtime only applies to a video file (a {kind} delivers frames in real time itself)")
+    return LiveSource(text, kind, realtime, stdin_size, fps, drop)
+
+
+class Capture:
+    """A source opened for reading: `read` gives the next (H, W, 3) uint8 RGB frame, None at the end."""
+
+    fps: float = 0.0  # frame rate the source states (0.0 when it does not)
+
+    def read(self) -> npt.NDArray[np.uint8] | None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Releases the source (called once, by the thread that reads it)."""
+
+
+class _CvCapture(Capture):
+    """A camera, a URL or a file through OpenCV (FFmpeg for files and streams)."""
+
+    def __init__(self, source: LiveSource, timeout_s: float) -> None:
+        ms = int(min(timeout_s, 600.0) * 1000)
+        timeouts = [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms, cv2.CAP_PROP_READ_TIMEOUT_MSEC, ms]
+        if source.kind == "camera":
+            self._cap = cv2.VideoCapture(int(source.name))
+        elif source.kind == "url":
+            self._cap = cv2.VideoCapture(source.name, cv2.CAP_FFMPEG, timeouts)
+        else:
+            self._cap = cv2.VideoCapture(source.name)
+        if not self._cap.isOpened():
+            self._cap.release()
+            what = {"camera": "camera", "url": "stream", "file": "video"}[source.kind]
+            raise InputError(f"{source.name}: cannot open the {what} (OpenCV could not open it)")
+        fps = float(self._cap.get(cv2.CAP_PROP_FPS))
+        self.fps = fps if np.isfinite(fps) and 0 < fps < 1000 else 0.0
+
+    def read(self) -> npt.NDArray[np.uint8] | None:
+        ok, bgr = self._cap.read()
+        if not ok or bgr is None:
+            return None
+        code = cv2.COLOR_GRAY2RGB if bgr.ndim == 2 else cv2.COLOR_BGR2RGB
+        return np.asarray(cv2.cvtColor(bgr, code), dtype=np.uint8)
+
+    def close(self) -> None:
+        self._cap.release()
+
+
+class RawCapture(Capture):
+    """Raw 8-bit BGR frames of a known size from a byte stream (ffmpeg's `-f rawvideo -pix_fmt bgr24`).
+
+    A stream that ends inside a frame ends there; the partial frame is dropped (`partial_bytes`).
+    """
+
+    def __init__(self, stream: IO[bytes], size_wh: tuple[int, int], owned: bool = False) -> None:
+        self._stream = stream
+        self._owned = owned  # close() closes it
+        self._width, self._height = size_wh
+        self._frame_bytes = self._width * self._height * 3
+        self.partial_bytes = 0
+
+    def read(self) -> npt.NDArray[np.uint8] | None:
+        buf = bytearray(self._frame_bytes)
+        view = memoryview(buf)
+        got = 0
+        while got < self._frame_bytes:
+            n = self._stream.readinto(view[got:])  # type: ignore[attr-defined]
+            if not n:
+                self.partial_bytes = got
+                return None
+            got += n
+        bgr = np.frombuffer(buf, dtype=np.uint8).reshape(self._height, self._width, 3)
+        return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+
+    def close(self) -> None:
+        if self._owned:
+            self._stream.close()
+
+
+def _stdin_bytes() -> tuple[IO[bytes], bool]:
+    """This process's stdin as an unbuffered file of its own (a copy of the descriptor; True: to be closed).
+
+    The reader thread may be blocked in a read of it when the process exits (a stalled pipe); a
+    read through sys.stdin's buffer would hold the buffer's lock, which Python's shutdown then
+    waits for and aborts on.
+    """
+    import io
+    import os
+    import sys
+
+    try:
+        fd = os.dup(sys.stdin.fileno())
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):  # not a real file (tests)
+        return sys.stdin.buffer, False
+    return open(fd, "rb", buffering=0), True  # noqa: SIM115 - closed with the reader's capture
+
+
+def open_source(source: LiveSource, timeout_s: float = 10.0, stdin: IO[bytes] | None = None) -> Capture:
+    """Opens a source for reading.
+
+    Args:
+        source: what to open.
+        timeout_s: how long OpenCV may wait to open a stream or for one of its frames.
+        stdin: the byte stream of SOURCE "-" (None: this process's stdin).
+
+    Raises:
+        InputError: the source cannot be opened.
+    """
+    if source.kind == "stdin":
+        assert source.stdin_size is not None  # parse_source checks it
+        if stdin is not None:
+            return RawCapture(stdin, source.stdin_size)
+        stream, owned = _stdin_bytes()
+        return RawCapture(stream, source.stdin_size, owned)
+    return _CvCapture(source, timeout_s)
+
+
+# ---------------------------------------------------------------------------------------------
+# The bounded hand-over between the reader and the pipeline
+# ---------------------------------------------------------------------------------------------
+
+_Item = tuple[int, npt.NDArray[np.uint8], float]
+"""(frame index in the source, RGB image, arrival time on time.monotonic())."""
+
+
+class FrameBuffer:
+    """At most `capacity` frames between a reader thread and the pipeline.
+
+    When it is full, `put` drops the oldest frame held (`drop`, a live source: the newest frames
+    are the ones worth showing; `dropped` counts them) or waits for room (a file read as fast as
+    possible). `close` ends it: `get` gives the frames still held, then None for good.
+    """
+
+    def __init__(self, capacity: int = BUFFER_FRAMES, drop: bool = True) -> None:
+        if capacity < 1:
+            raise InputError(f"buffer of {capacity} frames: must hold at least 1")
+        self.capacity = capacity
+        self.drop = drop
+        self.dropped = 0
+        self.last_put = time.monotonic()
+        self._items: collections.deque[_Item] = collections.deque()
+        self._closed = False
+        self._cond = threading.Condition()
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._items)
+
+    def put(self, item: _Item, stop: threading.Event | None = None) -> bool:
+        """Hands over one frame; False when the buffer was closed (or `stop` set) while waiting for room."""
+        with self._cond:
+            while not self.drop and len(self._items) >= self.capacity and not self._closed:
+                if stop is not None and stop.is_set():
+                    return False
+                self._cond.wait(_POLL_S)
+            if self._closed:
+                return False
+            if len(self._items) >= self.capacity:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self.last_put = time.monotonic()
+            self._cond.notify_all()
+            return True
+
+    def close(self) -> None:
+        """No more frames will come (those held are still given out)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def get(self, timeout: float) -> _Item | None | Literal[False]:
+        """The oldest frame held; None when `timeout` passed without one; False once closed and empty."""
+        with self._cond:
+            if not self._items and not self._closed:
+                self._cond.wait(timeout)
+            if self._items:
+                item = self._items.popleft()
+                self._cond.notify_all()
+                return item
+            return False if self._closed else None
+
+
+class SourceReader(threading.Thread):
+    """Reads a source into a FrameBuffer until it ends, `max_frames` were read or `stop` is set.
+
+    A realtime source hands frame i over at first + i / fps (a file played at its frame rate);
+    otherwise each frame as soon as it is read. Frame indices count every frame read, dropped or
+    not. The reader closes the source itself when it ends (OpenCV captures are not to be released
+    from another thread while one reads); a read that blocks for good (a dead stream) leaves the
+    thread blocked, which as a daemon does not keep the process alive.
+    """
+
+    def __init__(
+        self,
+        capture: Capture,
+        buffer: FrameBuffer,
+        stop: threading.Event,
+        first: npt.NDArray[np.uint8],
+        pace_fps: float | None = None,
+        max_frames: int | None = None,
+        name: str = "source",
+    ) -> None:
+        super().__init__(name="moseg-source", daemon=True)
+        self.source_name = name
+        self.capture = capture
+        self.buffer = buffer
+        self.stop = stop
+        self.first = first
+        self.pace_fps = pace_fps
+        self.max_frames = max_frames
+        self.frames_read = 0
+        self.end = "ended"  # or "max-frames", "stopped"
+        self.error: BaseException | None = None
+
+    def run(self) -> None:
+        try:
+            self._read()
+        except BaseException as exc:  # handed to the pipeline's thread by LiveFrames
+            self.error = exc
+        finally:
+            self.buffer.close()
+            self.capture.close()
+
+    def _read(self) -> None:
+        started = time.monotonic()
+        frame: npt.NDArray[np.uint8] | None = self.first
+        self.first = np.zeros((0, 0, 3), np.uint8)  # not held for the whole run
+        while frame is not None:
+            if self.pace_fps:
+                wait = started + self.frames_read / self.pace_fps - time.monotonic()
+                if wait > 0 and self.stop.wait(wait):
+                    self.end = "stopped"
+                    return
+            if self.stop.is_set():
+                self.end = "stopped"
+                return
+            if not self.buffer.put((self.frames_read, frame, time.monotonic()), self.stop):
+                self.end = "stopped"
+                return
+            self.frames_read += 1
+            if self.max_frames is not None and self.frames_read >= self.max_frames:
+                self.end = "max-frames"
+                return
+            frame = self.capture.read()
+
+
+class LiveFrames:
+    """The frames of a live source as segment_video reads them: (index, RGB image), in order.
+
+    The stream ends when the source ends, when no frame came for `stall_timeout_s` (`end` =
+    "stalled"), or when `stop` is set ("stopped", e.g. by Ctrl-C). Each frame's arrival time is kept
+    until `arrival` takes it (for the latency of its mask).
+
+    Raises (on iteration):
+        InputError: the source failed while it was read.
+    """
+
+    def __init__(self, reader: SourceReader, stall_timeout_s: float) -> None:
+        self.reader = reader
+        self.stall_timeout_s = stall_timeout_s
+        self.end = ""
+        self.frames = 0
+        self._arrivals: dict[int, float] = {}
+
+    def arrival(self, index: int) -> float | None:
+        """When frame `index` arrived (time.monotonic()), once; None when unknown."""
+        return self._arrivals.pop(index, None)
+
+    def __iter__(self) -> Iterator[tuple[int, npt.NDArray[np.uint8]]]:
+        buffer, stop = self.reader.buffer, self.reader.stop
+        while True:
+            if stop.is_set():
+                self.end = "stopped"
+                return
+            item = buffer.get(_POLL_S)
+            if item is False:
+                if self.reader.error is not None:
+                    exc = self.reader.error
+                    raise InputError(f"{self.reader.source_name}: reading failed ({exc})") from exc
+                self.end = self.reader.end
+                return
+            if item is None:
+                if time.monotonic() - buffer.last_put > self.stall_timeout_s:
+                    self.end = "stalled"
+                    return
+                continue
+            index, image, arrived = item
+            self._arrivals[index] = arrived
+            self.frames += 1
+            yield index, image
+
+
+# ---------------------------------------------------------------------------------------------
+# Statistics
+# ---------------------------------------------------------------------------------------------
+
+_LATENCY_BIN_S = 0.005
+_LATENCY_BINS = 12_000  # 60 s in 5 ms bins; longer latencies fall into the last one
+
+
+@dataclass
+class LiveStats:
+    """Frames/s, latency and dropped frames of a live run, in constant memory.
+
+    Attributes:
+        frames_read: frames read from the source (dropped ones included).
+        frames_dropped: frames dropped because the pipeline fell behind.
+        frames_shown: frames whose mask went to the viewer (and the output folder).
+        last_latency_s: latency of the last frame shown.
+        started: time.monotonic() at the first frame.
+    """
+
+    frames_read: int = 0
+    frames_dropped: int = 0
+    frames_shown: int = 0
+    last_latency_s: float = 0.0
+    started: float = field(default_factory=time.monotonic)
+    _hist: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(_LATENCY_BINS, np.int64), repr=False)
+    _recent: collections.deque[float] = field(default_factory=lambda: collections.deque(maxlen=50), repr=False)
+
+    def shown(self, latency_s: float | None, now: float | None = None) -> None:
+        """Counts one frame shown, `latency_s` after it arrived (None: unknown)."""
+        now = time.monotonic() if now is None else now
+        self.frames_shown += 1
+        self._recent.append(now)
+        if latency_s is not None:
+            self.last_latency_s = latency_s
+            self._hist[min(int(latency_s / _LATENCY_BIN_S), _LATENCY_BINS - 1)] += 1
+
+    def latency_quantile(self, q: float) -> float:
+        """The q-quantile of the latencies so far, seconds (to the 5 ms bin; 0.0 before any)."""
+        total = int(self._hist.sum())
+        if total == 0:
+            return 0.0
+        index = int(np.searchsorted(np.cumsum(self._hist), q * total, side="left"))
+        return (index + 0.5) * _LATENCY_BIN_S
+
+    @property
+    def fps(self) -> float:
+        """Frames shown per second over the last 50 frames."""
+        if len(self._recent) < 2:
+            return 0.0
+        span = self._recent[-1] - self._recent[0]
+        return (len(self._recent) - 1) / span if span > 0 else 0.0
+
+    @property
+    def elapsed_s(self) -> float:
+        return time.monotonic() - self.started
+
+    @property
+    def dropped_share(self) -> float:
+        return self.frames_dropped / self.frames_read if self.frames_read else 0.0
+
+    def record(self) -> dict[str, float | int]:
+        """The numbers as a dict (for a summary or a benchmark)."""
+        return {
+            "frames_read": self.frames_read,
+            "frames_dropped": self.frames_dropped,
+            "frames_shown": self.frames_shown,
+            "dropped_share": round(self.dropped_share, 4),
+            "latency_median_s": round(self.latency_quantile(0.5), 3),
+            "latency_p95_s": round(self.latency_quantile(0.95), 3),
+            "seconds": round(self.elapsed_s, 3),
+            "fps": round(self.frames_shown / self.elapsed_s, 3) if self.elapsed_s > 0 else 0.0,
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# The viewer
+# ---------------------------------------------------------------------------------------------
+
+
+def live_viz() -> VizConfig:
+    """Settings of the live view: a JPEG image per frame (a video asset only exists once the video
+    is complete), trails of 10 frames."""
+    from mosegpipe.viz import VIDEO_VIZ
+
+    return replace(VIDEO_VIZ, video_frames="jpeg", jpeg_quality=80)
+
+
+class LiveView:
+    """Streams a live run to Rerun sinks (a viewer's gRPC server, one of our own), frame by frame.
+
+    Entity paths, layout and colours are a whole-video recording's (mosegpipe.viz, VideoRecorder):
+    `video/frame` (JPEG), `video/mask`, `video/points`, `video/tracks` and `windows/k`,
+    `windows/k_margin` on the "frame" timeline. The layout goes first, then the class colours, then
+    the data.
+
+    Args:
+        sinks: Rerun sinks (rr.GrpcSink, rr.GrpcServerSink, rr.FileSink), all fed the same stream.
+        margins: the layout has the K score margin chart (False when K is forced).
+        cfg: display settings (None: live_viz()).
+    """
+
+    def __init__(self, sinks: Sequence[Any], margins: bool = True, cfg: VizConfig | None = None) -> None:
+        import rerun as rr
+
+        from mosegpipe.viz import MAX_CLASSES, _log_annotation_contexts, _video_blueprint, class_names
+
+        self.cfg = cfg or live_viz()
+        self.rec: rr.RecordingStream | None = rr.RecordingStream("mosegpipe")
+        self.rec.set_sinks(*sinks)
+        self.rec.send_blueprint(_video_blueprint(True, margins), make_active=True, make_default=True)
+        _log_annotation_contexts(self.rec, ["video"], class_names(MAX_CLASSES))
+        self._trails: dict[int, collections.deque[npt.NDArray[np.float32]]] = {}
+        self._trail_len = self.cfg.trail_frames or 10
+        self._windows = 0
+
+    def log_window(self, start: int, k: int, k_scores: Mapping[int, float]) -> None:
+        """The K of a window (0 = left unlabelled) and its score margin, at its first frame."""
+        import rerun as rr
+
+        from mosegpipe.viz import TIMELINE, k_margin
+
+        rec = self._stream()
+        if self._windows == 0:
+            rec.log("windows/k", rr.SeriesLines(names="K", interpolation_mode="StepAfter"), static=True)
+            rec.log("windows/k", rr.SeriesPoints(names="K", markers="circle", marker_sizes=3.0), static=True)
+            style = rr.SeriesLines(names="score margin over the runner-up", interpolation_mode="StepAfter")
+            rec.log("windows/k_margin", style, static=True)
+        self._windows += 1
+        rec.set_time(TIMELINE, sequence=int(start))
+        rec.log("windows/k", rr.Scalars(float(k)))
+        margin = k_margin(k_scores, k) if k > 0 else None
+        if margin is not None:
+            rec.log("windows/k_margin", rr.Scalars(margin[0]))
+
+    def log_frame(self, frame: VideoFrame, mask: npt.NDArray[np.uint8]) -> None:
+        """One frame: the image, its mask, its labelled tracks and their recent trails."""
+        from mosegpipe.viz import TIMELINE, _log_image_layers, _log_trails, class_ids_of
+
+        rec = self._stream()
+        keep = frame.labels >= 0
+        ids, xy = frame.track_ids[keep], frame.xy[keep]
+        class_ids = class_ids_of(frame.labels[keep])
+        rec.set_time(TIMELINE, sequence=int(frame.index))
+        _log_image_layers(rec, "video", frame.image, mask, xy, class_ids, self.cfg)
+        live = set(ids.tolist())
+        for lost in [i for i in self._trails if i not in live]:
+            del self._trails[lost]
+        lengths = np.zeros(len(ids), dtype=np.int64)
+        for n, (i, p) in enumerate(zip(ids.tolist(), xy)):
+            trail = self._trails.setdefault(i, collections.deque(maxlen=self._trail_len))
+            trail.append(p)
+            lengths[n] = len(trail)
+        points = np.array([p for i in ids.tolist() for p in self._trails[i]], dtype=np.float32).reshape(-1, 2)
+        _log_trails(rec, points, lengths, class_ids, self.cfg)
+
+    def _stream(self) -> rr.RecordingStream:
+        if self.rec is None:
+            raise InputError("live view already closed")
+        return self.rec
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Sends what is still buffered (at most `timeout_s`) and disconnects. Safe to call twice."""
+        if self.rec is None:
+            return
+        rec, self.rec = self.rec, None
+        try:
+            rec.flush(timeout_sec=timeout_s)
+        except Exception as exc:  # a viewer gone away: what was sent is shown; nothing to report beyond a line
+            log.warning("the viewer did not take the last frames: %s", exc)
+        finally:
+            rec.disconnect()
+
+
+# ---------------------------------------------------------------------------------------------
+# A live run
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LiveResult:
+    """How a live run ended.
+
+    Attributes:
+        end: "ended" (the source ended), "stalled" (no frame for the stall timeout), "stopped"
+            (told to stop: Ctrl-C) or "max-frames".
+        stats: the run's numbers.
+        summary: the output folder's summary.json (None without an output folder).
+        num_windows: windows segmented.
+        partial_bytes: bytes of a last, incomplete raw frame on stdin (dropped).
+    """
+
+    end: str
+    stats: LiveStats
+    summary: dict[str, Any] | None
+    num_windows: int
+    partial_bytes: int = 0
+
+
+def run_live(
+    source: LiveSource,
+    cfg: PipelineConfig,
+    model: Embedder,
+    view: LiveView | None = None,
+    out_dir: str | Path | None = None,
+    overwrite: bool = False,
+    rrd: bool = True,
+    stall_timeout_s: float = 10.0,
+    buffer_frames: int = BUFFER_FRAMES,
+    max_frames: int | None = None,
+    stop: threading.Event | None = None,
+    on_status: Callable[[LiveStats], None] | None = None,
+    status_every_s: float = 0.5,
+    stdin: IO[bytes] | None = None,
+) -> LiveResult:
+    """Segments a live source window by window as its frames arrive, until it ends, stalls or `stop` is set.
+
+    Args:
+        source: what to read (parse_source).
+        cfg: pipeline settings; cfg.frames is the window length.
+        model: the embedding model for cfg.frames.
+        view: where each frame, mask and K goes as soon as it is ready (None: nowhere).
+        out_dir: also write the output folder of a whole-video run there (None: none).
+        overwrite: replace an existing moseg output folder.
+        rrd: with out_dir, also write recording.rrd there.
+        stall_timeout_s: end the run when no frame came for this long.
+        buffer_frames: frames held between the reader and the pipeline (FrameBuffer).
+        max_frames: stop after this many frames read from the source.
+        stop: set it (from a signal handler, another thread) to end the run cleanly: the window in
+            hand is finished and the outputs written.
+        on_status: called in this thread with the numbers at most every `status_every_s`.
+        stdin: the byte stream of SOURCE "-" (None: this process's stdin).
+
+    Raises:
+        InputError: the source cannot be opened or gives no frame, its frames are smaller than
+            MIN_VIDEO_SIDE_PX, or it ended before a window's worth of frames.
+        TooFewTracksError: no window had enough tracks.
+        OutputExistsError: out_dir holds results and overwrite is False.
+    """
+    from mosegpipe.outputs import check_output_dir, write_video_outputs
+
+    if out_dir is not None:
+        check_output_dir(out_dir, overwrite)
+    stop = stop or threading.Event()
+    capture = open_source(source, timeout_s=stall_timeout_s, stdin=stdin)
+    first = capture.read()
+    if first is None:
+        capture.close()
+        raise InputError(f"{source.name}: no frame could be read")
+    height, width = first.shape[:2]
+    if min(height, width) < MIN_VIDEO_SIDE_PX:
+        capture.close()
+        raise InputError(
+            f"{source.name}: frames of {width}x{height} px are too small to track "
+            f"(at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
+        )
+    fps = source.fps or capture.fps or DEFAULT_FPS
+    buffer = FrameBuffer(buffer_frames, drop=source.drops)
+    reader = SourceReader(capture, buffer, stop, first, fps if source.realtime else None, max_frames, source.name)
+    frames = LiveFrames(reader, stall_timeout_s)
+    stats = LiveStats()
+    last_status = [0.0]
+    windows = [0]
+
+    def on_window(window: WindowResult) -> None:
+        windows[0] += 1
+        if view is not None:
+            view.log_window(window.start, window.k, window.k_scores)
+
+    def on_frame(frame: VideoFrame, mask: npt.NDArray[np.uint8]) -> None:
+        if view is not None:
+            view.log_frame(frame, mask)
+        now = time.monotonic()
+        arrived = frames.arrival(frame.index)
+        stats.shown(None if arrived is None else now - arrived, now)
+        stats.frames_read, stats.frames_dropped = reader.frames_read, buffer.dropped
+        if on_status is not None and now - last_status[0] >= status_every_s:
+            last_status[0] = now
+            on_status(stats)
+
+    reader.start()
+    stats.started = time.monotonic()
+    summary = None
+    try:
+        if out_dir is not None:
+            info = {"kind": "stream", "num_frames": None, "fps": fps, "size_hw": (height, width)}
+            summary = write_video_outputs(
+                source.name,
+                out_dir,
+                cfg,
+                model,
+                overwrite=overwrite,
+                rrd=rrd,
+                frames=frames,
+                info=info,
+                on_window=on_window,
+                on_frame=on_frame,
+            )
+        else:
+            segmented = segment_video(source.name, cfg, model, masks=False, frames=frames)
+            for window in run_ahead(segmented, _WINDOWS_AHEAD, "moseg-segment"):
+                for fr in window.frames:
+                    on_frame(fr, frame_mask(fr, cfg.mask))
+                on_window(window)  # after its frames, as write_video_outputs reports it
+                del window
+    finally:
+        stop.set()  # the reader stops at its next frame
+    stats.frames_read, stats.frames_dropped = reader.frames_read, buffer.dropped
+    partial = capture.partial_bytes if isinstance(capture, RawCapture) else 0
+    return LiveResult(frames.end or reader.end, stats, summary, windows[0], partial)
