@@ -48,7 +48,8 @@ class FlowConfig:
         preset: DIS preset ("ultrafast", "fast" or "medium"); medium is the most accurate of the three.
         scale: flow is computed on images resized by this factor (0 < scale <= 1); residuals are
             returned at full resolution in full-resolution pixels.
-        grid_step_px: the camera fit samples one pixel every this many pixels (at the flow's scale).
+        grid_step_px: the camera fit samples one pixel every this many pixels (at the flow's scale);
+            8 fits as well as 4 (DAVIS dev J 0.646 either way) at a quarter of MAGSAC's time.
         fb_max_px: a sample whose forward flow and the backward flow at its end point disagree by
             more than this (pixels, at the flow's scale) is left out of the camera fit (occlusions,
             flow failures).
@@ -59,7 +60,7 @@ class FlowConfig:
 
     preset: str = "medium"
     scale: float = 1.0
-    grid_step_px: int = 4
+    grid_step_px: int = 8
     fb_max_px: float = 1.0
     ransac_px: float = 1.0
     workers: int = 2
@@ -235,7 +236,7 @@ class FlowStream:
 
     def _flow(self, gray0: npt.NDArray[np.uint8], gray1: npt.NDArray[np.uint8]) -> npt.NDArray[np.float32]:
         if not hasattr(self._local, "flow"):
-            self._local.flow = DenseFlow(self.cfg)
+            self._local.flow = DenseFlow(self.cfg)  # one DIS per thread (it keeps its buffers)
         flow: npt.NDArray[np.float32] = self._local.flow(gray0, gray1)
         return flow
 

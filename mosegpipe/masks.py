@@ -496,7 +496,9 @@ def moving_to_labels(
     # The flood only decides between two or more moving motions: with one, every moving pixel has its
     # label already (the nearest-track partition above).
     if image is not None and moving.any() and np.unique(labels[keep & (labels != background)]).size >= 2:
-        flood = labels_to_mask(xy[keep], labels[keep], moving.shape, replace(cfg, method="watershed"), image)
+        # At the mask stage's scale: it only draws the border between two moving motions.
+        flood_cfg = replace(cfg, method="watershed", scale=min(cfg.scale, cfg.motion.work_scale))
+        flood = labels_to_mask(xy[keep], labels[keep], moving.shape, flood_cfg, image)
         take = moving & (flood != background) & (flood != UNKNOWN)
         out[take] = flood[take]
     return out
