@@ -139,3 +139,22 @@ def test_lce_curve_interrupted_run_continues_from_its_last_checkpoint(
     assert scores(resumed.results["rows"]) == scores(reference.results["rows"])
     stored = json.loads((parts / "tiny-a__step0000004.json").read_text())
     assert stored["payload"]["step"] == 4
+
+
+def test_lce_curve_budget_can_run_the_first_configuration_with_its_own_batch(tmp_path: Path) -> None:
+    study = get_study("lce-curve")
+    budget = CurveBudget(num_checkpoints=2, val_clips=2, test_clips=2, full_steps=2, batch_size=3, num_configs=1)
+    result = run_lce_curve(study, StudyRequest(out_dir=tmp_path / "full"), configs=CONFIGS, budget=budget)
+    assert [(r["config"], r["step"], r["samples"]) for r in result.results["rows"]] == [
+        ("tiny-a", 1, 3),
+        ("tiny-a", 2, 6),
+    ]
+    assert [c["train"]["batch_size"] for c in result.results["configs"]] == [3]
+    assert "| tiny-a |" in result.table and "tiny-b" not in result.table
+
+
+def test_full_budget_is_the_recipe_at_about_half_the_papers_samples() -> None:
+    full = study_lce.BUDGETS["full"]
+    assert full.num_configs == 1 and study_lce.CURVE_CONFIGS[0].name == "recipe"
+    samples = (full.full_steps or 0) * (full.batch_size or 0)
+    assert study_lce.PAPER_SAMPLES // 2 <= samples <= study_lce.PAPER_SAMPLES
