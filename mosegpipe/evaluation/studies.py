@@ -391,8 +391,9 @@ _STUDIES: Sequence[Study] = (
         run=_run_lce_curve,
         needs_data=False,
         budgets={
-            "cpu": "the recipe 4000 steps of 16 samples (64 k samples seen), two alternatives 2000 steps each, 6 "
-            "checkpoints per run; val: first 100 of 200, test: all 200; about 30 min of one CPU core",
+            "cpu": "the recipe 4000 steps of 16 samples (64 k samples seen), two alternatives 2000 steps of 16 each, "
+            "and the recipe with 64 samples per step for 2000 steps (128 k samples); 6 checkpoints per run; val: "
+            "first 100 of 200, test: all 200; about 55 min of one CPU core",
             "full": "the recipe only, 20 000 steps of 64 samples (1.28 M samples seen; the paper: 2.4 M), 6 "
             "checkpoints, on the GPU when there is one (estimated under 10 min on one GPU); val: first 100, test: "
             "all 200",

@@ -121,6 +121,15 @@ CURVE_CONFIGS: tuple[CurveConfig, ...] = (
         _train(lr=3e-3),
         cpu_steps=2000,
     ),
+    # Does a step of 64 samples learn as much as four steps of 16 (the samples seen are what counts), or
+    # only as much as one (the updates are)? The full budget's batch of 64 on a GPU assumes the former.
+    CurveConfig(
+        "batch-64",
+        "the recipe with 64 samples per step: learning per sample seen, or per update?",
+        _LCE_MODEL,
+        _train(batch_size=64),
+        cpu_steps=2000,
+    ),
 )
 """The configurations compared, the first being the current `lce` recipe (chosen by the probe above)."""
 
