@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from enum import StrEnum
 from pathlib import Path
@@ -44,6 +45,18 @@ class EngineChoice(StrEnum):
 
 MAX_JOBS = 1024
 MAX_CLIP_TIMEOUT_S = 1e6  # 11.6 days: beyond it a float of seconds overflows the worker's timers
+
+
+def _check_clip_timeout(value: float | None) -> float | None:
+    """--clip-timeout: seconds in (0, MAX_CLIP_TIMEOUT_S], refused in the words of the other options'
+    bounds; NaN named as such (Click's range check called it too large)."""
+    if value is None or 0 < value <= MAX_CLIP_TIMEOUT_S:
+        return value
+    if math.isnan(value):
+        raise typer.BadParameter(f"not a number; give seconds, more than 0 and at most {MAX_CLIP_TIMEOUT_S:.0f}")
+    if value > 0:
+        raise typer.BadParameter(f"Input should be less than or equal to {MAX_CLIP_TIMEOUT_S:.0f}")
+    raise typer.BadParameter("Input should be greater than 0")
 
 
 @_friendly
@@ -97,8 +110,7 @@ def batch(
         float | None,
         typer.Option(
             "--clip-timeout",
-            min=0.0,
-            max=MAX_CLIP_TIMEOUT_S,
+            callback=_check_clip_timeout,
             help=f"Seconds a clip may run, up to {MAX_CLIP_TIMEOUT_S:g}, before its worker is killed and it is reported failed (default: no limit).",
         ),
     ] = None,

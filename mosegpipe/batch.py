@@ -45,7 +45,7 @@ from typing import Any
 from mosegpipe.errors import InputError, MosegError
 from mosegpipe.io import IMAGE_SUFFIXES, atomic_write, write_json
 from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import _OutputDir, write_clip_outputs
+from mosegpipe.outputs import write_clip_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 
 log = logging.getLogger(__name__)
@@ -265,11 +265,10 @@ def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, An
     row = _row(item)
     try:
         result = job.segment_fn(item.source, job.cfg, model)
-        # The folder is ours: stale (config changed), incomplete or absent; it is replaced as a whole.
-        with _OutputDir(item.out_dir, overwrite=True) as tmp:
-            summary = write_clip_outputs(result, tmp, job.cfg, overwrite=True, rrd=job.rrd)
-            summary["batch"] = {"config_hash": job.config_hash, "name": item.name, "output": item.out_dir.name}
-            write_json(tmp / "summary.json", summary)
+        # The folder is ours: stale (config changed), incomplete or absent; it is built as .NAME.partial
+        # and replaces the old one as a whole.
+        batch = {"config_hash": job.config_hash, "name": item.name, "output": item.out_dir.name}
+        summary = write_clip_outputs(result, item.out_dir, job.cfg, overwrite=True, rrd=job.rrd, extra={"batch": batch})
         row.update(status="ok", k=summary["k"], tracks=summary["num_tracks_segmented"])
     except MosegError as exc:
         row.update(status="failed", error=" ".join(str(exc).split()))
@@ -287,6 +286,57 @@ def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, An
 # ---------------------------------------------------------------------------------------------
 
 _WORKER: dict[str, Any] = {}
+MAX_WORKER_WARNINGS = 20
+"""Warnings a worker sends back per clip; more are counted in one last line."""
+
+
+class _WorkerLog(logging.Handler):
+    """In a worker process: the warnings logged while its clip runs, sent back with the clip's row.
+
+    A worker writes to the batch's stderr but has none of its logging set up: its warnings were
+    bare lines there (a Ray worker's behind Ray's own prefix). The batch process logs them again,
+    under the clip's name (see run_batch), where the CLI shows them as `moseg: warning:` lines.
+    """
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.messages.append(" ".join(record.getMessage().split()))
+        except Exception:  # a record whose arguments do not format: logging's own report
+            self.handleError(record)
+
+    def take(self) -> list[str]:
+        messages, self.messages = self.messages, []
+        if len(messages) > MAX_WORKER_WARNINGS:
+            extra = len(messages) - MAX_WORKER_WARNINGS + 1
+            messages = [*messages[: MAX_WORKER_WARNINGS - 1], f"... and {extra} more warnings"]
+        return messages
+
+
+_WORKER_LOG = _WorkerLog()
+
+
+def _keep_worker_logs() -> None:
+    """Sends this worker's warnings (Python's `warnings` too) to _WORKER_LOG alone, not to stderr."""
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        root.removeHandler(handler)
+    root.addHandler(_WORKER_LOG)
+    root.setLevel(logging.WARNING)
+    logging.captureWarnings(True)
+
+
+def _worker_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, Any]:
+    """process_clip in a worker: the row carries the clip's warnings as "_warnings"."""
+    _WORKER_LOG.take()  # what the worker logged before this clip (its set-up) is not the clip's
+    row = process_clip(item, job, model)
+    warnings = _WORKER_LOG.take()
+    if warnings:
+        row["_warnings"] = warnings
+    return row
 
 
 def _watch_parent(lifeline: Any) -> None:
@@ -306,6 +356,7 @@ def _init_worker(model: SubspaceNet, job: _Job, ready: Any, lifeline: Any) -> No
 
     threading.Thread(target=_watch_parent, args=(lifeline,), name="moseg-lifeline", daemon=True).start()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the pool on Ctrl-C
+    _keep_worker_logs()
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     set_threads(1)
@@ -315,7 +366,7 @@ def _init_worker(model: SubspaceNet, job: _Job, ready: Any, lifeline: Any) -> No
 
 
 def _pool_task(item: BatchItem) -> dict[str, Any]:
-    return process_clip(item, _WORKER["job"], _WORKER["model"])
+    return _worker_clip(item, _WORKER["job"], _WORKER["model"])
 
 
 def _ping() -> int:
@@ -352,19 +403,38 @@ def _exit_reason(codes: list[int]) -> str:
     return "its worker process died"
 
 
+@contextlib.contextmanager
+def _hangup_blocked() -> Iterator[None]:
+    """SIGHUP blocked in this thread while the pool's processes start (the workers, the forkserver
+    and multiprocessing's resource tracker): they inherit the mask. A closed terminal sends SIGHUP
+    to every process of the job; the tracker died of it (and was relaunched with warnings on
+    stderr) while the batch process was still cleaning up, which ends the workers itself. A SIGHUP
+    that arrives meanwhile is delivered when the mask is restored."""
+    hangup = getattr(signal, "SIGHUP", None)
+    if hangup is None or not hasattr(signal, "pthread_sigmask"):  # Windows
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {hangup})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 class _Pool:
     """A ProcessPoolExecutor whose workers are all started and ready (so deadlines count clip time)."""
 
     def __init__(self, workers: int, model: SubspaceNet, job: _Job, startup_timeout: float = 600.0) -> None:
         ctx = _mp_context()
-        self.ready = ctx.Queue()
-        # Only this process holds the sending end: when it dies, however it dies, the workers see EOF and exit.
-        lifeline, self.lifeline = ctx.Pipe(duplex=False)
-        self.executor = cf.ProcessPoolExecutor(
-            workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
-        )
-        self.pids: set[int] = set()
-        pings = [self.executor.submit(_ping) for _ in range(workers)]  # one submit starts one worker
+        with _hangup_blocked():  # the queue's lock starts the resource tracker, the pings the workers
+            self.ready = ctx.Queue()
+            # Only this process holds the sending end: when it dies, however it dies, the workers see EOF and exit.
+            lifeline, self.lifeline = ctx.Pipe(duplex=False)
+            self.executor = cf.ProcessPoolExecutor(
+                workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
+            )
+            self.pids: set[int] = set()
+            pings = [self.executor.submit(_ping) for _ in range(workers)]  # one submit starts one worker
         deadline = time.monotonic() + startup_timeout
         try:
             while len(self.pids) < workers:
@@ -502,6 +572,17 @@ def _run_process(
 # ---------------------------------------------------------------------------------------------
 
 _RAY_CACHE: dict[str, tuple[SubspaceNet, _Job]] = {}
+_RAY_CANCEL_WAIT_S = 10.0
+_RAY_AUTH_LOGGER = "ray._private.authentication.authentication_token_setup"
+
+
+def _no_auth_notice(record: logging.LogRecord) -> bool:
+    """Drops the WARNING line with which Ray (>= 2.59) tells that it started a local instance with
+    token authentication, its secure default, on every run; its warning that authentication is
+    off, and any other line, pass."""
+    return not str(record.msg).startswith("Token authentication is enabled")
+
+
 _STARTED = "started"
 
 
@@ -518,6 +599,7 @@ def _ray_task(shared: list[Any], item: BatchItem) -> Iterator[Any]:
     if key not in _RAY_CACHE:
         from mosegpipe.runtime import set_threads
 
+        _keep_worker_logs()
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
         os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
         set_threads(1)
@@ -526,7 +608,7 @@ def _ray_task(shared: list[Any], item: BatchItem) -> Iterator[Any]:
         _RAY_CACHE[key] = (model.eval(), job)
     model, job = _RAY_CACHE[key]
     yield _STARTED
-    yield process_clip(item, job, model)
+    yield _worker_clip(item, job, model)
 
 
 def _import_ray() -> Any:
@@ -574,7 +656,7 @@ def _run_ray(
     """Runs clips as Ray tasks (num_cpus=1, max_retries=0: a failed clip is reported, not retried).
 
     Uses the Ray instance this process is already connected to, else connects to `address`, else
-    starts a local one with `jobs` CPUs (shut down at the end). At most `jobs` tasks (default: the
+    starts a new local one with `jobs` CPUs (shut down at the end). At most `jobs` tasks (default: the
     cluster's CPUs) are in flight; a task past clip_timeout (from the moment it started) is
     cancelled with force, which kills its worker.
     """
@@ -583,11 +665,19 @@ def _run_ray(
     if not ray.is_initialized():
         kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING}
         if address is None:
+            # A new instance of `jobs` CPUs ("local"): Ray's default would join a running one, where
+            # num_cpus is refused.
             kwargs["num_cpus"] = jobs or _usable_cores()
+        on_sigterm = _sigterm_handler()
+        notice = logging.getLogger(_RAY_AUTH_LOGGER)
+        notice.addFilter(_no_auth_notice)
         try:
-            ray.init(address=address, **kwargs)
+            ray.init(address="local" if address is None else address, **kwargs)
         except (ConnectionError, ValueError) as exc:  # ValueError: a bad address, Ray Client missing
             raise InputError(f"--address {address}: cannot connect to a Ray cluster ({_one_line(exc)})") from None
+        finally:
+            notice.removeFilter(_no_auth_notice)
+            _restore_sigterm(on_sigterm)  # ray.init puts its own there (sys.exit): the caller's clean-up stays
         started = True
     try:
         limit = jobs or max(1, int(ray.cluster_resources().get("CPU", 1)))
@@ -596,6 +686,7 @@ def _run_ray(
         pending = collections.deque(todo)
         # generator -> [index, item, when it started (None: queued)]
         inflight: dict[Any, list[Any]] = {}
+        cancelled: list[Any] = []  # waited for at the end: a killed worker writes nothing after the sweep
 
         def fail(gen: Any, error: str) -> None:
             index, item, t0 = inflight.pop(gen)
@@ -630,15 +721,33 @@ def _run_ray(
                 for gen, (_, _, t0) in list(inflight.items()):
                     if clip_timeout is not None and t0 is not None and now - t0 >= clip_timeout:
                         ray.cancel(gen, force=True)  # kills the worker running it
+                        cancelled.append(gen)
                         fail(gen, f"timed out after {clip_timeout:g} s (--clip-timeout)")
         except BaseException:
             for gen in inflight:
                 with contextlib.suppress(Exception):
                     ray.cancel(gen, force=True)
+                    cancelled.append(gen)
             raise
+        finally:
+            if cancelled and not started:  # a cluster's workers; shutdown ends a local instance's
+                with contextlib.suppress(Exception):
+                    ray.wait(cancelled, num_returns=len(cancelled), timeout=_RAY_CANCEL_WAIT_S)
     finally:
         if started:
             ray.shutdown()
+
+
+def _sigterm_handler() -> Any:
+    """This thread's SIGTERM handler (None off the main thread, where it cannot be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.getsignal(signal.SIGTERM)
+
+
+def _restore_sigterm(handler: Any) -> None:
+    if handler is not None:
+        signal.signal(signal.SIGTERM, handler)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -676,7 +785,11 @@ def _locked(out: Path) -> Iterator[None]:
 
 def _sweep(out: Path) -> None:
     """Removes what a killed batch left: temporary clip folders (.NAME.partial, .NAME.old) and files."""
-    for entry in out.iterdir():
+    try:
+        entries = list(out.iterdir())
+    except OSError:  # out itself went: nothing to sweep
+        return
+    for entry in entries:
         n = entry.name
         if not n.startswith(".") or n == LOCK_FILE:
             continue
@@ -796,6 +909,8 @@ def run_batch(
 
     def emit(index: int, row: dict[str, Any]) -> None:
         tb = row.pop("_traceback", None)
+        for message in row.pop("_warnings", ()):  # a worker's, logged here (see _WorkerLog)
+            log.warning("%s: %s", items[index].name, message)
         if row["status"] == "failed":
             if tb is not None:
                 log.warning("%s: unexpected %s", items[index].name, row["error"])
@@ -825,13 +940,18 @@ def run_batch(
         if redone:
             log.warning("%d clips done earlier with other settings or weights are redone", redone)
         workers = min(jobs or _usable_cores(), len(todo)) if todo else 0
-        if todo and engine == "inline":
-            for index, item in todo:
-                emit(index, process_clip(item, job, model))
-        elif todo and engine == "process":
-            _run_process(todo, workers, model, job, clip_timeout, emit)
-        elif todo:
-            _run_ray(todo, min(jobs, len(todo)) if jobs else None, model, job, clip_timeout, address, emit)
+        try:
+            if todo and engine == "inline":
+                for index, item in todo:
+                    emit(index, process_clip(item, job, model))
+            elif todo and engine == "process":
+                _run_process(todo, workers, model, job, clip_timeout, emit)
+            elif todo:
+                _run_ray(todo, min(jobs, len(todo)) if jobs else None, model, job, clip_timeout, address, emit)
+        finally:
+            # A worker killed by --clip-timeout, Ctrl-C or SIGTERM left its clip's .NAME.partial (the
+            # workers are gone by now); an interrupted batch leaves nothing half-written either.
+            _sweep(out)
         done = [r for r in rows if r is not None]
         if len(done) != len(items):
             raise RuntimeError(f"batch bug: {len(items) - len(done)} clips got no row")

@@ -41,12 +41,25 @@ def clips(tmp_path_factory: pytest.TempPathFactory) -> Path:
 # ---------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("value", ["inf", "nan", "-inf", "1e300"])
-def test_cli_clip_timeout_not_finite_is_a_usage_error(tmp_path: Path, clips: Path, value: str) -> None:
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [
+        ("nan", "not a number; give seconds, more than 0 and at most 1000000"),
+        ("inf", "Input should be less than or equal to 1000000"),
+        ("1e300", "Input should be less than or equal to 1000000"),
+        ("-inf", "Input should be greater than 0"),
+        ("0", "Input should be greater than 0"),
+        ("-1", "Input should be greater than 0"),
+    ],
+)
+def test_cli_clip_timeout_out_of_range_is_a_usage_error(tmp_path: Path, clips: Path, value: str, reason: str) -> None:
+    # nan said "Input should be less than or equal to 1000000", 0 was let through to run_batch.
     out = tmp_path / "out"
     code, stdout, err = moseg("batch", clips, "--out", out, "--clip-timeout", value)
-    assert code == 2 and f"--clip-timeout {value}: " in one_error_line(err) and stdout == ""
-    assert not out.exists()
+    assert code == 2 and one_error_line(err) == (
+        f"moseg: error: --clip-timeout {value}: {reason} (see 'moseg batch --help')"
+    )
+    assert stdout == "" and not out.exists()
 
 
 @pytest.mark.parametrize("value", [float("inf"), float("nan"), 1e300, -1.0, 0.0])

@@ -8,7 +8,11 @@ optional extra `mosegpipe[ray]`; CI installs it, so there (CI set) a missing Ray
 from __future__ import annotations
 
 import json
+import logging
 import os
+import subprocess
+import sys
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -28,7 +32,7 @@ from mosegpipe.cli.main import app
 from mosegpipe.pipeline import PipelineConfig
 
 import batch_faults
-from batch_faults import faulty_segment
+from batch_faults import WARNING_TEXT, faulty_segment
 from helpers import motion_checkpoint, render_scene, write_avi
 
 runner = CliRunner(env={"COLUMNS": "200"})
@@ -113,3 +117,66 @@ def test_cli_engine_ray(local_ray: Any, tmp_path: Path, model_path: Path, clip_b
 
     result = runner.invoke(app, ["batch", str(root), "-o", str(out), "--address", "auto"])
     assert result.exit_code == 1 and result.stderr == "moseg: error: --address only applies with --engine ray\n"
+
+
+def test_ray_timeout_and_worker_warnings(
+    local_ray: Any, tmp_path: Path, model_path: Path, clip_bytes: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A clip killed half written left its .NAME.partial (named ..NAME.partial.partial) until the next
+    # run; a worker's warning was a line of Ray's on stderr, not one of the batch's.
+    root = _tree(tmp_path / "clips", ["stuck.avi", "warn.avi"], clip_bytes)
+    out = tmp_path / "out"
+    with caplog.at_level(logging.WARNING):
+        rows = run_batch(
+            root,
+            out,
+            PipelineConfig(k=2),
+            checkpoint=model_path,
+            rrd=False,
+            engine="ray",
+            jobs=2,
+            clip_timeout=6,  # a 5-frame clip is segmented in about a second
+            segment_fn=faulty_segment,
+        )
+    assert [(r["name"], r["status"], r["error"]) for r in rows] == [
+        ("stuck.avi", "failed", "timed out after 6 s (--clip-timeout)"),
+        ("warn.avi", "ok", ""),
+    ]
+    assert (root / "stuck.avi.writing").exists()  # it was killed while its folder was being written
+    assert sorted(p.name for p in out.iterdir()) == ["batch_summary.csv", "batch_summary.json", "warn.avi"]
+    assert f"warn.avi: {WARNING_TEXT}" in [r.getMessage() for r in caplog.records if r.name == "mosegpipe.batch"]
+
+
+_RAY_CLI = """
+import sys
+import batch_faults
+import mosegpipe.batch
+from mosegpipe.cli.main import app
+mosegpipe.batch.segment_clip = batch_faults.faulty_segment
+sys.argv = ["moseg", "batch", {root!r}, "--out", {out!r}, "--model", {model!r}, "--no-rrd", "-q",
+            "--engine", "ray", "-j", "1"]
+app()
+"""
+
+
+def test_cli_ray_run_prints_only_its_own_lines(tmp_path: Path, model_path: Path, clip_bytes: bytes) -> None:
+    # A Ray instance of its own (a fresh process): Ray's WARNING line about token authentication and
+    # the worker's bare warning line were on stderr.
+    root = _tree(tmp_path / "clips", ["warn.avi"], clip_bytes)
+    out = tmp_path / "out"
+    env = {
+        **{k: v for k, v in os.environ.items() if not k.startswith("RAY_")},  # as set by local_ray's ray.init
+        "OMP_NUM_THREADS": "1",
+        "PYTHONPATH": str(Path(__file__).parent),
+    }
+    proc = subprocess.run(
+        [sys.executable, "-c", _RAY_CLI.format(root=str(root), out=str(out), model=str(model_path))],
+        capture_output=True,
+        text=True,
+        timeout=400,
+        env=env,
+        cwd=tempfile.gettempdir(),
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == f"moseg: warning: warn.avi: {WARNING_TEXT}\n"
+    assert sorted(p.name for p in out.iterdir()) == ["batch_summary.csv", "batch_summary.json", "warn.avi"]
