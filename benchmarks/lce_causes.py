@@ -1,6 +1,7 @@
 """Short LCE runs that look for the cause of the gap to the paper, scored on the val split only.
 
     python benchmarks/lce_causes.py --out causes.json [--val 60] NAME:STEPS:BATCH:BLOCKS:LOSS:NORM[:LR[:SIGMA[:lift]]] ...
+    python benchmarks/lce_causes.py --oracle 100     # the floor: every point to its nearest true curve
 
 Each candidate trains a SubspaceNet (width 64, embedding 5) from scratch on the LCE training split, at a
 constant learning rate after the warm-up (as `moseg study lce-curve`), and is scored on the first --val
@@ -33,12 +34,45 @@ def _lifted(clip: Any) -> Any:
     return dataclasses.replace(clip, traj=feats)
 
 
+def _curve(curve: dict[str, Any], n: int = 4000) -> np.ndarray:
+    """Dense noise-free points of one generated curve (synth/lce.py parameters)."""
+    t = np.linspace(0.0, 2 * np.pi, n)
+    if curve["type"] == "line":
+        s = np.linspace(-1.5, 1.5, n)  # LCEConfig.line_half_length
+        return np.asarray(curve["point"]) + s[:, None] * np.asarray(curve["direction"])
+    if curve["type"] == "circle":
+        return np.asarray(curve["centre"]) + curve["radius"] * np.stack([np.cos(t), np.sin(t)], 1)
+    (a, b), ang = curve["axes"], curve["angle"]
+    rot = np.array([[np.cos(ang), np.sin(ang)], [-np.sin(ang), np.cos(ang)]])
+    return np.asarray(curve["centre"]) + np.stack([a * np.cos(t), b * np.sin(t)], 1) @ rot
+
+
+def oracle_error(num: int) -> float:
+    """Mean error of giving every point of the first `num` val samples to its nearest true curve."""
+    from mosegpipe.synth.lce import lce_splits
+
+    val = lce_splits()["val"]
+    errors = []
+    for i in range(num):
+        clip = val[i]
+        dist = [np.linalg.norm(clip.traj[:, None, :] - _curve(c)[None], axis=2).min(1) for c in clip.meta["curves"]]
+        errors.append(np.mean(np.argmin(np.stack(dist, 1), 1) != clip.labels))
+    return float(np.mean(errors))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--val", type=int, default=60)
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("cands", nargs="+", help="NAME:STEPS:BATCH:BLOCKS:LOSS:NORM[:LR[:SIGMA[:lift]]]")
+    parser.add_argument("--out", type=Path)
+    parser.add_argument("--oracle", type=int, default=0, help="print the nearest-true-curve error on N val samples")
+    parser.add_argument("cands", nargs="*", help="NAME:STEPS:BATCH:BLOCKS:LOSS:NORM[:LR[:SIGMA[:lift]]]")
     args = parser.parse_args()
+    if args.oracle:
+        print(f"nearest true curve, first {args.oracle} val samples: {100 * oracle_error(args.oracle):.2f} %")
+    if not args.cands:
+        return
+    if args.out is None:
+        parser.error("--out is required with candidates")
 
     from mosegpipe.runtime import set_threads
 
