@@ -9,18 +9,17 @@ Ray: test_batch_ray.py.)
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from mosegpipe import outputs
+from mosegpipe import batch, outputs
 from mosegpipe.batch import run_batch
 from mosegpipe.pipeline import PipelineConfig
 
 from batch_faults import WARNING_TEXT, faulty_segment
-from helpers import motion_checkpoint, render_scene, write_avi
+from helpers import moseg, motion_checkpoint, render_scene, write_avi
 
 
 @pytest.fixture(scope="module")
@@ -82,40 +81,12 @@ def test_worker_warnings_are_the_batch_processes(
     tmp_path: Path,
     model5: Path,
     clip_bytes: bytes,
-    caplog: pytest.LogCaptureFixture,
+    monkeypatch: pytest.MonkeyPatch,
     capfd: pytest.CaptureFixture[str],
 ) -> None:
     root = _clips(tmp_path / "clips", ["a.avi", "warn.avi"], clip_bytes)
-    with caplog.at_level(logging.WARNING):
-        rows = run_batch(
-            root, tmp_path / "out", PipelineConfig(k=2), checkpoint=model5, rrd=False, jobs=2, segment_fn=faulty_segment
-        )
-    assert [r["status"] for r in rows] == ["ok", "ok"] and all("_warnings" not in r for r in rows)
-    warnings = [(r.name, r.getMessage()) for r in caplog.records if r.levelno >= logging.WARNING]
-    assert warnings == [("mosegpipe.batch", f"warn.avi: {WARNING_TEXT}")]
-    assert WARNING_TEXT not in capfd.readouterr().err  # the worker's own bare line on the shared stderr
-
-
-def test_cli_shows_worker_warnings_as_its_own(tmp_path: Path, model5: Path, clip_bytes: bytes) -> None:
-    import os
-    import subprocess
-    import sys
-    import tempfile
-
-    root = _clips(tmp_path / "clips", ["warn.avi"], clip_bytes)
-    code = f"""
-import sys
-import batch_faults
-import mosegpipe.batch
-from mosegpipe.cli.main import app
-mosegpipe.batch.segment_clip = batch_faults.faulty_segment
-sys.argv = ["moseg", "batch", {str(root)!r}, "--out", {str(tmp_path / "out")!r}, "--model", {str(model5)!r},
-            "--no-rrd", "-q", "-j", "1"]
-app()
-"""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(__file__).parent)}
-    proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tempfile.gettempdir()
-    )
-    assert proc.returncode == 0, proc.stderr
-    assert proc.stderr == f"moseg: warning: warn.avi: {WARNING_TEXT}\n"
+    monkeypatch.setattr(batch, "segment_clip", faulty_segment)  # what the workers run: "warn*" logs a warning
+    code, _, err = moseg("batch", root, "--out", tmp_path / "out", "--model", model5, "--no-rrd", "-q", "-j", "2")
+    assert code == 0 and err == f"moseg: warning: warn.avi: {WARNING_TEXT}\n"
+    assert WARNING_TEXT not in capfd.readouterr().err  # the worker's own bare line, on the shared stderr
+    assert "_warnings" not in (tmp_path / "out" / "batch_summary.csv").read_text()
