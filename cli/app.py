@@ -17,7 +17,7 @@ import os
 import re
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Annotated, Any, TypeVar
 
 import typer
@@ -36,6 +36,7 @@ EXIT_CODES = {
     0: "success (also when stdout was closed early, as by `| head`)",
     1: "bad input or a failed run (one 'moseg: error:' line)",
     2: "usage error",
+    129: "terminated by SIGHUP, its terminal closed (one 'moseg: error: terminated (SIGHUP)' line)",
     130: "interrupted by Ctrl-C (one 'moseg: error: interrupted' line)",
     143: "terminated by SIGTERM (one 'moseg: error: terminated (SIGTERM)' line)",
 }
@@ -43,6 +44,9 @@ EXIT_CODES = {
 
 INTERRUPTED = 130
 TERMINATED = 143
+_STOP_SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)  # no SIGHUP on Windows
 
 
 def _stdout_closed() -> bool:
@@ -249,13 +253,57 @@ def _shown_path(name: object) -> str:
 
 
 class _Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread like Ctrl-C so that the same clean-up runs (no .partial
-    folder left behind)."""
+    """SIGTERM or SIGHUP (its terminal closed), raised in the main thread like Ctrl-C so that the same
+    clean-up runs (no .partial folder left behind)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
 
 
-def _raise_terminated(signum: int, frame: Any) -> None:
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
-    raise _Terminated()
+def _stop(signum: int, frame: Any) -> None:
+    """The handler of Ctrl-C, SIGTERM and SIGHUP while a command runs: the first one stops it (a
+    KeyboardInterrupt in the main thread); the ones after it are ignored, so that they cannot cut
+    the clean-up short (a second Ctrl-C inside a closing generator printed "Exception ignored in"
+    and a traceback)."""
+    for other in _STOP_SIGNALS:
+        signal.signal(other, signal.SIG_IGN)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise _Terminated(signum)
+
+
+def _stopped(exc: KeyboardInterrupt) -> None:
+    """Ctrl-C, SIGTERM or SIGHUP -> one line, exit code 128 + the signal. After SIGHUP the terminal
+    may be gone: a line that cannot be written is not an error, and stdout is pointed at /dev/null
+    so that its flush at exit does not fail either."""
+    signum = exc.signum if isinstance(exc, _Terminated) else signal.SIGINT
+    if signum == signal.SIGINT:
+        _fail("interrupted", INTERRUPTED)
+    name = signal.Signals(signum).name
+    try:
+        sys.stdout.flush()
+        _fail(f"terminated ({name})", 128 + signum)
+    except OSError:  # EIO: no terminal to write to
+        _silence_stdout()
+        raise typer.Exit(code=128 + signum) from None
+
+
+@contextlib.contextmanager
+def _signal_policy() -> Iterator[None]:
+    """Ctrl-C, SIGTERM and SIGHUP handled by `_stop` while the command runs (in the main thread;
+    elsewhere signals cannot be handled and Python's own handling stays)."""
+    previous: dict[int, Any] = {}
+    try:
+        for signum in _STOP_SIGNALS:
+            previous[signum] = signal.signal(signum, _stop)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 class _DeferredWarnings(logging.Handler):
@@ -289,37 +337,30 @@ _WARNINGS = _DeferredWarnings()
 
 
 def _friendly(fn: F) -> F:
-    """Turns MosegError, OS errors (a full disk, a read-only folder), Ctrl-C and SIGTERM into one
-    line on stderr and exit code 1 (130 for Ctrl-C, 143 for SIGTERM); a stdout closed by its reader
-    ends quietly with 0 (see _MosegGroup). The library's warnings are shown after a success only.
-    Anything else is a bug and keeps its traceback."""
+    """Turns MosegError, OS errors (a full disk, a read-only folder), Ctrl-C, SIGTERM and SIGHUP into
+    one line on stderr and exit code 1 (128 + the signal for a signal: 130, 143, 129); a stdout
+    closed by its reader ends quietly with 0 (see _MosegGroup). The library's warnings are shown
+    after a success only. Anything else is a bug and keeps its traceback."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         _WARNINGS.drop()
-        previous = None
-        with contextlib.suppress(ValueError):  # signals can only be handled in the main thread
-            previous = signal.signal(signal.SIGTERM, _raise_terminated)
-        try:
-            result = fn(*args, **kwargs)
-            _WARNINGS.show()
-            return result
-        except MosegError as exc:
-            _fail(_one_line(str(exc)))
-        except BrokenPipeError:
-            if _stdout_closed():  # the reader of our output went away: not an error of ours
-                raise
-            _fail("Broken pipe")
-        except OSError as exc:
-            where = f"{_shown_path(exc.filename)}: " if exc.filename else ""
-            _fail(f"{where}{exc.strerror or exc}")
-        except KeyboardInterrupt as exc:
-            if isinstance(exc, _Terminated):
-                _fail("terminated (SIGTERM)", TERMINATED)
-            _fail("interrupted", INTERRUPTED)
-        finally:
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
+        with _signal_policy():  # until the error line is out: a second signal is ignored
+            try:
+                result = fn(*args, **kwargs)
+                _WARNINGS.show()
+                return result
+            except MosegError as exc:
+                _fail(_one_line(str(exc)))
+            except BrokenPipeError:
+                if _stdout_closed():  # the reader of our output went away: not an error of ours
+                    raise
+                _fail("Broken pipe")
+            except OSError as exc:
+                where = f"{_shown_path(exc.filename)}: " if exc.filename else ""
+                _fail(f"{where}{exc.strerror or exc}")
+            except KeyboardInterrupt as exc:
+                _stopped(exc)
 
     return wrapper  # type: ignore[return-value]
 
