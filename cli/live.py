@@ -126,7 +126,7 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
                 raise InputError(f"--serve: the Rerun web viewer did not start listening in {VIEWER_START_S:.0f} s")
             url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
             sinks.append(rr.GrpcSink(url))
-            typer.echo(f"open http://127.0.0.1:{web_port}/?url={quote(url, safe='')} in a browser", err=True)
+            typer.echo(f"open http://127.0.0.1:{web_port}/?url={quote(url, safe='')} in a browser")
         yield sinks
     finally:
         if child is not None:

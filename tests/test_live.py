@@ -163,6 +163,17 @@ def test_bad_live_input_is_one_error_line(
     assert not (tmp_path / "o").exists()
 
 
+def test_live_help_at_80_columns_reads_well() -> None:
+    from typer.testing import CliRunner
+
+    from mosegpipe.cli.main import app
+
+    result = CliRunner(env={"COLUMNS": "80"}).invoke(app, ["live", "--help"])
+    assert result.exit_code == 0
+    usage = next(line for line in result.stdout.splitlines() if "Usage:" in line)
+    assert usage.split() == ["Usage:", "moseg", "live", "[OPTIONS]", "SOURCE"] and "<bool>" not in result.stdout
+
+
 def _free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
