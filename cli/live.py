@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 import typer
 
-from mosegpipe.cli.app import INTERRUPTED, TERMINATED, _click, _fail, _friendly, _setup
+from mosegpipe.cli.app import _STOP_SIGNALS, _click, _friendly, _setup, _stopped, _Terminated
 from mosegpipe.cli.common import _check_model_path, _print_total, _print_video_summary
 from mosegpipe.cli.options import (
     MAX_FRAME_INDEX,
@@ -139,8 +139,8 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
 
 
 class _Signals:
-    """Ctrl-C and SIGTERM set `stop` once (the run ends cleanly, its outputs complete); the handlers
-    before are back from then on, so a second Ctrl-C aborts at once."""
+    """Ctrl-C, SIGTERM and SIGHUP set `stop` once (the run ends cleanly, its outputs complete); the
+    handlers before (cli/app.py's policy) are back from then on, so a second one aborts at once."""
 
     def __init__(self, stop: threading.Event) -> None:
         self.stop = stop
@@ -159,7 +159,7 @@ class _Signals:
 
     def __enter__(self) -> _Signals:
         with contextlib.suppress(ValueError):  # not the main thread: no handlers
-            for signum in (signal.SIGINT, signal.SIGTERM):
+            for signum in _STOP_SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._caught)
         return self
 
@@ -292,7 +292,7 @@ def live(
     A status line (frames/s, latency, dropped frames) is drawn on stderr when it is a terminal; a
     summary is printed at the end. The run ends when the source ends or stalls (--stall-timeout),
     after --max-frames, or on Ctrl-C: the window in hand is finished and the outputs are complete
-    (exit code 130 after Ctrl-C, 143 after SIGTERM; a second Ctrl-C aborts at once). The masks are
+    (exit code 130 after Ctrl-C, 143 after SIGTERM, 129 after SIGHUP; a second one aborts at once). The masks are
     `nearest` unless --mask-method says otherwise (`motion` costs about four times as much per frame).
     """
     started = time.perf_counter()
@@ -351,7 +351,7 @@ def live(
             )
         except MosegError:
             if signals.signum is not None:  # stopped before a window's worth of frames: not the source's fault
-                _fail(*_signal_failure(signals.signum))
+                _stop_line(signals.signum)
             raise
         finally:
             if status:
@@ -371,11 +371,12 @@ def live(
             err=True,
         )
     if signals.signum is not None:
-        _fail(*_signal_failure(signals.signum))
+        _stop_line(signals.signum)
 
 
-def _signal_failure(signum: int) -> tuple[str, int]:
-    return ("interrupted", INTERRUPTED) if signum == signal.SIGINT else ("terminated (SIGTERM)", TERMINATED)
+def _stop_line(signum: int) -> None:
+    """The signal's line and exit code, as cli/app.py gives them (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)."""
+    _stopped(KeyboardInterrupt() if signum == signal.SIGINT else _Terminated(signum))
 
 
 def _print_live_summary(name: str, result: Any) -> None:

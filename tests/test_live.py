@@ -302,8 +302,12 @@ def test_a_stream_ending_inside_a_frame_gives_one_line_and_a_complete_output_fol
     _complete_folder(tmp_path / "out", 15)
 
 
-@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT to a process")
-def test_ctrl_c_ends_the_run_with_its_outputs_complete(tmp_path: Path) -> None:
+@pytest.mark.skipif(sys.platform == "win32", reason="signals to a process")
+@pytest.mark.parametrize(
+    ("signum", "code", "line"),
+    [(signal.SIGINT, 130, "moseg: error: interrupted"), (signal.SIGTERM, 143, "moseg: error: terminated (SIGTERM)")],
+)
+def test_ctrl_c_ends_the_run_with_its_outputs_complete(tmp_path: Path, signum: int, code: int, line: str) -> None:
     proc = _live_process(tmp_path, "--stall-timeout", "60")
     assert proc.stdin is not None
     proc.stdin.write(_raw(_frames(12)))
@@ -312,13 +316,13 @@ def test_ctrl_c_ends_the_run_with_its_outputs_complete(tmp_path: Path) -> None:
     while not list((tmp_path / ".out.partial" / "masks").glob("*.png")):  # segmenting: the frames arrived
         assert time.monotonic() < deadline and proc.poll() is None, proc.stderr.read() if proc.stderr else ""
         time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signum)
     try:
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         proc.kill()
-    assert proc.returncode == 130, stderr
-    assert stderr.decode().splitlines() == ["moseg: error: interrupted"]
+    assert proc.returncode == code, stderr
+    assert stderr.decode().splitlines() == [line]
     # The window in hand was finished: at least the first window's frames, all of them written.
     segmented = _complete_folder(tmp_path / "out")
     assert 5 <= segmented <= 12 and f"{segmented} frames segmented".encode() in stdout
