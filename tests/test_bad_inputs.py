@@ -14,6 +14,7 @@ import subprocess
 import sys
 import tempfile
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -26,7 +27,7 @@ from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, single_moti
 from mosegpipe.errors import CheckpointError, InputError
 from mosegpipe.io import read_image, read_video, video_info
 from mosegpipe.model import SubspaceNet
-from mosegpipe.pipeline import segment_frames, segment_pair, segment_tracks
+from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair, segment_tracks
 from mosegpipe.types import Frames
 
 from helpers import (
@@ -646,8 +647,13 @@ def test_api_misuse_of_issue_24() -> None:
     from mosegpipe.trajectories import build_trajectories
     from mosegpipe.types import Tracks
 
-    with pytest.raises(InputError, match="only 1 frame; segmenting motion needs at least 2"):  # was an IndexError
-        segment_frames(Frames(images=render_scene(2).frames[:1], fps=0.0, source="", start=0), model=tiny_model(1))
+    one = Frames(images=render_scene(2).frames[:1], fps=0.0, source="", start=0)
+    for model in (tiny_model(1), tiny_model(5)):  # was an IndexError in the rigid-motion check
+        result = segment_frames(one, model=model)
+        assert result.clustering.k == 1 and not result.clustering.labels.any() and "one frame" in result.clustering.note
+        assert result.masks.shape == (1, *one.images.shape[1:3]) and set(np.unique(result.masks)) <= {0, 255}
+        assert result.embeddings.shape[0] == result.trajectories.num_points > 0
+    assert segment_frames(one, replace(PipelineConfig(), k=2), model=tiny_model(1)).clustering.k == 2  # K as given
     tracks = Tracks(xy=np.zeros((5, 4, 2), np.float32), visible=np.ones((5, 3), bool), size_hw=(10, 10))
     with pytest.raises(ValueError, match=r"xy \(5, 4, 2\) and visible \(5, 3\)"):
         build_trajectories(tracks)

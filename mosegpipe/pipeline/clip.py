@@ -107,16 +107,14 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
 
     Raises:
         TooFewTracksError: fewer than cfg.min_tracks tracks live through all frames.
-        InputError: fewer than 2 frames, or cfg.k larger than the number of tracks.
+        InputError: cfg.k larger than the number of tracks.
         CheckpointError: no model given and no shipped weights.
+
+    One frame shows no motion: unless cfg.k says otherwise, its tracks are one motion (K = 1, with a
+    note saying why).
     """
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
-    if frames.num_frames < 2:
-        # One frame has no motion to segment (it raised an IndexError deep in the pipeline).
-        raise InputError(
-            f"{frames.source or 'frames'}: only {frames.num_frames} frame; segmenting motion needs at least 2"
-        )
     model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     tracks = track_klt(frames, cfg.track)
@@ -128,11 +126,28 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
             f"need at least {cfg.min_tracks} (textureless or blank frames?)"
         )
     _check_k(cfg.k, traj.num_points, frames.source or "clip")
-    emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
+    if frames.num_frames == 1 and cfg.k is None:
+        emb, clustering = _one_frame(traj, cfg, model, timings)
+    else:
+        emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
     t0 = time.perf_counter()
     masks = clip_masks(frames.images, tracks, traj.track_ids, clustering.labels, cfg)
     timings["masks"] = time.perf_counter() - t0
     return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, model_info(model))
+
+
+def _one_frame(
+    traj: Trajectories, cfg: PipelineConfig, model: Embedder, timings: dict[str, float]
+) -> tuple[npt.NDArray[np.float32], Clustering]:
+    """The grouping of one frame's tracks: one motion (the rigid-motion check and "geometric" fit
+    motions between two frames or more, and raised on one)."""
+    t0 = time.perf_counter()
+    emb = (
+        np.zeros((traj.num_points, 0), np.float32) if cfg.method == "geometric" else embed_at_model_frames(model, traj)
+    )
+    timings["embed"] = time.perf_counter() - t0
+    labels = np.zeros(traj.num_points, np.int64)
+    return emb, Clustering(labels=labels, k=1, note="one frame: no motion to tell apart, so one motion (K = 1)")
 
 
 def clip_masks(
