@@ -261,13 +261,19 @@ class _Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
+_RECEIVED: list[int] = []
+"""The signal that stopped the running command (see _stop)."""
+
+
 def _stop(signum: int, frame: Any) -> None:
     """The handler of Ctrl-C, SIGTERM and SIGHUP while a command runs: the first one stops it (a
     KeyboardInterrupt in the main thread); the ones after it are ignored, so that they cannot cut
     the clean-up short (a second Ctrl-C inside a closing generator printed "Exception ignored in"
-    and a traceback)."""
+    and a traceback). The signal is also recorded: Ray's waits turn the exception into a plain
+    KeyboardInterrupt."""
     for other in _STOP_SIGNALS:
         signal.signal(other, signal.SIG_IGN)
+    _RECEIVED[:] = [signum]
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise _Terminated(signum)
@@ -277,7 +283,7 @@ def _stopped(exc: KeyboardInterrupt) -> None:
     """Ctrl-C, SIGTERM or SIGHUP -> one line, exit code 128 + the signal. After SIGHUP the terminal
     may be gone: a line that cannot be written is not an error, and stdout is pointed at /dev/null
     so that its flush at exit does not fail either."""
-    signum = exc.signum if isinstance(exc, _Terminated) else signal.SIGINT
+    signum = exc.signum if isinstance(exc, _Terminated) else (_RECEIVED or [signal.SIGINT])[0]
     if signum == signal.SIGINT:
         _fail("interrupted", INTERRUPTED)
     name = signal.Signals(signum).name
@@ -294,6 +300,7 @@ def _signal_policy() -> Iterator[None]:
     """Ctrl-C, SIGTERM and SIGHUP handled by `_stop` while the command runs (in the main thread;
     elsewhere signals cannot be handled and Python's own handling stays)."""
     previous: dict[int, Any] = {}
+    _RECEIVED.clear()
     try:
         for signum in _STOP_SIGNALS:
             previous[signum] = signal.signal(signum, _stop)

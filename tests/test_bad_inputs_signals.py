@@ -154,3 +154,24 @@ def test_a_signalled_batch_leaves_no_partial_folder(
     assert proc.returncode == code, stderr
     assert one_error_line(stderr) == line
     assert sorted(p.name for p in out.iterdir()) == []
+
+
+def test_sigterm_seen_through_a_library_that_reraises_ctrl_c(tmp_path: Path, video: Path, model5: Path) -> None:
+    # Ray's waits turn any KeyboardInterrupt raised by a signal handler into a plain one: SIGTERM to a
+    # batch on Ray was reported as Ctrl-C (exit 130). The signal received decides, not the exception.
+    patch = """
+real = outputs.write_palette_png
+def write_palette_png(*args, **kwargs):
+    real(*args, **kwargs)
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt from None
+outputs.write_palette_png = write_palette_png
+"""
+    out = tmp_path / "parent" / "out"
+    out.parent.mkdir()
+    proc = _whole_run(video, model5, out, patch)
+    assert proc.returncode == 143, proc.stderr
+    assert one_error_line(proc.stderr) == "moseg: error: terminated (SIGTERM)"
+    assert list(out.parent.iterdir()) == []
