@@ -289,9 +289,11 @@ def _stopped(exc: KeyboardInterrupt) -> None:
     name = signal.Signals(signum).name
     try:
         sys.stdout.flush()
-        _fail(f"terminated ({name})", 128 + signum)
     except OSError:  # EIO: no terminal to write to
         _silence_stdout()
+    try:
+        _fail(f"terminated ({name})", 128 + signum)
+    except OSError:  # stderr went with the terminal
         raise typer.Exit(code=128 + signum) from None
 
 

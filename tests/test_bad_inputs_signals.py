@@ -175,3 +175,22 @@ outputs.write_palette_png = write_palette_png
     assert proc.returncode == 143, proc.stderr
     assert one_error_line(proc.stderr) == "moseg: error: terminated (SIGTERM)"
     assert list(out.parent.iterdir()) == []
+
+
+def test_sighup_with_stderr_gone(tmp_path: Path, video: Path, model5: Path) -> None:
+    # A closed terminal takes stderr with it: the error line cannot be written, and that is no error.
+    code = f"""
+        import os, signal, sys
+        import mosegpipe.outputs as outputs
+        from mosegpipe.cli.main import app
+        {textwrap.indent(_FIRST_MASK_THEN.format(name="SIGHUP"), " " * 8).strip()}
+        sys.argv = ["moseg", "run", {str(video)!r}, "--whole", "--frames", "5", "--model", {str(model5)!r},
+                    "--out", {str(tmp_path / "out")!r}, "--no-rrd", "-q"]
+        app()
+        """
+    proc = _script(code, start_new_session=True)
+    assert proc.stderr is not None and proc.stdout is not None
+    proc.stderr.close()  # as a terminal that went away: writing to it fails
+    proc.stdout.read()
+    assert proc.wait(timeout=300) == 129  # was 1, a BrokenPipeError's traceback
+    assert list(tmp_path.iterdir()) == []
