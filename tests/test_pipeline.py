@@ -156,7 +156,14 @@ def test_clip_outputs(tmp_path: Path, clip_result: pipeline.ClipResult) -> None:
     out = tmp_path / "out"
     summary = write_clip_outputs(clip_result, out, cfg)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary folder left
-    assert sorted(p.name for p in out.iterdir()) == ["labels.npz", "masks", "overlay", "recording.rrd", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "labels.npz",
+        "masks",
+        "overlay",
+        "overlay.mp4",
+        "recording.rrd",
+        "summary.json",
+    ]
 
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk == json.loads(json.dumps(summary))
