@@ -457,6 +457,10 @@ def label_moving_pixels(
     if not inside.any():
         out[moving] = new_label
         return out
+    present = np.unique(labels[keep][inside])
+    if present.size == 1:  # one moving motion: it is every moving pixel's nearest
+        out[moving] = present[0]
+        return out
     nearest = _nearest(pts[inside], labels[keep][inside].astype(np.uint8), (height, width), np.inf)
     out[moving] = nearest[moving]
     return out

@@ -109,6 +109,9 @@ def test_label_moving_pixels_takes_the_nearest_moving_track() -> None:
     # no track of a moving motion: the moving pixels get the new label
     out = label_moving_pixels(moving, xy[2:], labels[2:], background=0, new_label=3)
     assert (out[moving] == 3).all() and (out[~moving] == 0).all()
+    # one moving motion, however far its track: every moving pixel takes it
+    out = label_moving_pixels(moving, xy[1:], labels[1:], background=0, new_label=3)
+    assert (out[moving] == 2).all() and (out[~moving] == 0).all()
 
 
 def test_segment_frames_with_motion_masks_marks_the_square_as_moving() -> None:
