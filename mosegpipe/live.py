@@ -528,7 +528,7 @@ class LiveView:
 
     Entity paths, layout and colours are a whole-video recording's (mosegpipe.viz, VideoRecorder):
     `video/frame` (JPEG), `video/mask`, `video/points`, `video/tracks` and `windows/k`,
-    `windows/k_margin` on the "frame" timeline. The layout goes first, then the class colours, then
+    `windows/k_margin` (viz.log_window_k) on the "frame" timeline. The layout goes first, then the class colours, then
     the data.
 
     Args:
@@ -552,23 +552,11 @@ class LiveView:
         self._windows = 0
 
     def log_window(self, start: int, k: int, k_scores: Mapping[int, float]) -> None:
-        """The K of a window (0 = left unlabelled) and its score margin, at its first frame."""
-        import rerun as rr
+        """The K of a window (0 = left unlabelled) and how clearly its scores chose it, at its first frame."""
+        from mosegpipe.viz import log_window_k
 
-        from mosegpipe.viz import TIMELINE, k_margin
-
-        rec = self._stream()
-        if self._windows == 0:
-            rec.log("windows/k", rr.SeriesLines(names="K", interpolation_mode="StepAfter"), static=True)
-            rec.log("windows/k", rr.SeriesPoints(names="K", markers="circle", marker_sizes=3.0), static=True)
-            style = rr.SeriesLines(names="score margin over the runner-up", interpolation_mode="StepAfter")
-            rec.log("windows/k_margin", style, static=True)
+        log_window_k(self._stream(), start, k, k_scores, first=self._windows == 0)
         self._windows += 1
-        rec.set_time(TIMELINE, sequence=int(start))
-        rec.log("windows/k", rr.Scalars(float(k)))
-        margin = k_margin(k_scores, k) if k > 0 else None
-        if margin is not None:
-            rec.log("windows/k_margin", rr.Scalars(margin[0]))
 
     def log_frame(self, frame: VideoFrame, mask: npt.NDArray[np.uint8]) -> None:
         """One frame: the image, its mask, its labelled tracks and their recent trails."""

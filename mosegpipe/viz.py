@@ -854,23 +854,9 @@ class VideoRecorder:
         Raises:
             InputError: the recorder is closed.
         """
-        import rerun as rr
-
         if self._sink is None:
             raise InputError(f"{self.path}: recorder already closed")
-        rec = self._sink.rec
-        if self._num_windows == 0:
-            rec.log("windows/k", rr.SeriesLines(names="K", interpolation_mode="StepAfter"), static=True)
-            rec.log("windows/k", rr.SeriesPoints(names="K", markers="circle", marker_sizes=3.0), static=True)
-            style = rr.SeriesLines(
-                names="best K's score minus the next K's (0 = a tie)", interpolation_mode="StepAfter"
-            )
-            rec.log("windows/k_margin", style, static=True)
-        rec.set_time(TIMELINE, sequence=int(start))
-        rec.log("windows/k", rr.Scalars(float(k)))
-        margin = score_lead(k_scores or {}) if k > 0 else None
-        if margin is not None:
-            rec.log("windows/k_margin", rr.Scalars(margin))
+        log_window_k(self._sink.rec, start, k, k_scores, first=self._num_windows == 0)
         self._num_windows += 1
 
     def log_frame(
@@ -1017,3 +1003,29 @@ class VideoRecorder:
             self.close()
         else:
             self.abort()
+
+
+def log_window_k(
+    rec: Any, start: int, k: int, k_scores: Mapping[int, float] | None = None, first: bool = False
+) -> None:
+    """Logs a window's K and how clearly its scores chose it (`score_lead`) at the window's first frame.
+
+    Args:
+        rec: the rr.RecordingStream.
+        start: frame index of the window's first frame (the "frame" timeline).
+        k: motions found in the window, 0 = left unlabelled.
+        k_scores: the window's score per candidate K (None or empty: no score lead is logged).
+        first: the first window of the recording: the two series' styles are logged first.
+    """
+    import rerun as rr
+
+    if first:
+        rec.log("windows/k", rr.SeriesLines(names="K", interpolation_mode="StepAfter"), static=True)
+        rec.log("windows/k", rr.SeriesPoints(names="K", markers="circle", marker_sizes=3.0), static=True)
+        style = rr.SeriesLines(names="best K's score minus the next K's (0 = a tie)", interpolation_mode="StepAfter")
+        rec.log("windows/k_margin", style, static=True)
+    rec.set_time(TIMELINE, sequence=int(start))
+    rec.log("windows/k", rr.Scalars(float(k)))
+    lead = score_lead(k_scores or {}) if k > 0 else None
+    if lead is not None:
+        rec.log("windows/k_margin", rr.Scalars(lead))
