@@ -425,14 +425,14 @@ def test_cli_defaults_are_the_library_defaults() -> None:
 # ---------------------------------------------------------------------------------------------
 
 FREE_TEXT = {("batch", "address"), ("view", "bind"), ("train", "exclude"), ("eval", "baselines")}
-FREE_TEXT |= {("eval", "folds"), ("study", "clips")}
+FREE_TEXT |= {("eval", "folds"), ("study", "clips"), ("live", "source"), ("live", "connect"), ("live", "stdin_size")}
 """The only options that take free text (addresses, comma-separated lists); every other choice is an Enum."""
 
 
 def test_every_option_has_help_and_every_choice_is_an_enum() -> None:
     group = typer.main.get_command(app)
     assert sorted(group.commands) == sorted(
-        ["run", "pair", "tracks", "batch", "replay", "view", "train", "eval", "study"]
+        ["run", "pair", "tracks", "batch", "replay", "view", "live", "train", "eval", "study"]
     )
     for name, command in group.commands.items():
         hints = cli_config._option_hints(name)
