@@ -4,6 +4,7 @@ bar of whole-video runs and the summaries they print."""
 from __future__ import annotations
 
 import contextlib
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -122,3 +123,15 @@ def _print_tracks_summary(summary: dict[str, Any], out: Path) -> None:
     views = [name for name in ("masks/", "overlay/", "overlay.mp4", "recording.rrd") if (out / name).exists()]
     typer.echo(f"wrote {out}/ ({', '.join(['summary.json', 'labels.npz', *views])})")
     _print_view_hint(out)
+
+
+def stop_child(proc: subprocess.Popen[Any], timeout_s: float = 5.0) -> None:
+    """Ends a child process (a viewer or server we started): SIGTERM, then SIGKILL after timeout_s."""
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()

@@ -15,7 +15,7 @@ from typing import Annotated, Any
 import typer
 
 from mosegpipe.cli.app import _STOP_SIGNALS, _click, _friendly, _setup, _stopped, _Terminated
-from mosegpipe.cli.common import _check_model_path, _print_total, _print_video_summary
+from mosegpipe.cli.common import _check_model_path, _print_total, _print_video_summary, stop_child
 from mosegpipe.cli.options import (
     MAX_FRAME_INDEX,
     MAX_FRAMES,
@@ -130,12 +130,7 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
         yield sinks
     finally:
         if child is not None:
-            child.terminate()
-            try:
-                child.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                child.kill()
-                child.wait()
+            stop_child(child)
 
 
 class _Signals:

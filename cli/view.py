@@ -24,6 +24,7 @@ from mosegpipe.cli.common import (
     _print_total,
     _print_tracks_summary,
     _print_video_summary,
+    stop_child,
 )
 from mosegpipe.cli.options import NoRrd, Overwrite, Quiet, Threads, Verbose
 from mosegpipe.errors import InputError
@@ -412,13 +413,8 @@ def _serve_web(exe: str, recording: Path, bind: str, ports: list[tuple[str, int 
         if code != 0:
             raise InputError(f"the Rerun viewer stopped (exit code {code}): {_last_error(log)}")
     finally:
-        if proc is not None and proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=5.0)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        if proc is not None:
+            stop_child(proc)
 
 
 @_friendly
