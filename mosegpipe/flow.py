@@ -56,6 +56,8 @@ class FlowConfig:
         ransac_px: RANSAC (MAGSAC) inlier threshold of the homography, in pixels at the flow's scale.
         workers: threads that compute the flows and fits of a stack (`frame_motion`); OpenCV releases
             the GIL, so two threads use both cores of a small machine (each thread has its own DIS).
+        patch_stride: DIS patch stride in pixels (None = the preset's: 3 for medium).
+        refinement_iterations: DIS variational refinement iterations (None = the preset's: 5 for medium).
     """
 
     preset: str = "medium"
@@ -64,6 +66,8 @@ class FlowConfig:
     fb_max_px: float = 1.0
     ransac_px: float = 1.0
     workers: int = 2
+    patch_stride: int | None = None
+    refinement_iterations: int | None = None
 
     def __post_init__(self) -> None:
         if self.preset not in DIS_PRESETS:
@@ -74,6 +78,10 @@ class FlowConfig:
             raise ValueError(f"grid_step_px={self.grid_step_px} must be >= 1")
         if self.workers < 1:
             raise ValueError(f"workers={self.workers} must be >= 1")
+        if self.patch_stride is not None and not 1 <= self.patch_stride <= 8:
+            raise ValueError(f"patch_stride={self.patch_stride} must be in 1..8 (the patches are 8 px)")
+        if self.refinement_iterations is not None and not 0 <= self.refinement_iterations <= 100:
+            raise ValueError(f"refinement_iterations={self.refinement_iterations} must be in 0..100")
         if not self.fb_max_px > 0 or not self.ransac_px > 0:
             raise ValueError(f"fb_max_px={self.fb_max_px} and ransac_px={self.ransac_px} must be > 0")
 
@@ -92,6 +100,10 @@ class DenseFlow:
     def __init__(self, cfg: FlowConfig = FlowConfig()) -> None:
         self.cfg = cfg
         self._dis = cv2.DISOpticalFlow.create(DIS_PRESETS[cfg.preset])
+        if cfg.patch_stride is not None:
+            self._dis.setPatchStride(cfg.patch_stride)
+        if cfg.refinement_iterations is not None:
+            self._dis.setVariationalRefinementIterations(cfg.refinement_iterations)
 
     def __call__(self, gray0: npt.NDArray[np.uint8], gray1: npt.NDArray[np.uint8]) -> npt.NDArray[np.float32]:
         """(h, w, 2) float32 displacement (dx, dy) of each pixel of gray0 to gray1, in pixels of these images."""

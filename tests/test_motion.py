@@ -260,3 +260,16 @@ def test_moving_pixels_of_one_moving_motion_all_take_its_label_and_two_split_alo
     two = np.concatenate([bg, np.array([[22.0, 30.0], [42.0, 30.0]], np.float32)])
     out = moving_to_labels(moving, two, np.array([0, 0, 0, 3, 5]), image=image)
     assert (out[10:50, 20:40] == 3).mean() >= 0.85 and (out[10:50, 40:60] == 5).mean() >= 0.85
+
+
+def test_dense_flow_takes_the_patch_stride_and_refinement_given() -> None:
+    from mosegpipe.flow import DenseFlow
+
+    dis = DenseFlow(FlowConfig(patch_stride=4, refinement_iterations=3))._dis
+    assert (dis.getPatchStride(), dis.getVariationalRefinementIterations()) == (4, 3)
+    preset = DenseFlow(FlowConfig())._dis  # None: the preset's own (medium: 3 and 5)
+    assert (preset.getPatchStride(), preset.getVariationalRefinementIterations()) == (3, 5)
+    assert MotionMaskConfig().flow.patch_stride == 4
+    for bad in ({"patch_stride": 9}, {"patch_stride": 0}, {"refinement_iterations": -1}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            FlowConfig(**bad)  # type: ignore[arg-type]
