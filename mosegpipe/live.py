@@ -540,13 +540,13 @@ class LiveView:
     def __init__(self, sinks: Sequence[Any], margins: bool = True, cfg: VizConfig | None = None) -> None:
         import rerun as rr
 
-        from mosegpipe.viz import MAX_CLASSES, _log_annotation_contexts, _video_blueprint, class_names
+        from mosegpipe.viz import MAX_CLASSES, class_names, log_annotation_contexts, video_blueprint
 
         self.cfg = cfg or live_viz()
         self.rec: rr.RecordingStream | None = rr.RecordingStream("mosegpipe")
         self.rec.set_sinks(*sinks)
-        self.rec.send_blueprint(_video_blueprint(True, margins), make_active=True, make_default=True)
-        _log_annotation_contexts(self.rec, ["video"], class_names(MAX_CLASSES))
+        self.rec.send_blueprint(video_blueprint(True, margins), make_active=True, make_default=True)
+        log_annotation_contexts(self.rec, ["video"], class_names(MAX_CLASSES))
         self._trails: dict[int, collections.deque[npt.NDArray[np.float32]]] = {}
         self._trail_len = self.cfg.trail_frames or 10
         self._windows = 0
@@ -560,14 +560,14 @@ class LiveView:
 
     def log_frame(self, frame: VideoFrame, mask: npt.NDArray[np.uint8]) -> None:
         """One frame: the image, its mask, its labelled tracks and their recent trails."""
-        from mosegpipe.viz import TIMELINE, _log_image_layers, _log_trails, class_ids_of
+        from mosegpipe.viz import TIMELINE, class_ids_of, log_image_layers, log_trails
 
         rec = self._stream()
         keep = frame.labels >= 0
         ids, xy = frame.track_ids[keep], frame.xy[keep]
         class_ids = class_ids_of(frame.labels[keep])
         rec.set_time(TIMELINE, sequence=int(frame.index))
-        _log_image_layers(rec, "video", frame.image, mask, xy, class_ids, self.cfg)
+        log_image_layers(rec, "video", frame.image, mask, xy, class_ids, self.cfg)
         live = set(ids.tolist())
         for lost in [i for i in self._trails if i not in live]:
             del self._trails[lost]
@@ -577,7 +577,7 @@ class LiveView:
             trail.append(p)
             lengths[n] = len(trail)
         points = np.array([p for i in ids.tolist() for p in self._trails[i]], dtype=np.float32).reshape(-1, 2)
-        _log_trails(rec, points, lengths, class_ids, self.cfg)
+        log_trails(rec, points, lengths, class_ids, self.cfg)
 
     def _stream(self) -> rr.RecordingStream:
         if self.rec is None:

@@ -347,7 +347,7 @@ def _annotation_context(names: Mapping[int, str], colors: npt.NDArray[np.uint8])
     return rr.AnnotationContext(pa.array([rows], type=rr.components.AnnotationContext.arrow_type()))
 
 
-def _log_annotation_contexts(rec: rr.RecordingStream, origins: Sequence[str], names: Mapping[int, str]) -> None:
+def log_annotation_contexts(rec: rr.RecordingStream, origins: Sequence[str], names: Mapping[int, str]) -> None:
     """Once, static, before any data: the point colours at the root, the mask colours at each `origin/mask`.
 
     Re-logging a static context as classes appeared left whole-video recordings in Rerun's own
@@ -371,7 +371,7 @@ def _image_archetype(image: npt.NDArray[np.uint8], cfg: VizConfig) -> rr.Image |
     return rr.EncodedImage(contents=buf.tobytes(), media_type="image/jpeg", draw_order=0.0)
 
 
-def _log_image_layers(
+def log_image_layers(
     rec: rr.RecordingStream,
     origin: str,
     image: npt.NDArray[np.uint8] | None,
@@ -413,7 +413,7 @@ def _line_strips(points: npt.NDArray[np.float32], lengths: npt.NDArray[np.int64]
     return pa.ListArray.from_arrays(pa.array(offsets, type=pa.int32()), values, type=strip_type)
 
 
-def _log_trails(
+def log_trails(
     rec: rr.RecordingStream,
     points: npt.NDArray[np.float32],
     lengths: npt.NDArray[np.int64],
@@ -654,16 +654,16 @@ def write_recording(
         sink = _Sink(tmp, app_id, final, blueprint)
         rec, written = sink.rec, False
         try:
-            _log_annotation_contexts(rec, ["video"] if masks is not None else [], class_names(k))
+            log_annotation_contexts(rec, ["video"] if masks is not None else [], class_names(k))
             _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
             for t in range(frames.num_frames):
                 rec.set_time(TIMELINE, sequence=frames.start + t)
                 seen = visible[:, t]
                 mask = None if masks is None else masks[t]
-                _log_image_layers(rec, "video", frames.images[t], mask, xy[seen, t], class_ids[seen], cfg)
+                log_image_layers(rec, "video", frames.images[t], mask, xy[seen, t], class_ids[seen], cfg)
                 first = 0 if cfg.trail_frames is None else max(0, t + 1 - cfg.trail_frames)
                 history = visible[seen, first : t + 1]  # (M, L): each seen track's visible past
-                _log_trails(rec, xy[seen, first : t + 1][history], history.sum(axis=1), class_ids[seen], cfg)
+                log_trails(rec, xy[seen, first : t + 1][history], history.sum(axis=1), class_ids[seen], cfg)
             written = True
         finally:
             sink.finish(write=written)
@@ -749,11 +749,11 @@ def write_pair_recording(
         rec, written = sink.rec, False
         try:
             names = class_names(num_classes, unknown="unknown / outlier")
-            _log_annotation_contexts(rec, ["image1", "image2"] if masks is not None else [], names)
+            log_annotation_contexts(rec, ["image1", "image2"] if masks is not None else [], names)
             _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
             for i, xy in enumerate((matches.xy1, matches.xy2)):
                 mask = None if masks is None else masks[i]
-                _log_image_layers(rec, f"image{i + 1}", images[i], mask, xy, class_ids, cfg, static=True)
+                log_image_layers(rec, f"image{i + 1}", images[i], mask, xy, class_ids, cfg, static=True)
             written = True
         finally:
             sink.finish(write=written)
@@ -766,7 +766,7 @@ def write_pair_recording(
 # ---------------------------------------------------------------------------------------------
 
 
-def _video_blueprint(windows: bool, margins: bool) -> rrb.Blueprint:
+def video_blueprint(windows: bool, margins: bool) -> rrb.Blueprint:
     """The frame with its mask and tracks above; K per window (and its score margin) under it."""
     import rerun.blueprint as rrb
 
@@ -835,8 +835,8 @@ class VideoRecorder:
         self._target = atomic_write(self.path)
         tmp = self._target.__enter__()
         try:
-            self._sink: _Sink | None = _Sink(tmp, app_id, self.path, _video_blueprint(windows, margins))
-            _log_annotation_contexts(self._sink.rec, ["video"], class_names(MAX_CLASSES))
+            self._sink: _Sink | None = _Sink(tmp, app_id, self.path, video_blueprint(windows, margins))
+            log_annotation_contexts(self._sink.rec, ["video"], class_names(MAX_CLASSES))
         except BaseException as exc:
             self._close_encoder(flush=False)
             self._target.__exit__(type(exc), exc, exc.__traceback__)
@@ -899,7 +899,7 @@ class VideoRecorder:
         if self._encoder is not None:
             self._encoder.add(image)
             self._frame_times.append(int(t))
-        _log_image_layers(rec, "video", None if self._encoder is not None else image, mask, xy, class_ids, self.cfg)
+        log_image_layers(rec, "video", None if self._encoder is not None else image, mask, xy, class_ids, self.cfg)
         live = set(ids.tolist())
         for stale in [i for i in self._trails if i not in live]:
             del self._trails[stale]  # a lost track never comes back (KLTTracker ids are not reused)
@@ -911,7 +911,7 @@ class VideoRecorder:
             lengths[n] = len(trail)
         points = [p for i in ids.tolist() for p in self._trails[i]]
         flat = np.array(points, dtype=np.float32).reshape(-1, 2)
-        _log_trails(rec, flat, lengths, class_ids, self.cfg)
+        log_trails(rec, flat, lengths, class_ids, self.cfg)
         self._num_frames += 1
 
     def _downscale(
