@@ -170,29 +170,41 @@ def _keep_large(mask: npt.NDArray[np.bool_], share: float) -> npt.NDArray[np.boo
     return keep[comp]
 
 
+_Maps = list[tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]
+"""Per flow, the (x, y) remap coordinates of every work-scale pixel's end point."""
+
+
+def _flow_maps(flows: npt.NDArray[np.float32], hw: tuple[int, int], to_work: np.float32) -> _Maps:
+    """Remap coordinates (work scale) of each flow's end points: built once, used by every pass."""
+    xs, ys = pixel_grid(*hw)
+    maps = []
+    for flow in flows:
+        f = _resize(flow, hw) * to_work
+        maps.append((xs + f[..., 0], ys + f[..., 1]))
+    return maps
+
+
 def _carried_along_flow(
-    scores: list[npt.NDArray[np.float32]],
-    motion: FrameMotion,
-    hw: tuple[int, int],
-    to_work: np.float32,
-    weight: float,
+    scores: list[npt.NDArray[np.float32]], forward: _Maps, backward: _Maps, weight: float
 ) -> list[npt.NDArray[np.float32]]:
     """Each score averaged with the previous and next frames' scores at the pixels the flow leads to."""
-    assert motion.forward is not None and motion.backward is not None
-    xs, ys = pixel_grid(*hw)
 
-    def sample(score: npt.NDArray[np.float32], flow: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
-        f = _resize(flow, hw) * to_work
-        return cv2.remap(score, xs + f[..., 0], ys + f[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    def sample(
+        score: npt.NDArray[np.float32], to: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]
+    ) -> npt.NDArray[np.float32]:
+        moved: npt.NDArray[np.float32] = cv2.remap(
+            score, to[0], to[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        )
+        return moved
 
     out = []
     for t, z in enumerate(scores):
         total, norm = z.copy(), 1.0
         if t + 1 < len(scores):
-            total += np.float32(weight) * sample(scores[t + 1], motion.forward[t])
+            total += np.float32(weight) * sample(scores[t + 1], forward[t])
             norm += weight
         if t > 0:
-            total += np.float32(weight) * sample(scores[t - 1], motion.backward[t - 1])
+            total += np.float32(weight) * sample(scores[t - 1], backward[t - 1])
             norm += weight
         out.append((total / np.float32(norm)).astype(np.float32))
     return out
@@ -217,6 +229,8 @@ def moving_from_motion(
     from skimage.filters import threshold_otsu
 
     num, height, width = images.shape[:3]
+    if not 0 <= first < num:
+        raise ValueError(f"first={first} must be in 0..{num - 1}")
     to_full = np.float32(1.0 / motion.scale)
     to_work = np.float32(cfg.work_scale / motion.scale)
     hw = (max(1, round(height * cfg.work_scale)), max(1, round(width * cfg.work_scale)))
@@ -234,15 +248,13 @@ def moving_from_motion(
         thr = threshold_otsu(sample) if np.ptp(sample) > 0 else float(sample.max())
         scores.append((lg - np.float32(thr)).astype(np.float32))
     if cfg.temporal_weight > 0 and motion.forward is not None and motion.backward is not None and num > 1:
+        forward = _flow_maps(motion.forward, hw, to_work)
+        backward = _flow_maps(motion.backward, hw, to_work)
         for _ in range(cfg.temporal_passes):
-            scores = _carried_along_flow(
-                scores, motion, hw, np.float32(cfg.work_scale / motion.scale), cfg.temporal_weight
-            )
+            scores = _carried_along_flow(scores, forward, backward, cfg.temporal_weight)
     if cfg.colour_weight > 0:
         ratios = _colour_log_ratio(small, scores, cfg)
         scores = [z + np.float32(cfg.colour_weight) * a for z, a in zip(scores, ratios)]
-    if not 0 <= first < num:
-        raise ValueError(f"first={first} must be in 0..{num - 1}")
     small, scores, res = small[first:], scores[first:], res[first:]
     if cfg.superpixels > 0:
         scores = [_superpixel_mean(im, z, cfg) for im, z in zip(small, scores)]
