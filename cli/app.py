@@ -15,11 +15,14 @@ import importlib
 import logging
 import os
 import re
+import shutil
 import signal
 import sys
+import textwrap
 from collections.abc import Callable, Iterator
 from typing import Annotated, Any, TypeVar
 
+import click
 import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
@@ -89,18 +92,25 @@ class _Argument(TyperArgument):
 
 
 class _Option(TyperOption):
-    """An option without the `<bool>` of a flag (its choices stay listed: `--help` is where they are read)."""
+    """An option without the `<bool>` of a flag; its choices stay listed (`--help` is where they are
+    read), in the type column, or as `<name>` there when the list is long and the help text names
+    every choice itself (as `_Argument`)."""
 
     def display_type_rich(self, ctx: Any) -> str | None:
         if self.is_flag and self.metavar is None:
             return None
-        return super().display_type_rich(ctx)
+        shown = super().display_type_rich(ctx)
+        return "<name>" if shown is not None and _named_in_help(self, shown) else shown
 
 
 def _named_in_help(param: Any, shown: str) -> bool:
     choices = shown.strip("<>").split("|")
     help_text = param.help or ""
     return len(shown) > 24 and len(choices) > 1 and all(c in help_text for c in choices)
+
+
+NARROW_HELP_COLUMNS = 100
+"""Below this terminal width `--help` takes the plain layout (MosegCommand.format_help)."""
 
 
 class MosegCommand(TyperCommand):
@@ -114,6 +124,36 @@ class MosegCommand(TyperCommand):
 
     def get_help_option(self, ctx: Any) -> Any:
         return _reclass(super().get_help_option(ctx))
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        """Rich's boxed table below 100 columns squeezes every help text into a sliver (four columns
+        share the width); there the plain layout (option, then its help on the rest of the line) reads
+        better."""
+        if shutil.get_terminal_size().columns < NARROW_HELP_COLUMNS:
+            rich_mode, self.rich_markup_mode = self.rich_markup_mode, None
+            plain = _PlainFormatter(width=formatter.width)
+            try:
+                super().format_help(ctx, plain)
+            finally:
+                self.rich_markup_mode = rich_mode
+            formatter.write(plain.getvalue())
+        else:
+            super().format_help(ctx, formatter)
+
+
+class _PlainFormatter(click.HelpFormatter):
+    """Click's plain help layout, with help texts wrapped at spaces only: `hopkins-test`, not
+    `hopkins-` / `test` (names are copied from help)."""
+
+    def write_dl(self, rows: Any, col_max: int = 30, col_spacing: int = 2) -> None:
+        rows = list(rows)
+        first_col = min(max((click.formatting.term_len(term) for term, _ in rows), default=0), col_max) + col_spacing
+        width = max(self.width - first_col - 2, 10)
+        # A paragraph that starts with \b is kept as given (click's wrap_text), so the wrapping here stays.
+        kept = [
+            (term, "\b\n" + textwrap.fill(text, width, break_on_hyphens=False) if text else text) for term, text in rows
+        ]
+        super().write_dl(kept, col_max, col_spacing)
 
 
 def _reclass(param: Any) -> Any:

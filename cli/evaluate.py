@@ -207,7 +207,8 @@ def eval_(
         PresetChoice | None,
         typer.Option(
             "--recipe",
-            help="kt3d-video-loo / adelaide-pairs-loo: the recipe each fold trains (default: the shipped one).",
+            help="kt3d-video-loo / adelaide-pairs-loo: the recipe each fold trains, one of "
+            f"{', '.join(c.value for c in PresetChoice)} (default: the shipped one).",
         ),
     ] = None,
     steps: Annotated[int | None, typer.Option("--steps", min=1, help="Training steps per fold.")] = None,
@@ -217,7 +218,11 @@ def eval_(
     lr: Annotated[float | None, typer.Option("--lr", help="Learning rate of each fold.")] = None,
     loss: Annotated[
         LossChoice | None,
-        typer.Option("--loss", help="Per-fold training loss (default: l2); the losses of 'moseg train --loss'."),
+        typer.Option(
+            "--loss",
+            help=f"Per-fold training loss: {', '.join(c.value for c in LossChoice)} (default: l2; see 'moseg train "
+            "--help').",
+        ),
     ] = None,
     synthetic_weight: Annotated[
         float, typer.Option("--synthetic-weight", help="LOO: weight of synthetic clips mixed into each fold.")
@@ -232,7 +237,11 @@ def eval_(
     rigid_check: RigidCheck = True,
     mask_method: Annotated[
         MaskMethodChoice | None,
-        typer.Option("--mask-method", help="End-to-end protocols: the dense-mask method (default: the pipeline's)."),
+        typer.Option(
+            "--mask-method",
+            help=f"End-to-end protocols: the dense-mask method, {', '.join(c.value for c in MaskMethodChoice)} "
+            "(default: the pipeline's).",
+        ),
     ] = None,
     method: Annotated[
         MethodChoice | None,

@@ -462,3 +462,9 @@ def test_eval_help_lists_protocols_by_name_at_80_columns() -> None:
     assert "<name>" in arguments and "|" not in arguments.replace("│", "")  # no choice list in a sliver
     words = arguments.replace("│", " ").replace(",", " ").replace(".", " ").replace(";", " ").split()
     assert set(PROTOCOLS) <= set(words)  # every name, whole
+    # The help texts get the width: no line over 80, and an option's help starts on its own line at
+    # column <= 34 and runs on for more than 40 characters (rich's boxed table left them 16).
+    lines = text.splitlines()
+    assert max(map(len, lines)) <= 80
+    loss = next(line for line in lines if line.lstrip().startswith("--loss"))
+    assert loss.index("Per-fold") <= 34 and len(loss) - loss.index("Per-fold") > 40, loss
