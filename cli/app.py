@@ -22,7 +22,6 @@ import textwrap
 from collections.abc import Callable, Iterator
 from typing import Annotated, Any, TypeVar
 
-import click
 import typer
 from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
@@ -141,13 +140,13 @@ class MosegCommand(TyperCommand):
             super().format_help(ctx, formatter)
 
 
-class _PlainFormatter(click.HelpFormatter):
+class _PlainFormatter(_click.HelpFormatter):
     """Click's plain help layout, with help texts wrapped at spaces only: `hopkins-test`, not
     `hopkins-` / `test` (names are copied from help)."""
 
     def write_dl(self, rows: Any, col_max: int = 30, col_spacing: int = 2) -> None:
         rows = list(rows)
-        first_col = min(max((click.formatting.term_len(term) for term, _ in rows), default=0), col_max) + col_spacing
+        first_col = min(max((_click.formatting.term_len(term) for term, _ in rows), default=0), col_max) + col_spacing
         width = max(self.width - first_col - 2, 10)
         # A paragraph that starts with \b is kept as given (click's wrap_text), so the wrapping here stays.
         kept = [
