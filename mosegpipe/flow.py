@@ -58,6 +58,13 @@ class FlowConfig:
             the GIL, so two threads use both cores of a small machine (each thread has its own DIS).
         patch_stride: DIS patch stride in pixels (None = the preset's: 3 for medium).
         refinement_iterations: DIS variational refinement iterations (None = the preset's: 5 for medium).
+        both_directions: a frame between two others takes, per pixel, the smaller camera residual and
+            the smaller forward-backward error of its flow to the next frame and its flow to the one
+            before (each with its own camera fit). A band beside a moving object is occluded in one
+            of its neighbours only, so one of the two flows is right there: the band's residual (the
+            flow smoothed across the object's border) drops out, the object's own stays (it moves
+            in both). DAVIS dev J of the moving masks (25 frames pooled) 0.676 -> 0.713; False =
+            the next frame's flow only.
     """
 
     preset: str = "medium"
@@ -68,6 +75,7 @@ class FlowConfig:
     workers: int = 2
     patch_stride: int | None = None
     refinement_iterations: int | None = None
+    both_directions: bool = True
 
     def __post_init__(self) -> None:
         if self.preset not in DIS_PRESETS:
@@ -207,12 +215,15 @@ def _evidence(
 
 @dataclass(frozen=True)
 class _Pair:
-    """Frames t and t+1 of one shot: the flows both ways and frame t's evidence from them."""
+    """Frames t and t+1 of one shot: the flows both ways, frame t's evidence from the forward flow and
+    frame t+1's from the backward one."""
 
     forward: npt.NDArray[np.float32]
     backward: npt.NDArray[np.float32]
     residual: npt.NDArray[np.float32]
     fb_error: npt.NDArray[np.float32]
+    back_residual: npt.NDArray[np.float32]
+    back_fb_error: npt.NDArray[np.float32]
 
 
 class FlowStream:
@@ -254,7 +265,9 @@ class FlowStream:
 
     def _pair(self, gray0: npt.NDArray[np.uint8], gray1: npt.NDArray[np.uint8]) -> _Pair:
         forward, backward = self._flow(gray0, gray1), self._flow(gray1, gray0)
-        return _Pair(forward, backward, *_evidence(forward, backward, self.cfg))
+        return _Pair(
+            forward, backward, *_evidence(forward, backward, self.cfg), *_evidence(backward, forward, self.cfg)
+        )
 
     def add(self, index: int, image: npt.NDArray[np.uint8], new_shot: bool = False) -> None:
         """Hands over the next frame.
@@ -279,7 +292,8 @@ class FlowStream:
         """FrameMotion of successive frames (at least 2, added one after the other in one shot), waiting for their flows.
 
         Frame t uses its flow to the next frame (checked by the flow back); the last frame its flow
-        back to the frame before (checked by the flow forward), as `frame_motion` does.
+        back to the frame before (checked by the flow forward); with `cfg.both_directions` the frames
+        between take the smaller of both, as `frame_motion` does.
         """
         if len(indices) < 2:
             raise ValueError(f"motion needs at least 2 frames, got {len(indices)}")
@@ -289,11 +303,15 @@ class FlowStream:
             if after != b or job is None:
                 raise ValueError(f"no flow from frame {a} to frame {b} (not added in turn, forgotten or a shot cut)")
         pairs = [job.result() for _, job in jobs if job is not None]
-        last = pairs[-1]
-        residual, fb_error = _evidence(last.backward, last.forward, self.cfg)
+        residual = np.stack([p.residual for p in pairs] + [pairs[-1].back_residual])
+        fb_error = np.stack([p.fb_error for p in pairs] + [pairs[-1].back_fb_error])
+        if self.cfg.both_directions:
+            for t, before in enumerate(pairs[:-1], start=1):  # frame t, between pairs t-1 and t
+                np.minimum(residual[t], before.back_residual, out=residual[t])
+                np.minimum(fb_error[t], before.back_fb_error, out=fb_error[t])
         return FrameMotion(
-            np.stack([p.residual for p in pairs] + [residual]),
-            np.stack([p.fb_error for p in pairs] + [fb_error]),
+            residual,
+            fb_error,
             self.cfg.scale,
             np.stack([p.forward for p in pairs]),
             np.stack([p.backward for p in pairs]),
@@ -310,7 +328,8 @@ def frame_motion(images: npt.NDArray[np.uint8], cfg: FlowConfig = FlowConfig()) 
     """The camera residual and flow consistency of every frame of a stack.
 
     Frame t < T-1 uses its flow to frame t+1 (checked by the flow back); the last frame its flow back
-    to frame T-2 (checked by the flow forward).
+    to frame T-2 (checked by the flow forward); with `cfg.both_directions` (the default) frames
+    0 < t < T-1 take the smaller residual and forward-backward error of both.
 
     Args:
         images: (T, H, W, 3) uint8 RGB, T >= 2.

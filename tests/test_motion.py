@@ -65,6 +65,26 @@ def test_frame_motion_separate_the_moving_square() -> None:
     assert np.median(res[~gt]) < 0.5
 
 
+def test_both_directions_take_the_smaller_evidence_and_shrink_the_band_beside_the_mover() -> None:
+    images, gt = _scene(frames=5)
+    one = frame_motion(images, FlowConfig(both_directions=False))
+    both = frame_motion(images, FlowConfig(both_directions=True))
+    # The end frames have one flow each, the same either way; a middle frame takes the smaller residual.
+    for t in (0, 4):
+        np.testing.assert_array_equal(both.residual[t], one.residual[t])
+    assert np.all(both.residual[1:4] <= one.residual[1:4]) and np.all(both.fb_error[1:4] <= one.fb_error[1:4])
+    assert (both.residual[1:4] < one.residual[1:4]).any()
+    # The flow to the next frame smears the square over a band beside it, the flow back does not there:
+    # the band's residual drops, the square's own stays.
+    band = np.zeros_like(gt[1:4])
+    inner = np.zeros_like(gt[1:4])
+    for i, m in enumerate(gt[1:4]):
+        band[i] = (cv2.dilate(m.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0) & ~m
+        inner[i] = cv2.erode(m.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0
+    assert both.residual[1:4][band].mean() < 0.8 * one.residual[1:4][band].mean()
+    assert np.median(both.residual[1:4][inner]) > 2.0
+
+
 def test_frame_motion_at_half_scale_are_in_that_scale() -> None:
     images, _ = _scene(frames=2)
     motion = frame_motion(images, FlowConfig(scale=0.5))
