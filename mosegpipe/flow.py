@@ -288,33 +288,38 @@ class FlowStream:
                 self._pairs[before] = (index, job)
         self._last = (index, gray)
 
-    def motion(self, indices: Sequence[int]) -> FrameMotion:
+    def motion(self, indices: Sequence[int], after: int | None = None) -> FrameMotion:
         """FrameMotion of successive frames (at least 2, added one after the other in one shot), waiting for their flows.
 
         Frame t uses its flow to the next frame (checked by the flow back); the last frame its flow
         back to the frame before (checked by the flow forward); with `cfg.both_directions` the frames
-        between take the smaller of both, as `frame_motion` does.
+        between take the smaller of both, as `frame_motion` does, and so does the last frame when
+        `after` names the frame added after it (its flows are used for that, not returned).
         """
         if len(indices) < 2:
             raise ValueError(f"motion needs at least 2 frames, got {len(indices)}")
+        steps = list(zip(indices, [*indices[1:], *([] if after is None else [after])]))
         with self._lock:
-            jobs = [self._pairs.get(a, (None, None)) for a in indices[:-1]]
-        for (after, job), a, b in zip(jobs, indices, indices[1:]):
-            if after != b or job is None:
+            jobs = [self._pairs.get(a, (None, None)) for a, _ in steps]
+        for (following, job), (a, b) in zip(jobs, steps):
+            if following != b or job is None:
                 raise ValueError(f"no flow from frame {a} to frame {b} (not added in turn, forgotten or a shot cut)")
         pairs = [job.result() for _, job in jobs if job is not None]
-        residual = np.stack([p.residual for p in pairs] + [pairs[-1].back_residual])
-        fb_error = np.stack([p.fb_error for p in pairs] + [pairs[-1].back_fb_error])
+        inside = pairs[: len(indices) - 1]
+        residual = np.stack([p.residual for p in inside] + [inside[-1].back_residual])
+        fb_error = np.stack([p.fb_error for p in inside] + [inside[-1].back_fb_error])
         if self.cfg.both_directions:
-            for t, before in enumerate(pairs[:-1], start=1):  # frame t, between pairs t-1 and t
-                np.minimum(residual[t], before.back_residual, out=residual[t])
-                np.minimum(fb_error[t], before.back_fb_error, out=fb_error[t])
+            for t in range(1, len(indices)):  # frame t, between pair t-1 (its flow back) and pair t (forward)
+                if t < len(pairs):
+                    forward = (pairs[t].residual, pairs[t].fb_error)
+                    np.minimum(inside[t - 1].back_residual, forward[0], out=residual[t])
+                    np.minimum(inside[t - 1].back_fb_error, forward[1], out=fb_error[t])
         return FrameMotion(
             residual,
             fb_error,
             self.cfg.scale,
-            np.stack([p.forward for p in pairs]),
-            np.stack([p.backward for p in pairs]),
+            np.stack([p.forward for p in inside]),
+            np.stack([p.backward for p in inside]),
         )
 
     def forget(self, before: int) -> None:

@@ -256,8 +256,8 @@ def segment_video(
         windows = stack.enter_context(
             contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
         )
-        for window, first_labelled in windows:
-            yield _label_window(window, first_labelled, cfg, model, run, masks, stream)
+        for window, first_labelled, after in windows:
+            yield _label_window(window, first_labelled, cfg, model, run, masks, stream, after)
             del window  # from here on its frames live only in the result: a few windows' frames are held
     _report_video_end(path, cfg, info, run, max_frames)
 
@@ -325,15 +325,20 @@ def _read_windows(
     max_frames: int | None,
     frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
     stream: FlowStream | None = None,
-) -> Iterator[tuple[list[_Frame], bool]]:
+) -> Iterator[tuple[list[_Frame], bool, int | None]]:
     """Reads and tracks the frames and cuts them into windows, each as soon as it is complete.
 
     Each frame is handed to `stream` (when given and the frames are large enough for dense flow),
     which starts its flows to and from the frame before at once (not across a shot cut).
 
+    With a `stream`, a full window is held until the next frame is read: its flows to and from the
+    window's last frame give that frame the evidence of both directions (FlowConfig.both_directions),
+    as the window's other frames have it.
+
     Yields:
         (the window's frames, whether its first frame was labelled by the window before: windows
-        share their boundary frame, except across a shot cut).
+        share their boundary frame, except across a shot cut; the index of the frame after the
+        window's last in the same shot, whose flows are in `stream`, or None).
 
     Raises:
         InputError: unreadable input or fewer than cfg.frames frames.
@@ -342,6 +347,7 @@ def _read_windows(
     tracker = KLTTracker(replace(cfg.track, reseed=True, reseed_every=f - 1))
     window: list[_Frame] = []
     first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
+    held: tuple[list[_Frame], bool] | None = None  # a full window waiting for the next frame's flows
     frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames) if frames is None else iter(frames)
     while True:
         with decode_errors(path):
@@ -356,23 +362,31 @@ def _read_windows(
         cut = bool(window) and _is_cut(window[-1][2], ids, cfg)
         if stream is not None:
             stream.add(t, frame, new_shot=cut)
+        if held is not None:
+            yield *held, None if cut or stream is None else t
+            held = None
         if cut:
             # A shot cut: the window ends on the frame before, a new one starts on this frame with
             # tracks detected afresh (the few that survived the cut landed on unrelated content).
             run.cuts.add(t)
             ids, xy = tracker.restart(frame)
             if not first_done or len(window) > 1:
-                yield window, first_done
+                yield window, first_done, None
             window, first_done = [], False
         window.append((t, frame, ids, xy))
         if len(window) == f:
             # Later windows start on the previous one's last frame, already labelled there.
-            yield window, first_done
+            if stream is not None and stream.cfg.both_directions:
+                held = (window, first_done)
+            else:
+                yield window, first_done, None
             window, first_done = [window[-1]], True
+    if held is not None:
+        yield *held, None
     if run.num_frames < f:
         raise InputError(f"{path}: only {_frames(run.num_frames)} could be read; --frames needs {f}")
     if not first_done or len(window) > 1:
-        yield window, first_done
+        yield window, first_done, None
 
 
 def _is_cut(before: npt.NDArray[np.int64], after: npt.NDArray[np.int64], cfg: PipelineConfig) -> bool:
@@ -435,10 +449,12 @@ def _label_window(
     run: _VideoRun,
     masks: bool,
     stream: FlowStream | None = None,
+    after: int | None = None,
 ) -> WindowResult:
     """Clusters one window and labels its frames (all but the first when the window before labelled that one).
 
-    With the motion masks, the window's flows come from `stream` (handed every frame by `_read_windows`).
+    With the motion masks, the window's flows come from `stream` (handed every frame by `_read_windows`),
+    and those between its last frame and the frame `after` it (when not None).
     """
     before = run.prev  # the last labelled window's labels: tracks that end inside this window keep theirs
     common, found = _cluster_window(window, cfg, model, run)
@@ -452,7 +468,7 @@ def _label_window(
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
-        moving = moving_from_motion(images, stream.motion(indices), cfg.mask.motion, first=skip)
+        moving = moving_from_motion(images, stream.motion(indices, after=after), cfg.mask.motion, first=skip)
         stream.forget(indices[-1])  # the next window starts on this one's last frame
     labelled = tuple(
         _labelled_frame(item, by_id, before, cfg.mask, masks, moved) for item, moved in zip(window[skip:], moving)
