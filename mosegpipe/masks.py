@@ -466,6 +466,50 @@ def label_moving_pixels(
     return out
 
 
+def carry_unclustered(
+    mask: npt.NDArray[np.uint8], previous: npt.NDArray[np.uint8] | None, min_share: float = 0.3
+) -> npt.NDArray[np.uint8]:
+    """A whole video's frame mask with its MOVING_UNCLUSTERED regions given the moving label they had.
+
+    Each connected region of MOVING_UNCLUSTERED pixels (moving, but no track of a moving motion in
+    the frame: the window's clustering merged the object into the background, or its tracks were
+    lost) takes the moving label that covers most of it in the frame before, when that label covers at
+    least `min_share` of it: an object keeps its identity through the windows where the clustering
+    misses it, instead of turning into an anonymous mover. A label counts when it is neither this
+    frame's background (its most common value) nor MOVING_UNCLUSTERED or UNKNOWN.
+
+    Args:
+        mask: (H, W) uint8 label image of this frame (`moving_to_labels`).
+        previous: the frame before's final mask, same shape (None: the first frame of a shot).
+        min_share: least share of the region the label must cover in the frame before.
+
+    Returns:
+        (H, W) uint8: `mask` itself when nothing changes, else a relabelled copy.
+    """
+    unclustered = mask == MOVING_UNCLUSTERED
+    if previous is None or previous.shape != mask.shape or not unclustered.any():
+        return mask
+    background = int(np.bincount(mask.ravel(), minlength=256).argmax())
+    num, regions = cv2.connectedComponents(unclustered.astype(np.uint8), connectivity=8)
+    before = previous.astype(np.int64)
+    usable = (before != background) & (before != MOVING_UNCLUSTERED) & (before != UNKNOWN) & unclustered
+    if not usable.any():
+        return mask
+    # counts[r, l]: pixels of region r that carried label l in the frame before
+    counts = np.zeros((num, 256), np.int64)
+    np.add.at(counts, (regions[usable], before[usable]), 1)
+    sizes = np.bincount(regions[unclustered], minlength=num)
+    best = counts.argmax(axis=1)
+    take = counts[np.arange(num), best] >= min_share * np.maximum(sizes, 1)
+    take[0] = False  # region 0: the pixels that are not MOVING_UNCLUSTERED
+    if not take.any():
+        return mask
+    out = mask.copy()
+    relabel = take[regions] & unclustered
+    out[relabel] = best[regions[relabel]].astype(np.uint8)
+    return out
+
+
 def moving_to_labels(
     moving: npt.NDArray[np.bool_],
     xy: npt.NDArray[np.float32],

@@ -151,3 +151,25 @@ def test_overlay_mask_tints_moving_motions_and_greys_unknown() -> None:
     np.testing.assert_array_equal(out[0, 1], [114, 50, 50])  # (100 + 128) / 2, (100 + 0) / 2
     np.testing.assert_array_equal(out[0, 2], [50, 114, 50])
     np.testing.assert_array_equal(out[1, 1], [120, 120, 120])  # grey: 0.6 * 100 + 60
+
+
+def test_carry_unclustered_gives_an_anonymous_mover_the_label_it_had_in_the_frame_before() -> None:
+    from mosegpipe.masks import MOVING_UNCLUSTERED, carry_unclustered
+
+    previous = np.zeros((40, 60), np.uint8)
+    previous[5:20, 5:20] = 3  # an object labelled 3
+    previous[25:35, 40:55] = 7  # another, labelled 7
+    mask = np.zeros((40, 60), np.uint8)
+    mask[7:22, 7:22] = MOVING_UNCLUSTERED  # the first moved 2 px; no clustered motion reached it
+    mask[25:35, 5:15] = MOVING_UNCLUSTERED  # a new mover where nothing moved before
+    mask[0:3, 50:60] = UNKNOWN
+    out = carry_unclustered(mask, previous)
+    assert (out[7:22, 7:22] == 3).all()  # most of it was 3 in the frame before
+    assert (out[25:35, 5:15] == MOVING_UNCLUSTERED).all()  # nothing to carry: stays anonymous
+    assert (out[0:3, 50:60] == UNKNOWN).all() and (out[mask == 0] == 0).all()
+    assert carry_unclustered(mask, None) is mask  # the first frame of a shot
+    # A label that covers too little of the region, or is this frame's background, is not taken.
+    sliver = np.zeros_like(previous)
+    sliver[7:9, 7:22] = 3
+    assert (carry_unclustered(mask, sliver)[7:22, 7:22] == MOVING_UNCLUSTERED).all()
+    assert (carry_unclustered(mask, np.zeros_like(previous)) == mask).all()

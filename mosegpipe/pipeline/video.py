@@ -33,7 +33,7 @@ from mosegpipe.flow import FlowStream, flow_fits
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
-from mosegpipe.masks import MaskConfig, labels_to_mask, moving_to_labels
+from mosegpipe.masks import MaskConfig, carry_unclustered, labels_to_mask, moving_to_labels
 from mosegpipe.motion import moving_from_motion
 from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames
 from mosegpipe.pipeline.config import PipelineConfig
@@ -278,6 +278,8 @@ class _VideoRun:
         num_done: frames of the windows labelled so far.
         cuts: frames that start a new shot.
         ambiguous: (first, last) frame of each window whose K was ambiguous.
+        last_mask: the last labelled frame's mask (None at the start of a shot): the moving regions
+            no clustered motion reached take the label they had there (`masks.carry_unclustered`).
     """
 
     book: LabelBook = field(default_factory=LabelBook)
@@ -289,6 +291,7 @@ class _VideoRun:
     num_done: int = 0
     cuts: set[int] = field(default_factory=set)
     ambiguous: list[tuple[int, int]] = field(default_factory=list)
+    last_mask: npt.NDArray[np.uint8] | None = None
 
 
 def _no_labels() -> npt.NDArray[np.int64]:
@@ -470,9 +473,15 @@ def _label_window(
         images = np.stack([img for _, img, _, _ in window])
         moving = moving_from_motion(images, stream.motion(indices, after=after), cfg.mask.motion, first=skip)
         stream.forget(indices[-1])  # the next window starts on this one's last frame
-    labelled = tuple(
-        _labelled_frame(item, by_id, before, cfg.mask, masks, moved) for item, moved in zip(window[skip:], moving)
-    )
+    if not first_labelled:  # a shot starts here: nothing to carry over
+        run.last_mask = None
+    labelled = []
+    for item, moved in zip(window[skip:], moving):
+        frame = _labelled_frame(item, by_id, before, cfg.mask, masks, moved)
+        if frame.mask is not None:
+            frame = replace(frame, mask=carry_unclustered(frame.mask, run.last_mask))
+            run.last_mask = frame.mask
+        labelled.append(frame)
     run.num_windows += 1
     run.num_done += len(labelled)
     result = WindowResult(
@@ -482,7 +491,7 @@ def _label_window(
         k=found.k,
         track_ids=found.track_ids,
         labels=found.labels,
-        frames=labelled,
+        frames=tuple(labelled),
         num_motions=run.book.next_label,
         num_labels_reused=run.book.num_reused,
         num_frames_read=run.num_done,
