@@ -558,6 +558,8 @@ def motion_masks(
     track_ids: npt.NDArray[np.int64],
     labels: npt.NDArray[np.int64],
     cfg: MaskConfig = MaskConfig(),
+    before: npt.NDArray[np.uint8] | None = None,
+    after: npt.NDArray[np.uint8] | None = None,
 ) -> npt.NDArray[np.uint8]:
     """The "motion" masks of a clip: moving pixels from the dense flow, labelled by the clip's tracks.
 
@@ -567,11 +569,12 @@ def motion_masks(
         track_ids: (M,) int64 rows of `tracks` that carry labels.
         labels: (M,) int64 their labels; the one most of them carry is the background.
         cfg: mask settings (cfg.motion; the watershed's for the borders between moving motions).
+        before, after: the source's frames next to the clip, as evidence (`motion.moving_masks`).
 
     Returns:
         (T, H, W) uint8 masks.
     """
-    moving = moving_masks(images, cfg.motion)
+    moving = moving_masks(images, cfg.motion, before=before, after=after)
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     background = max(background_label(labels), 0)
     out = np.empty(moving.shape, dtype=np.uint8)

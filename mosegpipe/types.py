@@ -25,12 +25,17 @@ class Frames:
         fps: frames per second of the source (0.0 when unknown, e.g. a folder of images).
         source: path or name the frames came from.
         start: index of images[0] in the source video.
+        before: (H, W, 3) the source's frame just before images[0], or None: evidence for the motion
+            masks only (the first frame's flow back), never segmented.
+        after: (H, W, 3) the source's frame just after the last, or None: as `before`, at the other end.
     """
 
     images: npt.NDArray[np.uint8]
     fps: float = 0.0
     source: str = ""
     start: int = 0
+    before: npt.NDArray[np.uint8] | None = None
+    after: npt.NDArray[np.uint8] | None = None
 
     @property
     def num_frames(self) -> int:

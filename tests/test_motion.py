@@ -85,6 +85,28 @@ def test_both_directions_take_the_smaller_evidence_and_shrink_the_band_beside_th
     assert np.median(both.residual[1:4][inner]) > 2.0
 
 
+def test_frames_next_to_the_stack_give_its_end_frames_both_directions() -> None:
+    from dataclasses import replace
+
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import moving_from_motion
+
+    images, _ = _scene(frames=6)
+    cfg = MotionMaskConfig()
+    full = frame_motion(images, cfg.flow)
+    inner = FrameMotion(full.residual[1:5], full.fb_error[1:5], full.scale, full.forward[1:4], full.backward[1:4])
+    got = moving_masks(images[1:5], cfg, before=images[0], after=images[5])
+    np.testing.assert_array_equal(got, moving_from_motion(images[1:5], inner, cfg))
+    alone = frame_motion(images[1:5], cfg.flow)  # its end frames have one flow each
+    for t in (0, 3):
+        assert (inner.residual[t] <= alone.residual[t]).all() and (inner.residual[t] < alone.residual[t]).any()
+    # Without both directions the neighbours take no part.
+    one = replace(cfg, flow=replace(cfg.flow, both_directions=False))
+    np.testing.assert_array_equal(
+        moving_masks(images[1:5], one, before=images[0], after=images[5]), moving_masks(images[1:5], one)
+    )
+
+
 def test_frame_motion_at_half_scale_are_in_that_scale() -> None:
     images, _ = _scene(frames=2)
     motion = frame_motion(images, FlowConfig(scale=0.5))

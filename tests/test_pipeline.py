@@ -18,7 +18,7 @@ import pytest
 from mosegpipe import pipeline
 from mosegpipe.errors import InputError, OutputExistsError, TooFewTracksError
 from mosegpipe.io import read_palette_png, read_video
-from mosegpipe.masks import overlay_image, overlay_mask
+from mosegpipe.masks import MaskConfig, overlay_image, overlay_mask
 from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_pair_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_frames, segment_pair
@@ -59,6 +59,22 @@ def clip_result(
 # ---------------------------------------------------------------------------------------------
 # Segmentation
 # ---------------------------------------------------------------------------------------------
+
+
+def test_segment_clip_reads_the_frames_next_to_the_clip_as_evidence(
+    clip_result: pipeline.ClipResult, scene: RenderedClip, tmp_path: Path, model5: SubspaceNet
+) -> None:
+    # Frames 0-4 of 6: the 6th is the evidence after; nothing before frame 0.
+    assert clip_result.frames.num_frames == 5 and clip_result.frames.before is None
+    np.testing.assert_array_equal(clip_result.frames.after, scene.frames[5])
+    folder = write_frames(tmp_path / "frames", scene.frames)
+    late = segment_clip(folder, PipelineConfig(frames=5, start=1), model5)  # frames 1-5: the last of the source
+    np.testing.assert_array_equal(late.frames.images, scene.frames[1:6])
+    np.testing.assert_array_equal(late.frames.before, scene.frames[0])
+    assert late.frames.after is None and late.frames.start == 1 and late.masks.shape[0] == 5
+    watershed = PipelineConfig(frames=5, mask=MaskConfig(method="watershed"))
+    plain = segment_clip(folder, watershed, model5)  # masks that take no flow read no neighbours
+    assert plain.frames.before is None and plain.frames.after is None
 
 
 def test_segment_clip_separates_the_moving_objects(clip_result: pipeline.ClipResult, scene: RenderedClip) -> None:

@@ -131,7 +131,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     else:
         emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
     t0 = time.perf_counter()
-    masks = clip_masks(frames.images, tracks, traj.track_ids, clustering.labels, cfg)
+    masks = clip_masks(frames.images, tracks, traj.track_ids, clustering.labels, cfg, frames.before, frames.after)
     timings["masks"] = time.perf_counter() - t0
     return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, model_info(model))
 
@@ -156,6 +156,8 @@ def clip_masks(
     track_ids: npt.NDArray[np.int64],
     labels: npt.NDArray[np.int64],
     cfg: PipelineConfig = PipelineConfig(),
+    before: npt.NDArray[np.uint8] | None = None,
+    after: npt.NDArray[np.uint8] | None = None,
 ) -> npt.NDArray[np.uint8]:
     """The dense masks of a clip from its labelled tracks (segment_frames' mask stage).
 
@@ -169,12 +171,14 @@ def clip_masks(
         track_ids: (M,) rows of `tracks` that carry labels (live through the whole clip).
         labels: (M,) their labels.
         cfg: mask settings (and the rigid-motion settings that label the extra tracks).
+        before, after: the source's frames next to the clip (Frames.before / after), evidence for the
+            motion masks only.
 
     Returns:
         (T, H, W) uint8 masks, 255 = unknown.
     """
     if cfg.mask.method == "motion" and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.mask.motion.flow):
-        return motion_masks(images, tracks, track_ids, labels, cfg.mask)
+        return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:
         corners = spread_corners(images[0], budget, tracks.xy[tracks.visible[:, 0], 0], cfg.track)
@@ -193,6 +197,33 @@ def clip_masks(
             size_hw=tracks.size_hw,
         )
     return labels_to_masks(tracks, track_ids, labels, cfg.mask, images)
+
+
+def _with_context(path: str | Path, cfg: PipelineConfig) -> Frames | None:
+    """cfg.frames frames from cfg.start with the source's frames just before and after them as
+    Frames.before / after (evidence for the motion masks), read in one pass; None when the masks do
+    not use them, or the clip with its neighbours cannot be read (the caller then reads the clip alone,
+    and reports what is wrong with it)."""
+    if cfg.mask.method != "motion" or not cfg.mask.motion.flow.both_directions:
+        return None
+    lead = 1 if cfg.start > 0 else 0
+    try:
+        with decode_errors(path):
+            wide = read_video(path, max_frames=cfg.frames + lead + 1, start=cfg.start - lead)
+    except InputError:  # e.g. the frame after the clip does not decode
+        return None
+    end = lead + cfg.frames
+    if wide.num_frames < end:
+        return None
+    images = wide.images
+    return Frames(
+        images=images[lead:end],
+        fps=wide.fps,
+        source=wide.source,
+        start=cfg.start,
+        before=images[0] if lead else None,
+        after=images[end] if images.shape[0] > end else None,
+    )
 
 
 def _container_frames(path: str | Path) -> int | None:
@@ -222,8 +253,10 @@ def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model
         TooFewTracksError: see segment_frames.
     """
     t0 = time.perf_counter()
-    with decode_errors(path):
-        frames = read_video(path, max_frames=cfg.frames, start=cfg.start)
+    frames = _with_context(path, cfg)
+    if frames is None:
+        with decode_errors(path):
+            frames = read_video(path, max_frames=cfg.frames, start=cfg.start)
     if frames.num_frames < cfg.frames:
         claimed = _container_frames(path)
         hint = ""
