@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -87,8 +88,11 @@ def main() -> None:
     if rerun is None:
         sys.exit("the `rerun` program of rerun-sdk is not on PATH")
     port = _free_port()
-    sink = subprocess.Popen(
-        [rerun, "--port", str(port), "--save", os.devnull], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    sink = subprocess.Popen(  # its own process group: `rerun` is a wrapper that starts the real binary
+        [rerun, "--port", str(port), "--save", os.devnull],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
     )
     time.sleep(2.0)
     live = subprocess.Popen(
@@ -119,7 +123,7 @@ def main() -> None:
             samples.append((time.monotonic() - t0, rss))
         time.sleep(1.0)
     summary = live.stdout.read().decode() if live.stdout is not None else ""
-    sink.terminate()
+    os.killpg(sink.pid, signal.SIGTERM)
     sink.wait(timeout=10)
     print(f"# moseg live for {args.seconds:.0f} s, {args.size} at {args.fps:g} frames/s from {args.video.name}")
     print(summary.strip())

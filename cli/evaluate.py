@@ -34,6 +34,7 @@ class PresetChoice(StrEnum):
 
     clip_f5 = "clip-f5"
     clip_f5_rendered = "clip-f5-rendered"
+    clip_f5_davis = "clip-f5-davis"
     base_f5 = "base-f5"
     synthetic_f5 = "synthetic-f5"
     pair_f2 = "pair-f2"

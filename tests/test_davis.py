@@ -243,3 +243,31 @@ def test_moseg_eval_davis_writes_both_methods(fake_davis: Path, tmp_path: Path) 
     ]
     assert result["summary"]["flow-homography"]["all"]["j_mean"] > 0.5
     assert "DAVIS-2016 clip5, method pipeline" in stdout and "method flow-homography" in stdout
+
+
+def test_davis_dev_tracks_for_training_never_read_the_validation_clips(tmp_path: Path) -> None:
+    from mosegpipe.training.own_tracks import davis_dev_own_clips
+
+    rng = np.random.default_rng(0)
+    root = tmp_path / "davis2016-train"
+    for name in ("alpha", "boat"):  # boat is in DAVIS_VAL: held out, so never tracked for training
+        background = cv2.GaussianBlur(rng.integers(0, 256, (120, 160), dtype=np.uint8), (3, 3), 0)
+        patch = cv2.GaussianBlur(rng.integers(0, 256, (48, 48), dtype=np.uint8), (3, 3), 0)
+        (root / name / "frames").mkdir(parents=True)
+        (root / name / "masks").mkdir()
+        for t in range(6):
+            img = background.copy()
+            img[36 : 36 + 48, 20 + 3 * t : 68 + 3 * t] = patch
+            gt = np.zeros((120, 160), np.uint8)
+            gt[36 : 36 + 48, 20 + 3 * t : 68 + 3 * t] = 255
+            cv2.imwrite(str(root / name / "frames" / f"{t:05d}.png"), np.repeat(img[..., None], 3, axis=2))
+            cv2.imwrite(str(root / name / "masks" / f"{t:05d}.png"), gt)
+    clips = davis_dev_own_clips(tmp_path, frames=5, cache_dir=tmp_path / "cache")
+    assert [c.name for c in clips] == ["alpha/f1-5", "alpha/f2-6"]
+    for clip in clips:
+        xy = clip.traj.reshape(-1, 5, 2)
+        inside = (xy[..., 0] >= 20 + 5) & (xy[..., 0] < 20 + 48 + 12 - 5) & (xy[..., 1] >= 41) & (xy[..., 1] < 79)
+        assert (clip.labels == 1).sum() >= 10 and (clip.labels == 0).sum() >= 10
+        assert not (clip.labels[~inside.any(axis=1)] == 1).any()  # a track labelled 1 is on the square
+        assert set(np.unique(clip.labels)) <= {-1, 0, 1}
+    assert sorted(p.name for p in (tmp_path / "cache").rglob("*.npz")) == ["alpha.npz"]

@@ -196,6 +196,83 @@ def adelaide_own_clips(
     return clips
 
 
+def davis_dev_own_clips(
+    data_root: str | Path,
+    frames: int = 5,
+    exclude: Collection[str] = (),
+    track: TrackConfig = TrackConfig(),
+    boundary_px: int = 5,
+    cache_dir: str | Path | None = None,
+) -> list[LabeledClip]:
+    """Our KLT tracks of every F-frame window of the DAVIS-2016 train clips of the development part.
+
+    The validation part (`data.davis.DAVIS_VAL`) is never read: it stays held out for scoring. Labels
+    from the human masks: 1 = inside the mask of the main moving object in every frame of the window,
+    0 = farther than `boundary_px` from it in every frame, -1 (context only) otherwise. Other moving
+    things are 0 here, as the masks leave them out: a weak label of the background.
+
+    Args:
+        data_root: the data folder holding ``davis2016-train/``.
+        frames: F, frames per window (every start is used, stride 1).
+        exclude: clip names to leave out.
+        track: KLT settings (the pipeline's defaults).
+        boundary_px: tracks this close to the mask's border in some frame stay unlabelled.
+        cache_dir: where tracked windows are cached (None = `default_cache_dir()`).
+
+    Returns:
+        LabeledClips named "<clip>/f<a>-<b>", traj (N, 2F) float32 pixels, labels (N,) int64.
+    """
+    import cv2
+
+    from mosegpipe.data.davis import davis_split, list_davis_clips, read_davis_clip
+
+    folder = (
+        Path(cache_dir or default_cache_dir())
+        / f"davis-dev-own-f{frames}-{cache_key('davis-dev-own', frames=frames, track=track, boundary_px=boundary_px)}"
+    )
+    kernel = np.ones((2 * boundary_px + 1, 2 * boundary_px + 1), np.uint8)
+    clips: list[LabeledClip] = []
+    for name in davis_split(list_davis_clips(data_root), "dev"):
+        if name in exclude:
+            continue
+
+        def build(name: str = name) -> dict[str, npt.NDArray[Any]]:
+            clip = read_davis_clip(data_root, name)
+            inside = np.stack([cv2.erode(g.astype(np.uint8), kernel) > 0 for g in clip.gt])
+            near = np.stack([cv2.dilate(g.astype(np.uint8), kernel) > 0 for g in clip.gt])
+            height, width = clip.gt.shape[1:]
+            out: dict[str, npt.NDArray[Any]] = {}
+            for s in range(clip.num_frames - frames + 1):
+                tracks = track_klt(Frames(images=clip.images[s : s + frames], source=name), track)
+                traj = build_trajectories(tracks, frames=frames)
+                xy = np.round(traj.data.reshape(-1, frames, 2)).astype(np.int64)
+                xs, ys = np.clip(xy[..., 0], 0, width - 1), np.clip(xy[..., 1], 0, height - 1)
+                ts = np.arange(s, s + frames)[None, :]
+                labels = np.full(len(xy), -1, np.int64)
+                labels[inside[ts, ys, xs].all(axis=1)] = 1
+                labels[~near[ts, ys, xs].any(axis=1)] = 0
+                out[f"{s}/traj"] = traj.data
+                out[f"{s}/labels"] = labels
+            log.info("%s: tracked %d windows", name, clip.num_frames - frames + 1)
+            return out
+
+        arrays = _load_or_build(folder / f"{name}.npz", build)
+        for s in sorted(int(k.split("/")[0]) for k in arrays if k.endswith("/traj")):
+            labels = arrays[f"{s}/labels"]
+            if int((labels == 1).sum()) < MIN_LABELLED or int((labels == 0).sum()) < MIN_LABELLED:
+                continue
+            clips.append(
+                LabeledClip(
+                    name=f"{name}/f{s + 1}-{s + frames}",
+                    traj=arrays[f"{s}/traj"],
+                    labels=labels,
+                    dataset="davis-dev-own",
+                    meta={"sequence": name, "start": s},
+                )
+            )
+    return clips
+
+
 @dataclass(frozen=True)
 class RenderedTracksConfig:
     """What `rendered_own_clips` renders and how it labels our tracks of it.

@@ -87,6 +87,15 @@ RECIPES: dict[str, Recipe] = {
             init="base-f5",
         ),
         Recipe(
+            "clip-f5-davis",
+            "clip-f5 with our own KLT tracks of the DAVIS-2016 train clips of the development part added "
+            "(an experiment, not shipped)",
+            TrainConfig(frames=5, steps=1500, batch_size=8, lr=1e-3, max_points=1000),
+            _F5,
+            (("kt3d-own", 0.4), ("davis-dev-own", 0.2), ("hopkins", 0.2), ("synthetic", 0.2)),
+            init="base-f5",
+        ),
+        Recipe(
             "base-f5",
             "5-frame starting point without KT3DMoSeg: synthetic clips and Hopkins155 windows",
             # No time budget, so that the steps done (and the weights) do not depend on the machine's speed.
@@ -228,6 +237,12 @@ def _adelaide_own(data_root: Path, frames: int, exclude: Collection[str]) -> lis
     return adelaide_own_clips(data_root, exclude=exclude)
 
 
+def _davis_dev_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.training.own_tracks import davis_dev_own_clips
+
+    return davis_dev_own_clips(data_root, frames=frames, exclude=exclude)
+
+
 def _augmented(sampler: Sampler, cfg: TrackAugmentConfig) -> Sampler:
     """`sampler` whose clips go through `augment_point_set` (a fresh draw of the augmentation each time)."""
 
@@ -308,6 +323,13 @@ SOURCES: dict[str, Source] = {
             "our SIFT matches of the AdelaideRMF image pairs, labels by motion agreement",
             clips=_adelaide_own,
             augment=PAIR_AUGMENT,
+        ),
+        Source(
+            "davis-dev-own",
+            "our KLT tracks of the DAVIS-2016 train clips of the development part (never the validation "
+            "part), labels from the human masks: the main object against the rest",
+            clips=_davis_dev_own,
+            augment=TRACK_AUGMENT,
         ),
         Source("lce", "the synthetic lines/circles/ellipses training split", clips=_lce, needs_data=False),
     )
