@@ -125,20 +125,38 @@ def kt3d_own_clips(
             return out
 
         arrays = _load_or_build(folder / f"{name}.npz", build)
-        starts = sorted(int(k.split("/")[0]) for k in arrays if k.endswith("/traj"))
-        for s in starts:
-            labels = arrays[f"{s}/labels"]
-            if int((labels >= 0).sum()) < MIN_LABELLED:
-                continue
-            clips.append(
-                LabeledClip(
-                    name=f"{name}/f{s + 1}-{s + frames}",
-                    traj=arrays[f"{s}/traj"],
-                    labels=labels,
-                    dataset="kt3d-own",
-                    meta={"sequence": name, "start": s},
-                )
+        clips += _window_clips(arrays, name, frames, "kt3d-own", lambda labels: int((labels >= 0).sum()))
+    return clips
+
+
+def _fewer_side(labels: npt.NDArray[np.int64]) -> int:
+    """Tracks on the side (object 1 or rest 0) with fewer of them."""
+    return min(int((labels == 1).sum()), int((labels == 0).sum()))
+
+
+def _window_clips(
+    arrays: dict[str, npt.NDArray[Any]],
+    name: str,
+    frames: int,
+    dataset: str,
+    labelled: Callable[[npt.NDArray[np.int64]], int],
+) -> list[LabeledClip]:
+    """The tracked windows of one sequence ("<start>/traj", "<start>/labels") as LabeledClips named
+    "<name>/f<a>-<b>", leaving out those where `labelled(labels)` is under MIN_LABELLED."""
+    clips = []
+    for s in sorted(int(k.split("/")[0]) for k in arrays if k.endswith("/traj")):
+        labels = arrays[f"{s}/labels"]
+        if labelled(labels) < MIN_LABELLED:
+            continue
+        clips.append(
+            LabeledClip(
+                name=f"{name}/f{s + 1}-{s + frames}",
+                traj=arrays[f"{s}/traj"],
+                labels=labels,
+                dataset=dataset,
+                meta={"sequence": name, "start": s},
             )
+        )
     return clips
 
 
@@ -257,19 +275,7 @@ def davis_dev_own_clips(
             return out
 
         arrays = _load_or_build(folder / f"{name}.npz", build)
-        for s in sorted(int(k.split("/")[0]) for k in arrays if k.endswith("/traj")):
-            labels = arrays[f"{s}/labels"]
-            if int((labels == 1).sum()) < MIN_LABELLED or int((labels == 0).sum()) < MIN_LABELLED:
-                continue
-            clips.append(
-                LabeledClip(
-                    name=f"{name}/f{s + 1}-{s + frames}",
-                    traj=arrays[f"{s}/traj"],
-                    labels=labels,
-                    dataset="davis-dev-own",
-                    meta={"sequence": name, "start": s},
-                )
-            )
+        clips += _window_clips(arrays, name, frames, "davis-dev-own", _fewer_side)
     return clips
 
 
