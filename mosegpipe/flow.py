@@ -216,14 +216,20 @@ def _evidence(
 @dataclass(frozen=True)
 class _Pair:
     """Frames t and t+1 of one shot: the flows both ways, frame t's evidence from the forward flow and
-    frame t+1's from the backward one."""
+    (with FlowConfig.both_directions; else None, see `back_evidence`) frame t+1's from the backward one."""
 
     forward: npt.NDArray[np.float32]
     backward: npt.NDArray[np.float32]
     residual: npt.NDArray[np.float32]
     fb_error: npt.NDArray[np.float32]
-    back_residual: npt.NDArray[np.float32]
-    back_fb_error: npt.NDArray[np.float32]
+    back_residual: npt.NDArray[np.float32] | None = None
+    back_fb_error: npt.NDArray[np.float32] | None = None
+
+    def back_evidence(self, cfg: FlowConfig) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """Frame t+1's (camera residual, forward-backward error) from the backward flow."""
+        if self.back_residual is not None and self.back_fb_error is not None:
+            return self.back_residual, self.back_fb_error
+        return _evidence(self.backward, self.forward, cfg)
 
 
 class FlowStream:
@@ -265,9 +271,10 @@ class FlowStream:
 
     def _pair(self, gray0: npt.NDArray[np.uint8], gray1: npt.NDArray[np.uint8]) -> _Pair:
         forward, backward = self._flow(gray0, gray1), self._flow(gray1, gray0)
-        return _Pair(
-            forward, backward, *_evidence(forward, backward, self.cfg), *_evidence(backward, forward, self.cfg)
-        )
+        # Frame t+1's evidence from the flow back: every frame's with both directions, else only a
+        # window's last frame needs it (computed then, by `motion`).
+        back = _evidence(backward, forward, self.cfg) if self.cfg.both_directions else (None, None)
+        return _Pair(forward, backward, *_evidence(forward, backward, self.cfg), *back)
 
     def add(self, index: int, image: npt.NDArray[np.uint8], new_shot: bool = False) -> None:
         """Hands over the next frame.
@@ -306,14 +313,14 @@ class FlowStream:
                 raise ValueError(f"no flow from frame {a} to frame {b} (not added in turn, forgotten or a shot cut)")
         pairs = [job.result() for _, job in jobs if job is not None]
         inside = pairs[: len(indices) - 1]
-        residual = np.stack([p.residual for p in inside] + [inside[-1].back_residual])
-        fb_error = np.stack([p.fb_error for p in inside] + [inside[-1].back_fb_error])
+        last = inside[-1].back_evidence(self.cfg)
+        residual = np.stack([p.residual for p in inside] + [last[0]])
+        fb_error = np.stack([p.fb_error for p in inside] + [last[1]])
         if self.cfg.both_directions:
-            for t in range(1, len(indices)):  # frame t, between pair t-1 (its flow back) and pair t (forward)
-                if t < len(pairs):
-                    forward = (pairs[t].residual, pairs[t].fb_error)
-                    np.minimum(inside[t - 1].back_residual, forward[0], out=residual[t])
-                    np.minimum(inside[t - 1].back_fb_error, forward[1], out=fb_error[t])
+            for t in range(1, len(pairs)):  # frame t: pair t's forward flow and pair t-1's flow back
+                back_residual, back_fb_error = pairs[t - 1].back_evidence(self.cfg)
+                np.minimum(pairs[t].residual, back_residual, out=residual[t])
+                np.minimum(pairs[t].fb_error, back_fb_error, out=fb_error[t])
         return FrameMotion(
             residual,
             fb_error,
