@@ -220,6 +220,28 @@ def test_scores_carried_along_the_flow_fill_a_frame_whose_flow_missed_the_mover(
     assert carried[0, 12:18, 12:18].all() and carried[2, 12:18, 32:38].all()
 
 
+def test_a_small_fast_mover_outweighs_a_large_slow_drift() -> None:
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import moving_from_motion
+
+    num, h, w = 2, 60, 80
+    images = np.stack([_texture(h, w, 9)] * num)
+    residual = np.full((num, h, w), 0.05, np.float32)
+    residual[:, 0:30, :] = 1.0  # a wide band drifting slowly (a stream behind the subject)
+    residual[:, 40:50, 30:40] = 12.0  # a small object moving fast
+    fb_error = np.zeros_like(residual)
+    motion = FrameMotion(residual, fb_error, 1.0)
+    base = dict(
+        work_scale=1.0, colour_weight=0.0, fb_weight=0.0, temporal_weight=0.0, min_residual_px=0.0, noise_factor=0.0
+    )
+    by_area = moving_from_motion(images, motion, MotionMaskConfig(component_power=0.0, **base))
+    by_strength = moving_from_motion(images, motion, MotionMaskConfig(**base))
+    assert by_area[:, 5:25, 5:75].all() and not by_area[:, 42:48, 32:38].any()
+    assert by_strength[:, 42:48, 32:38].all() and not by_strength[:, 5:25, 5:75].any()
+    with pytest.raises(ValueError, match="component_power"):
+        MotionMaskConfig(component_power=-1.0)
+
+
 def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
     from dataclasses import replace
 
