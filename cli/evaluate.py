@@ -53,6 +53,7 @@ class LossChoice(StrEnum):
     lifted = "lifted"
     facility = "facility"
     mimi_point = "mimi-point"
+    mimi_mean = "mimi-mean"
 
 
 class ProtocolChoice(StrEnum):
@@ -138,7 +139,8 @@ def train(
             help="Override the recipe's loss: mimi (the paper's MaxInterMinIntra), l2, l2-balanced (every pair of groups "
             "weighted alike) or ce (affinity losses), "
             "triplet, lifted or facility (the metric-learning baselines of the paper's Table 2), "
-            "mimi-point (MaxInterMinIntra with the worst point's spread as its intra term).",
+            "mimi-point (MaxInterMinIntra with the worst point's spread as its intra term), "
+            "mimi-mean (with the widest group's mean squared spread).",
         ),
     ] = None,
     seed: Annotated[int | None, typer.Option("--seed", help="Override the recipe's random seed.")] = None,

@@ -17,6 +17,7 @@ from mosegpipe.training.losses import (
     l2_balanced_affinity_loss,
     lifted_structured_loss,
     mimi_loss,
+    mimi_mean_loss,
     mimi_point_loss,
     triplet_loss,
 )
@@ -43,6 +44,24 @@ def test_mimi_hand_computed() -> None:
     # The per-point variant takes the farthest point instead: 4 (a point of group 1, 2 away from (5,2)).
     point = -0.3 * math.log(20.0 + MIMI_EPS) + 0.7 * math.log(4.0 + MIMI_EPS)
     assert mimi_point_loss(z, lab, mask, alpha=0.3).item() == pytest.approx(point, abs=1e-6)
+
+
+def test_mimi_mean_takes_the_widest_mean_spread_and_scores_a_separated_embedding_below_a_collapse() -> None:
+    # The groups of test_mimi_hand_computed: mean squared spreads 2 / 2 = 1 and 8 / 3; inter 20.
+    z, lab, mask = _batch([[0, 0], [2, 0], [5, 0], [5, 2], [5, 4]], [0, 0, 1, 1, 1])
+    expected = -0.3 * math.log(20.0 + MIMI_EPS) + 0.7 * math.log(8.0 / 3.0 + MIMI_EPS)
+    assert mimi_mean_loss(z, lab, mask, alpha=0.3).item() == pytest.approx(expected, abs=1e-6)
+    # Two groups of 50 points each, mean squared spread ~0.1 around means 1.0 apart (squared): the sum
+    # form (scatter ~5 > inter 1) scores this above a total collapse (every point on one spot: loss 0
+    # at alpha 0.5), the mean form (0.1 < 1) below it.
+    gen = torch.Generator().manual_seed(0)
+    pts = torch.randn(100, 3, generator=gen, dtype=torch.float64) * math.sqrt(0.1 / 3)
+    pts[50:, 0] += 1.0
+    z, lab, mask = pts.unsqueeze(0), torch.tensor([[0] * 50 + [1] * 50]), torch.ones(1, 100, dtype=torch.bool)
+    collapsed = torch.zeros_like(z)
+    assert mimi_loss(collapsed, lab, mask).item() == pytest.approx(0.0, abs=1e-9)
+    assert mimi_mean_loss(collapsed, lab, mask).item() == pytest.approx(0.0, abs=1e-9)
+    assert mimi_loss(z, lab, mask).item() > 0.0 > mimi_mean_loss(z, lab, mask).item()
 
 
 def test_mimi_widest_group_is_the_largest_sum_not_the_worst_point() -> None:

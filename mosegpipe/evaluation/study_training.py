@@ -475,6 +475,7 @@ LOSSES_STUDY = TrainingStudy(
             ("cross-entropy", "ce"),
             ("MaxInterMinIntra", "mimi"),
             ("MaxInterMinIntra, worst point", "mimi-point"),
+            ("MaxInterMinIntra, mean scatter", "mimi-mean"),
             ("semi-hard triplet", "triplet"),
             ("lifted structured", "lifted"),
             ("facility location", "facility"),

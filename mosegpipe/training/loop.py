@@ -244,7 +244,7 @@ def train_model(
     if bad:
         raise ConfigError(f"checkpoint steps {bad} outside 1..{cfg.steps}")
     loss_fn = LOSSES[cfg.loss]
-    kwargs: dict[str, Any] = {"alpha": cfg.alpha} if cfg.loss in ("mimi", "mimi-point") else {}
+    kwargs: dict[str, Any] = {"alpha": cfg.alpha} if cfg.loss.startswith("mimi") else {}
     model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     history: list[dict[str, float]] = []

@@ -12,7 +12,8 @@ Tensors of the wrong shape are a bug in the caller (ValueError); bad settings ar
 `LOSSES` names them for `--loss`: the paper's MaxInterMinIntra ("mimi"), the affinity losses "l2"
 and "ce", the metric-learning baselines of the paper's Table 2: "triplet" (FaceNet, semi-hard
 negatives), "lifted" (lifted structured embedding) and "facility" (the clustering-quality /
-facility-location loss), and "mimi-point" (MIMI with the worst point's spread as its intra term).
+facility-location loss), "mimi-point" (MIMI with the worst point's spread as its intra term) and
+"mimi-mean" (MIMI with the widest group's mean squared spread as its intra term).
 """
 
 from __future__ import annotations
@@ -94,7 +95,7 @@ def mimi_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Te
     Returns:
         Scalar tensor, mean over clips.
     """
-    return _mimi(z, labels, mask, alpha, "mimi_loss", per_point=False)
+    return _mimi(z, labels, mask, alpha, "mimi_loss", intra="sum")
 
 
 def mimi_point_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Tensor:
@@ -113,11 +114,34 @@ def mimi_point_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5)
     Returns:
         Scalar tensor, mean over clips.
     """
-    return _mimi(z, labels, mask, alpha, "mimi_point_loss", per_point=True)
+    return _mimi(z, labels, mask, alpha, "mimi_point_loss", intra="point")
 
 
-def _mimi(z: Tensor, labels: Tensor, mask: Tensor, alpha: float, name: str, per_point: bool) -> Tensor:
-    """The two MIMI losses: intra is the widest group's scatter, or with per_point the worst point."""
+def mimi_mean_loss(z: Tensor, labels: Tensor, mask: Tensor, alpha: float = 0.5) -> Tensor:
+    """MaxInterMinIntra with the mean squared spread of the widest group as its intra term ("mimi-mean").
+
+    As `mimi_loss`, except intra = max over groups l of s_l / n_l (n_l = the group's points): the
+    average squared distance of a group's points to their mean, on the same scale as `inter`. With
+    the paper's sum s_l the ratio intra / inter that the loss weighs grows with the group's size, so
+    an embedding whose groups are clearly apart still scores above a total collapse (every point on
+    one spot: both terms at eps, loss 0 at alpha 0.5) unless its per-point spread is under
+    inter / n_l; with the mean it scores below it as soon as the groups' spread is smaller than the
+    distance between their means.
+
+    Args:
+        z: (B, N, E) embeddings.
+        labels: (B, N) int64 groups, -1 on padding.
+        mask: (B, N) bool, True on real points.
+        alpha: weight of the inter term, in [0, 1].
+
+    Returns:
+        Scalar tensor, mean over clips.
+    """
+    return _mimi(z, labels, mask, alpha, "mimi_mean_loss", intra="mean")
+
+
+def _mimi(z: Tensor, labels: Tensor, mask: Tensor, alpha: float, name: str, intra: str) -> Tensor:
+    """The MIMI losses; intra: the widest group's summed ("sum") or mean ("mean") scatter, or the worst point."""
     z = _channels_first(z)
     if not 0.0 <= alpha <= 1.0:
         raise ConfigError(f"{name} alpha={alpha}: must lie in [0, 1]")
@@ -133,8 +157,12 @@ def _mimi(z: Tensor, labels: Tensor, mask: Tensor, alpha: float, name: str, per_
         onehot = F.one_hot(group).to(zb.dtype)  # (n, K)
         means = (onehot.transpose(0, 1) @ zb) / onehot.sum(0).unsqueeze(1)  # (K, E)
         spread = ((zb - means[group]) ** 2).sum(-1)  # (n,) squared distance of each point to its mean
-        intra = spread.max() if per_point else (onehot.transpose(0, 1) @ spread).max()
-        loss = (1.0 - alpha) * torch.log(intra + MIMI_EPS)
+        if intra == "point":
+            widest = spread.max()
+        else:
+            scatter = onehot.transpose(0, 1) @ spread  # (K,) summed squared spread of each group
+            widest = (scatter / onehot.sum(0) if intra == "mean" else scatter).max()
+        loss = (1.0 - alpha) * torch.log(widest + MIMI_EPS)
         num_groups = means.shape[0]
         if num_groups > 1:
             dist = ((means.unsqueeze(1) - means.unsqueeze(0)) ** 2).sum(-1)  # (K, K)
@@ -493,6 +521,7 @@ LOSSES: dict[str, Callable[..., Tensor]] = {
     "lifted": lifted_structured_loss,
     "facility": facility_location_loss,
     "mimi-point": mimi_point_loss,
+    "mimi-mean": mimi_mean_loss,
 }
 
 LOSS_REVISIONS: dict[str, int] = {"mimi": 2}
