@@ -11,7 +11,8 @@
 (c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
 (e) whole-video mode at 854x480 (DAVIS' size; vtest.avi resized) with each dense-mask method, against
     a bare DIS loop (medium preset, forward flow only, full resolution, one thread) and the bare KLT
-    loop of (b) on the same frames, measured right before each run.
+    loop of (b) on the same frames, measured right before each run. `--dense-methods motion@0.75 ...`
+    runs the motion masks with their mask steps at another work scale (MotionMaskConfig.work_scale).
 (d) start-up: `moseg run` on 5 frames (samples/rendered/frames) from the shell, fresh processes with
     the commands interleaved, against `python -c "import numpy, cv2"` and `python -c "import torch"`
     measured in the same rounds; then the same steps stamped one by one in a fresh process (interpreter,
@@ -230,7 +231,11 @@ def dense_table(video: Path, model: Embedder, work: Path, methods: tuple[str, ..
     ]
     for i, method in enumerate(methods):
         dis, klt = bare_dis_fps(video), bare_klt_fps(video)
-        cfg = replace(PipelineConfig(frames=5), mask=MaskConfig(method=method))
+        name, _, scale = method.partition("@")
+        mask = MaskConfig(method=name)
+        if scale:
+            mask = replace(mask, motion=replace(mask.motion, work_scale=float(scale)))
+        cfg = replace(PipelineConfig(frames=5), mask=mask)
         t0, c0 = time.perf_counter(), time.process_time()
         s = write_video_outputs(video, work / f"dense_{i}", cfg, model, overwrite=True, rrd=False)
         seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -402,6 +407,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--data-root", type=Path, default=Path(os.environ.get("MOSEG_DATA", _DEFAULT_DATA)))
     ap.add_argument("--video-frames", type=int, default=200, help="frames of the videos in whole-video mode")
     ap.add_argument("--repeats", type=int, default=3, help="warm calls per input in (a)")
+    ap.add_argument(
+        "--dense-methods",
+        nargs="+",
+        default=["motion", "watershed"],
+        help="rows of (e): mask methods, motion@SCALE for the motion masks at another work scale",
+    )
     ap.add_argument("--skip", nargs="*", default=[], choices=["clip", "video", "dense", "kt3d", "startup"])
     ap.add_argument("--startup-clip", type=Path, default=_SAMPLE_FRAMES, help="input of the start-up table (d)")
     ap.add_argument("--startup-repeats", type=int, default=5, help="rounds of the start-up table (d)")
@@ -448,7 +459,7 @@ def main(argv: list[str] | None = None) -> None:
         if "dense" not in args.skip and vtest.is_file():
             video = write_video(resized_frames(vtest, args.video_frames, (854, 480)), work / "vtest_854.avi")
             print("## (e) whole-video mode at 854x480 by dense-mask method (no recording)\n")
-            print(dense_table(video, model, work) + "\n", flush=True)
+            print(dense_table(video, model, work, tuple(args.dense_methods)) + "\n", flush=True)
         if "startup" not in args.skip:
             print("## (d) start-up: `moseg run` on 5 frames from the shell\n")
             print(startup_tables(args.startup_clip.resolve(), work, args.startup_repeats) + "\n")
