@@ -18,13 +18,13 @@ video"; the 10 val clips were not used to choose anything):
    They helped with half-resolution flow; with full-resolution flow carried along the flow they
    cost J (dev 0.661 without, 0.646 with 600 superpixels; F 0.605 vs 0.568) and 15 % of the CPU.
 5. Components weaker than a share of the strongest are dropped (specks of flow noise, ripples, a
-   stream in the background); a component's strength is its area times the square of its mean
+   stream in the background). A component's strength is its area times the square of its mean
    residual, so a small fast mover outweighs a large slowly drifting texture (by area alone the
    water behind a walking duck outweighed the duck). The share is 0.3 so that two objects moving at
    different speeds both stay (a mover 1.8x as fast as another is 3.3x as strong). Pooled dev J
-   0.712 -> 0.729 (mallard-fly 0.00 -> 0.29); at a share of 0.5 0.732, but the slower of two movers
-   is lost; with the median residual 0.732; at a share of 0.5, the median's first power 0.716 and
-   its third 0.735.
+   0.712 -> 0.729 (mallard-fly 0.00 -> 0.29). Other settings tried: share 0.5 0.732 (but the slower
+   of two movers is lost); the median residual instead of the mean 0.732; at share 0.5 the median's
+   first power 0.716, its third 0.735.
    A pixel is never moving when its residual is under 3 times the frame's median residual (the
    background's own noise, large under parallax).
 Steps 3-5 together took the dev clips from J 0.46 to 0.53 (0.57 with full-resolution flow).
