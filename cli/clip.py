@@ -31,6 +31,8 @@ from mosegpipe.cli.options import (
     ModelOpt,
     NoRrd,
     Overwrite,
+    Points,
+    PointsChoice,
     Quiet,
     RigidCheck,
     Start,
@@ -38,6 +40,7 @@ from mosegpipe.cli.options import (
     TrackerOptions,
     Verbose,
     _pipeline_cfg,
+    _value,
     option_blocks,
 )
 from mosegpipe.errors import InputError
@@ -82,6 +85,7 @@ def run(
     ] = True,
     clustering: ClusterOptions = ClusterOptions(),
     method: Method = MethodChoice.subspacenet,
+    points: Points = PointsChoice.klt,
     rigid_check: RigidCheck = True,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
@@ -108,6 +112,8 @@ def run(
         raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
     if not shot_cuts and not whole:
         raise InputError("--no-shot-cuts only applies with --whole (a clip of --frames frames is one shot)")
+    if whole and _value(points) != "klt":
+        raise InputError(f"--points {_value(points)}: clips only (--whole tracks KLT corners from window to window)")
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.inference import load_embedder
@@ -118,6 +124,7 @@ def run(
         frames,
         clustering,
         segment_method=method,
+        points=points,
         start=start,
         rigid_check=rigid_check,
         shot_cuts=shot_cuts,

@@ -20,6 +20,7 @@ from mosegpipe.cli.options import (
     MaskMethodChoice,
     MethodChoice,
     ModelOpt,
+    PointsChoice,
     RigidCheck,
     Verbose,
     _data_root,
@@ -253,6 +254,14 @@ def eval_(
             help="End-to-end protocols: how tracks become motions, subspacenet or geometric (default: the pipeline's).",
         ),
     ] = None,
+    points: Annotated[
+        PointsChoice | None,
+        typer.Option(
+            "--points",
+            help="End-to-end protocols (clips): where the points come from, klt, flow or klt+flow (default: the "
+            "pipeline's).",
+        ),
+    ] = None,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,
@@ -284,6 +293,7 @@ def eval_(
         rigid_check=rigid_check,
         mask_method=_value(mask_method) if mask_method is not None else None,
         method=_value(method) if method is not None else None,
+        points=_value(points) if points is not None else None,
         progress=typer.echo,
     )
     result = proto.run(proto, request)
@@ -319,6 +329,14 @@ def study(
         typer.Option("--clips", help="tsne: comma-separated KT3DMoSeg sequences / AdelaideRMF pairs."),
     ] = None,
     k_max: KMax = 8,
+    points: Annotated[
+        PointsChoice | None,
+        typer.Option(
+            "--points",
+            help="End-to-end protocols (clips): where the points come from, klt, flow or klt+flow (default: the "
+            "pipeline's).",
+        ),
+    ] = None,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,

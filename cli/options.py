@@ -101,6 +101,14 @@ class MethodChoice(StrEnum):
     geometric = "geometric"
 
 
+class PointsChoice(StrEnum):
+    """--points: the values of mosegpipe.flow_tracks.TRACKERS (a test keeps them equal)."""
+
+    klt = "klt"
+    flow = "flow"
+    klt_flow = "klt+flow"
+
+
 def _value(choice: Any) -> Any:
     """The plain value of an Enum choice (what the library and summary.json take)."""
     return choice.value if isinstance(choice, Enum) else choice
@@ -119,6 +127,17 @@ Method = Annotated[
         help="How tracks become motions: subspacenet (default: the learned embedding, automatic K, the rigid-motion "
         "check) or geometric (homographies / fundamental matrices fitted one after another, automatic K; "
         "no model needed). moseg pair always uses the embedding.",
+    ),
+]
+
+
+Points = Annotated[
+    PointsChoice,
+    typer.Option(
+        "--points",
+        help="Where a clip's points come from: klt (default: KLT corners), flow (a regular grid carried along the "
+        "dense optical flow, forward-backward checked: points on untextured parts too) or klt+flow (both). "
+        "Clips only: --whole tracks KLT corners.",
     ),
 ]
 
@@ -392,6 +411,7 @@ def _pipeline_cfg(
     clustering: ClusterOptions,
     *,
     segment_method: MethodChoice | str = MethodChoice.subspacenet,
+    points: PointsChoice | str = PointsChoice.klt,
     start: int = 0,
     rigid_check: bool = True,
     shot_cuts: bool = True,
@@ -402,6 +422,7 @@ def _pipeline_cfg(
     """The PipelineConfig of a command's options (tracker / masks None: the library's defaults;
     mask_extra_tracks None: not an option of the command)."""
     from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.flow_tracks import TRACKERS
     from mosegpipe.grouping import GeometricConfig
     from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
@@ -411,6 +432,7 @@ def _pipeline_cfg(
 
     method = cast(KMethodName, check_choice("--k-method", _value(clustering.k_method), get_args(KMethodName)))
     segment = check_choice("--method", _value(segment_method), SEGMENT_METHODS)
+    source = check_choice("--points", _value(points), TRACKERS)
     track = tracker.config_fields() if tracker is not None else {}
     mask = masks.config_fields() if masks is not None else {}
     if mask_extra_tracks is not None:
@@ -428,6 +450,7 @@ def _pipeline_cfg(
         start=start,
         k=clustering.k,
         method=segment,
+        tracker=source,
         track=track_cfg,
         cluster=replace(ClusterConfig(), method=method, k_max=clustering.k_max),
         geometric=replace(GeometricConfig(), k_max=clustering.k_max),

@@ -23,6 +23,17 @@ first frame and a later one its points obey one fundamental matrix (a camera mov
 4. Points of the host next to a group that move like their nearest member and fit the group's model
    better than the host's join the group (object points that the host's model happens to explain,
    e.g. near their epipolar lines).
+5. A fundamental matrix between two frames is loose enough to explain two objects that move
+   differently (two boxes translating in different directions both fit one, to the pixel), so steps
+   1-2 leave such a pair in one cluster, and the embedding often puts them there. The clusters other
+   than the largest (the background) are therefore cut into pieces, each a connected group of points
+   that lie close and move alike (as in step 2); pieces of at least `min_tracks` points stay together
+   when their median displacements agree in every frame, when one homography explains
+   `merge_consistency` of them (a turning object), or when they touch (within the neighbourhood),
+   one rigid model explains them and their displacements point within `max_angle_deg` of each other
+   (the near and far ends of a deep object, a car passing close by, move in one direction at
+   different speeds). Every other set of pieces that a rigid model of its own explains becomes a
+   cluster; the largest keeps the label.
 
 Measured on data that no protocol scores (docs/RESULTS.md, "The rigid-motion check"). Not applied
 when K is given, nor to image pairs (their outliers are their own group).
@@ -32,7 +43,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -55,7 +66,9 @@ class RigidCheckConfig:
         enabled: run the check (clips, whole videos and tracks with automatic K).
         residual_px: a point further than this from its cluster's rigid model (pixels, in either of
             the two frame pairs) is a candidate for a motion of its own.
-        min_tracks: the smallest group split off.
+        min_tracks: the smallest group split off ...
+        min_share: ... and at least this share of the points checked: with a dense grid of points
+            (`PipelineConfig.tracker` "flow") a group of 10 is a sliver along an object's border.
         min_host: a split must leave at least this many points in the cluster (so only clusters
             of min_host + min_tracks points or more are checked).
         neighbour_frac: candidates within this fraction of the image diagonal of each other in
@@ -68,11 +81,15 @@ class RigidCheckConfig:
             fundamental matrix's RANSAC inliers.
         merge_consistency: two groups split off one cluster are merged when one rigid model
             explains at least this fraction of their union (None: never merged).
+        separate: step 5 of the module docstring (pieces of an object's cluster that move apart).
+        max_angle_deg: step 5: touching pieces whose displacements (to the last frame) differ in
+            direction by more than this are not one deep object.
     """
 
     enabled: bool = True
     residual_px: float = 1.5
     min_tracks: int = 10
+    min_share: float = 0.01
     min_host: int = 30
     neighbour_frac: float = 0.05
     motion_px: float = 2.0
@@ -80,6 +97,8 @@ class RigidCheckConfig:
     consistency: float = 0.5
     homography_ratio: float = 0.95
     merge_consistency: float | None = 0.8
+    separate: bool = True
+    max_angle_deg: float = 30.0
 
     def __post_init__(self) -> None:
         for name in ("residual_px", "neighbour_frac", "motion_px"):
@@ -87,9 +106,11 @@ class RigidCheckConfig:
                 raise InputError(f"rigid check: {name}={getattr(self, name)} must be positive")
         if self.merge_consistency is not None and not 0 <= self.merge_consistency <= 1:
             raise InputError(f"rigid check: merge_consistency={self.merge_consistency} must lie in [0, 1] (or None)")
-        for name in ("motion_frac", "consistency", "homography_ratio"):
+        for name in ("motion_frac", "consistency", "homography_ratio", "min_share"):
             if not 0 <= getattr(self, name) <= 1:
                 raise InputError(f"rigid check: {name}={getattr(self, name)} must lie in [0, 1]")
+        if not 0 <= self.max_angle_deg <= 180:
+            raise InputError(f"rigid check: max_angle_deg={self.max_angle_deg} must lie in [0, 180]")
         for name in ("min_tracks", "min_host"):
             if getattr(self, name) < 1:
                 raise InputError(f"rigid check: {name}={getattr(self, name)} must be at least 1")
@@ -225,28 +246,29 @@ class _Split:
 
 
 def _split(
-    xy: npt.NDArray[np.float64], lab: npt.NDArray[np.int64], radius: float, cfg: RigidCheckConfig
+    xy: npt.NDArray[np.float64], lab: npt.NDArray[np.int64], radius: float, cfg: RigidCheckConfig, room: int
 ) -> tuple[npt.NDArray[np.int64], list[_Split]]:
-    """Steps 1-4 of the module docstring on (N, F, 2) positions: (labels, the groups split off)."""
+    """Steps 1-4 of the module docstring on (N, F, 2) positions: (labels, the groups split off, at most `room`)."""
     out = lab.copy()
     next_label = int(lab.max()) + 1
     splits: list[_Split] = []
+    min_group = _min_group(len(xy), cfg)
     for c in np.unique(lab):
         host = np.flatnonzero(lab == c)
-        if host.size < cfg.min_host + cfg.min_tracks:
+        if host.size < cfg.min_host + min_group:
             continue
         host_model = fit_rigid_motion(xy[host], cfg)
         if host_model is None:
             continue
         res = host_model(xy[host])
         far = host[res > cfg.residual_px]
-        if far.size < cfg.min_tracks:
+        if far.size < min_group:
             continue
         groups = _coherent_groups(xy[far], radius, cfg)
         sizes = np.bincount(groups)
         left = host.size
         found: list[tuple[npt.NDArray[np.int64], Residuals]] = []
-        for g in np.flatnonzero(sizes >= cfg.min_tracks):
+        for g in np.flatnonzero(sizes >= min_group):
             members = far[groups == g]
             if left - members.size < cfg.min_host:
                 continue
@@ -255,7 +277,7 @@ def _split(
                 continue
             found.append((members, own))
             left -= members.size
-        for members, own in _merge_rigid(xy, found, cfg):
+        for members, own in _merge_rigid(xy, found, cfg)[: max(room - len(splits), 0)]:
             out[members] = next_label
             # Points of the object that happen to fit the host's model too (e.g. near their epipolar
             # lines) follow when they lie next to a member, move like it and fit the group better.
@@ -316,12 +338,91 @@ def _follow(
     return out
 
 
+def _min_group(n: int, cfg: RigidCheckConfig) -> int:
+    """The smallest group split off n points checked: cfg.min_tracks, or cfg.min_share of them if more."""
+    return max(cfg.min_tracks, int(np.ceil(cfg.min_share * n)))
+
+
+def _together(
+    union: npt.NDArray[np.float64],
+    disp: npt.NDArray[np.float64],
+    tree_a: cKDTree,
+    tree_b: cKDTree,
+    radius: float,
+    cfg: RigidCheckConfig,
+) -> bool:
+    """Do two pieces of a cluster stay one motion (step 5 of the module docstring)?
+
+    Args:
+        union: (N, F, 2) positions of both pieces' points.
+        disp: (2, F, 2) each piece's median displacement from frame 0.
+        tree_a, tree_b: KD-trees of each piece's frame-0 positions.
+        radius: the neighbourhood, pixels.
+        cfg: thresholds.
+    """
+    if _alike(disp[:1], disp[1:], cfg)[0]:
+        return True
+    share = 0.8 if cfg.merge_consistency is None else cfg.merge_consistency
+    plane = fit_rigid_motion(union, replace(cfg, homography_ratio=0.0))
+    if plane is not None and float(np.mean(plane(union) <= cfg.residual_px)) >= share:
+        return True
+    if tree_a.sparse_distance_matrix(tree_b, radius).nnz == 0:
+        return False
+    a, b = disp[0, -1], disp[1, -1]
+    cos = float(a @ b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-9)
+    if cos < np.cos(np.radians(cfg.max_angle_deg)):
+        return False
+    rigid = fit_rigid_motion(union, cfg)
+    return rigid is not None and float(np.mean(rigid(union) <= cfg.residual_px)) >= share
+
+
+def _separate(
+    xy: npt.NDArray[np.float64], lab: npt.NDArray[np.int64], radius: float, cfg: RigidCheckConfig, room: int
+) -> int:
+    """Step 5 of the module docstring on (N, F, 2) positions, in place on `lab`: the number of pieces
+    split off (at most `room`)."""
+    values, counts = np.unique(lab, return_counts=True)
+    background = values[np.argmax(counts)]
+    next_label = int(lab.max()) + 1
+    found = 0
+    min_group = _min_group(len(xy), cfg)
+    for c in values[values != background]:
+        rows = np.flatnonzero(lab == c)
+        if rows.size < 2 * min_group:
+            continue
+        pieces = _coherent_groups(xy[rows], radius, cfg)
+        sizes = np.bincount(pieces)
+        big = np.flatnonzero(sizes >= min_group)
+        if big.size < 2:
+            continue
+        disp = np.stack([np.median(xy[rows[pieces == g]] - xy[rows[pieces == g], :1], axis=0) for g in big])
+        trees = [cKDTree(xy[rows[pieces == g], 0]) for g in big]
+        pairs = [
+            (i, j)
+            for i, j in itertools.combinations(range(big.size), 2)
+            if _together(xy[rows[np.isin(pieces, big[[i, j]])]], disp[[i, j]], trees[i], trees[j], radius, cfg)
+        ]
+        links = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(big.size, big.size))
+        sets = connected_components(graph, directed=False)[1]
+        for k in np.argsort(-np.bincount(sets, weights=sizes[big]), kind="stable")[1:]:  # the largest keeps c
+            members = rows[np.isin(pieces, big[sets == k])]
+            own = fit_rigid_motion(xy[members], cfg)
+            if found >= room or own is None or np.mean(own(xy[members]) <= cfg.residual_px) < cfg.consistency:
+                continue
+            lab[members] = next_label
+            next_label += 1
+            found += 1
+    return found
+
+
 def split_by_rigid_motion(
     points: npt.ArrayLike,
     labels: npt.ArrayLike,
     size_hw: tuple[int, int],
     cfg: RigidCheckConfig = RigidCheckConfig(),
     seed: int = 0,
+    max_k: int | None = None,
 ) -> tuple[npt.NDArray[np.int64], int]:
     """Splits off the coherent groups that their cluster's rigid motion does not explain.
 
@@ -329,8 +430,8 @@ def split_by_rigid_motion(
     (seeded by `seed`) and every other point of a host joins a group split off it when it fits the
     group's model better than the host's (or the host's not at all) and is linked to a sampled member
     through points that do, each within the neighbourhood of the next and moving like it (region
-    growing); memory and time are then linear in N. A group needs cfg.min_tracks sampled
-    points, so the smallest group split off grows with N / MAX_CHECKED_POINTS.
+    growing); memory and time are then linear in N. A group needs max(cfg.min_tracks, cfg.min_share *
+    MAX_CHECKED_POINTS) sampled points, so the smallest group split off grows with N.
 
     Args:
         points: (N, 2F) trajectory matrix in pixels (x_0, y_0, x_1, y_1, ...), F >= 2.
@@ -338,6 +439,7 @@ def split_by_rigid_motion(
         size_hw: (H, W) of the frames, pixels (the neighbourhood is a fraction of its diagonal).
         cfg: thresholds, see RigidCheckConfig.
         seed: random state of the sample (large N only).
+        max_k: no more groups are split off once the labels number this many (None = no limit).
 
     Returns:
         (labels, number of groups split off): labels ordered by decreasing cluster size as
@@ -350,12 +452,16 @@ def split_by_rigid_motion(
     if n == 0:
         return lab.copy(), 0
     radius = cfg.neighbour_frac * float(np.hypot(*size_hw))
+    room = n if max_k is None else max(max_k - np.unique(lab).size, 0)
     if n <= MAX_CHECKED_POINTS:
-        out, splits = _split(xy, lab, radius, cfg)
+        out, splits = _split(xy, lab, radius, cfg, room)
+        if cfg.separate:  # clips and windows; not run on a sample
+            separated = _separate(xy, out, radius, cfg, room - len(splits))
+            return relabel_by_size(out), len(splits) + separated
     else:
         idx = np.sort(np.random.default_rng(seed).choice(n, size=MAX_CHECKED_POINTS, replace=False))
         sample_xy = xy[idx]
-        sample_out, splits = _split(sample_xy, lab[idx], radius, cfg)
+        sample_out, splits = _split(sample_xy, lab[idx], radius, cfg, room)
         sampled = np.zeros(n, dtype=bool)
         sampled[idx] = True
         out = _follow(xy, lab, sampled, sample_xy, splits, radius, cfg)

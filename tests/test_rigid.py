@@ -135,6 +135,58 @@ def test_pieces_of_one_rigid_motion_are_merged() -> None:
     assert split == 2
 
 
+def _static_background(rng: np.random.Generator, count: int = 400) -> npt.NDArray[np.float64]:
+    pix = rng.uniform([40, 40], [SIZE_HW[1] - 40, SIZE_HW[0] - 40], size=(count, 2))
+    depth = rng.uniform(4.0, 40.0, size=count)
+    return np.c_[(pix - [SIZE_HW[1] / 2, SIZE_HW[0] / 2]) * depth[:, None] / FOCAL, depth]
+
+
+def _trajectories(
+    rng: np.random.Generator, world: npt.NDArray[np.float64], parts: list[tuple[npt.NDArray[np.float64], tuple]]
+) -> npt.NDArray[np.float64]:
+    """(N, 2F) trajectories over 5 frames of a still camera: the static points, then each (points, motion per frame)."""
+    frames = [_project(np.concatenate([world] + [p + np.asarray(m) * t for p, m in parts])) for t in range(5)]
+    xy = np.stack(frames, axis=1) + rng.normal(scale=0.2, size=(len(frames[0]), 5, 2))
+    return xy.reshape(len(xy), -1)
+
+
+def test_two_objects_that_one_fundamental_matrix_explains_are_cut_apart() -> None:
+    # Two boxes side by side moving at right angles (5 px per frame each), given as one cluster: one
+    # fundamental matrix between two frames fits both, so steps 1-4 leave them together; step 5 does not.
+    rng = np.random.default_rng(0)
+    world = _static_background(rng)
+    a = np.array([0.6, 0.2, 8.0]) + rng.uniform(-0.3, 0.3, size=(30, 3))
+    b = np.array([-0.4, -0.1, 8.0]) + rng.uniform(-0.3, 0.3, size=(30, 3))
+    points = _trajectories(rng, world, [(a, (0.08, 0, 0)), (b, (0, 0.08, 0))])
+    truth = np.r_[np.zeros(len(world), np.int64), np.ones(30, np.int64), np.full(30, 2)]
+    given = np.minimum(truth, 1)
+    labels, split = split_by_rigid_motion(points, given, SIZE_HW, RigidCheckConfig(separate=False))
+    assert split == 0 and np.array_equal(labels, given)
+    labels, split = split_by_rigid_motion(points, given, SIZE_HW)
+    assert split == 1
+    assert [np.unique(labels[truth == g]).size for g in range(3)] == [1, 1, 1]
+    assert np.unique(labels).size == 3
+    # --k-max caps what the check adds
+    labels, split = split_by_rigid_motion(points, given, SIZE_HW, max_k=2)
+    assert split == 0 and np.array_equal(labels, given)
+
+
+def test_the_near_and_far_ends_of_a_deep_object_stay_one_motion() -> None:
+    # A block 6-9 and 12-20 units deep moving sideways: its near end moves 81 px, its far end 35 px,
+    # in one direction; no homography explains it, one fundamental matrix does, and the ends touch.
+    rng = np.random.default_rng(0)
+    world = _static_background(rng)
+    near = np.c_[rng.uniform(-1.6, -1.0, 40), rng.uniform(0.0, 0.6, 40), rng.uniform(6.0, 9.0, 40)]
+    far = np.c_[rng.uniform(-1.6, -1.0, 40), rng.uniform(0.0, 0.6, 40), rng.uniform(12.0, 20.0, 40)]
+    points = _trajectories(rng, world, [(np.r_[near, far], (0.3, 0, 0.05))])
+    truth = np.r_[np.zeros(len(world), np.int64), np.ones(80, np.int64)]
+    labels, split = split_by_rigid_motion(points, truth, SIZE_HW)
+    assert split == 0 and np.array_equal(labels, truth)
+    # the direction test is what keeps them: at 0 degrees the two ends come apart
+    _, split = split_by_rigid_motion(points, truth, SIZE_HW, RigidCheckConfig(max_angle_deg=0.0))
+    assert split == 1
+
+
 def test_the_result_is_deterministic() -> None:
     points, _ = scene("forward", seed=3)
     first = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
@@ -151,6 +203,8 @@ def test_the_result_is_deterministic() -> None:
         ({"consistency": 1.5}, "consistency=1.5"),
         ({"min_tracks": 0}, "min_tracks=0"),
         ({"merge_consistency": 2.0}, "merge_consistency=2.0"),
+        ({"min_share": 1.5}, "min_share=1.5"),
+        ({"max_angle_deg": 200.0}, "max_angle_deg=200.0"),
     ],
 )
 def test_bad_settings_are_refused(kwargs: dict[str, float], message: str) -> None:
@@ -202,3 +256,12 @@ def test_label_by_rigid_motion_gives_each_track_the_motion_it_follows() -> None:
     few[np.flatnonzero(few == 1)[5:]] = 0
     assert not np.any(label_by_rigid_motion(points[~known], points[known], few) == 1)
     assert label_by_rigid_motion(points[:0], points[known], truth[known]).shape == (0,)
+
+
+def test_a_group_must_hold_a_share_of_many_points() -> None:
+    # 25 object points among 400: split off at the default share (1 %), kept at 10 % (a group of 43 needed)
+    points, _ = scene("static")
+    _, split = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW)
+    assert split == 1
+    _, split = split_by_rigid_motion(points, np.zeros(len(points), np.int64), SIZE_HW, RigidCheckConfig(min_share=0.1))
+    assert split == 0

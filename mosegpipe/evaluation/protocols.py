@@ -59,6 +59,8 @@ class EvalRequest:
         mask_method: end-to-end protocols: the dense-mask method (MaskConfig.method; None = the default).
         method: end-to-end protocols: how tracks become motions (PipelineConfig.method, "subspacenet" or
             "geometric"; None = the default). With "geometric", k_max bounds its K too.
+        points: end-to-end protocols: where a clip's points come from (PipelineConfig.tracker, "klt",
+            "flow" or "klt+flow"; None = the default).
         progress: called with one line per fold / stage.
     """
 
@@ -81,6 +83,7 @@ class EvalRequest:
     rigid_check: bool = True
     mask_method: str | None = None
     method: str | None = None
+    points: str | None = None
     progress: Callable[[str], None] | None = field(default=None, compare=False)
 
 
@@ -196,6 +199,7 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
     from dataclasses import replace
 
     from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.flow_tracks import TRACKERS
     from mosegpipe.grouping import GeometricConfig
     from mosegpipe.masks import MASK_METHODS, MaskConfig
     from mosegpipe.pipeline import PipelineConfig
@@ -209,6 +213,7 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
     return PipelineConfig(
         frames=frames,
         method=check_choice("--method", req.method or PipelineConfig.method, SEGMENT_METHODS),
+        tracker=check_choice("--points", req.points or PipelineConfig.tracker, TRACKERS),
         cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max),
         rigid=RigidCheckConfig(enabled=req.rigid_check),
         geometric=replace(GeometricConfig(), k_max=req.k_max),
@@ -233,6 +238,8 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "k_method": req.k_method,
         "k_max": req.k_max,
         "rigid_check": req.rigid_check,
+        "method": cfg.method,
+        "points": cfg.tracker,
         "model": str(req.model or "shipped default"),
     }
     table = format_rows(rows)
@@ -277,6 +284,8 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "k_method": req.k_method,
         "k_max": req.k_max,
         "rigid_check": req.rigid_check,
+        "method": cfg.method,
+        "points": cfg.tracker,
         "model": str(req.model or "shipped default"),
         "clips": list(req.folds) if req.folds else "all",
     }

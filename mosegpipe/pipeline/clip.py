@@ -14,6 +14,7 @@ import numpy.typing as npt
 from mosegpipe.cluster import cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.flow import flow_fits
+from mosegpipe.flow_tracks import combine_tracks, track_flow
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder
 from mosegpipe.io import check_images, read_video, video_info
@@ -94,6 +95,17 @@ def group_tracks(
     return emb, clustering
 
 
+def clip_tracks(frames: Frames, cfg: PipelineConfig) -> Tracks:
+    """A clip's point tracks by cfg.tracker: KLT corners, a grid carried along the dense flow (the flow
+    of the motion masks' settings), or both. One frame, or frames too small for the flow: KLT."""
+    if cfg.tracker == "klt" or frames.num_frames < 2 or not flow_fits(frames.size_hw, cfg.mask.motion.flow):
+        return track_klt(frames, cfg.track)
+    dense = track_flow(frames.images, cfg.flow_tracks, cfg.mask.motion.flow)
+    if cfg.tracker == "flow":
+        return dense
+    return combine_tracks(track_klt(frames, cfg.track), dense, cfg.flow_tracks.klt_distance_px)
+
+
 def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model: Embedder | None = None) -> ClipResult:
     """Segments the motions in a short stack of frames.
 
@@ -117,7 +129,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
     model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
-    tracks = track_klt(frames, cfg.track)
+    tracks = clip_tracks(frames, cfg)
     timings["track"] = time.perf_counter() - t0
     traj = build_trajectories(tracks, frames=frames.num_frames)
     if traj.num_points < cfg.min_tracks:

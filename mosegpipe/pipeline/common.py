@@ -53,13 +53,14 @@ def _check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
 def check_rigid(
     clustering: Clustering, points: npt.NDArray[np.float32], size_hw: tuple[int, int], cfg: PipelineConfig
 ) -> Clustering:
-    """`clustering` after the rigid-motion check (unchanged when K was given or the check is off).
+    """`clustering` after the rigid-motion check (unchanged when K was given or the check is off); it
+    splits off no more groups than cfg.cluster.k_max allows.
 
     Its note then says how many groups the check split off, after automatic K's own note.
     """
     if cfg.k is not None or not cfg.rigid.enabled:
         return clustering
-    labels, split = split_by_rigid_motion(points, clustering.labels, size_hw, cfg.rigid)
+    labels, split = split_by_rigid_motion(points, clustering.labels, size_hw, cfg.rigid, max_k=cfg.cluster.k_max)
     if not split:
         return clustering
     what = f"the rigid-motion check split off {split} group{'s' if split > 1 else ''} (K = {clustering.k} -> {clustering.k + split})"

@@ -15,6 +15,7 @@ from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 from mosegpipe.cluster import ClusterConfig
 from mosegpipe.errors import InputError, check_choice
+from mosegpipe.flow_tracks import TRACKERS, FlowTrackConfig
 from mosegpipe.grouping import GeometricConfig
 from mosegpipe.masks import MaskConfig
 from mosegpipe.match import MatchConfig
@@ -41,7 +42,11 @@ class PipelineConfig:
             (mosegpipe.grouping.group_geometric with `geometric`; no embedding, no rigid-motion check).
             Pairs are always segmented with the embedding.
         min_tracks: fewer surviving tracks / matches than this is an error (too little texture).
+        tracker: where a clip's points come from (`mosegpipe.flow_tracks.TRACKERS`): "klt" corners,
+            "flow" (a grid carried along the dense flow) or "klt+flow" (both). Whole videos track
+            with KLT whatever this says.
         track: KLT settings.
+        flow_tracks: the settings of the flow tracker.
         match: SIFT matching settings (pairs).
         cluster: automatic-K settings.
         rigid: the rigid-motion check after automatic K (clips, whole videos, tracks; not pairs, not
@@ -65,7 +70,9 @@ class PipelineConfig:
     k: int | None = None
     method: str = "subspacenet"  # a summary without it was made before "geometric" existed
     min_tracks: int = 10
+    tracker: str = "klt"
     track: TrackConfig = field(default_factory=TrackConfig)
+    flow_tracks: FlowTrackConfig = field(default_factory=FlowTrackConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     rigid: RigidCheckConfig = field(default_factory=RigidCheckConfig)
@@ -77,6 +84,7 @@ class PipelineConfig:
 
     def __post_init__(self) -> None:
         check_choice("method", self.method, SEGMENT_METHODS)
+        check_choice("tracker", self.tracker, TRACKERS)
         if self.video_k_step is not None and self.video_k_step < 1:
             raise InputError(f"video_k_step={self.video_k_step} must be at least 1 (or None: no limit)")
         if self.video_cut_survival is not None and not 0 < self.video_cut_survival < 1:
