@@ -144,3 +144,26 @@ def test_flow_points_are_refused_for_whole_videos(tmp_path: Path) -> None:
     assert code == 1
     assert "--points flow: clips only" in stderr and "Traceback" not in stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_eval_requests_take_the_points() -> None:
+    from mosegpipe.evaluation.protocols import EvalRequest, _pipeline_config
+
+    assert _pipeline_config(EvalRequest(out_dir=Path("x")), 5).tracker == "klt"
+    assert _pipeline_config(EvalRequest(out_dir=Path("x"), points="klt+flow"), 5).tracker == "klt+flow"
+    with pytest.raises(InputError, match="--points"):
+        _pipeline_config(EvalRequest(out_dir=Path("x"), points="sift"), 5)
+
+
+def test_klt_plus_flow_holds_the_corners_and_more() -> None:
+    from mosegpipe.io import read_video
+    from mosegpipe.pipeline import segment_frames
+    from mosegpipe.pipeline.clip import clip_tracks
+
+    frames = read_video(ROOT / "samples" / "rendered" / "frames", max_frames=3)
+    klt = clip_tracks(frames, PipelineConfig(frames=3))
+    both = clip_tracks(frames, PipelineConfig(frames=3, tracker="klt+flow"))
+    assert both.num_tracks > klt.num_tracks
+    np.testing.assert_array_equal(both.xy[: klt.num_tracks], klt.xy)  # the corners first, unchanged
+    result = segment_frames(frames, PipelineConfig(frames=3, tracker="klt+flow"))
+    assert result.tracks.num_tracks == both.num_tracks
