@@ -329,14 +329,6 @@ def study(
         typer.Option("--clips", help="tsne: comma-separated KT3DMoSeg sequences / AdelaideRMF pairs."),
     ] = None,
     k_max: KMax = 8,
-    points: Annotated[
-        PointsChoice | None,
-        typer.Option(
-            "--points",
-            help="End-to-end protocols (clips): where the points come from, klt, flow or klt+flow (default: the "
-            "pipeline's).",
-        ),
-    ] = None,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,

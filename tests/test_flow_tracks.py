@@ -6,10 +6,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 import pytest
+from test_track import H, W, _rgb, _texture, _view
 
 from mosegpipe.errors import InputError
 from mosegpipe.flow_tracks import TRACKERS, FlowTrackConfig, combine_tracks, grid_seeds, track_flow
@@ -19,23 +19,6 @@ from mosegpipe.types import Tracks
 from helpers import moseg
 
 ROOT = Path(__file__).resolve().parents[1]
-H, W = 160, 240
-PAD = 48
-
-
-def _texture(seed: int, h: int = H + 2 * PAD, w: int = W + 2 * PAD) -> npt.NDArray[np.uint8]:
-    noise = np.random.default_rng(seed).random((h, w)).astype(np.float32)
-    smooth = cv2.GaussianBlur(noise, (0, 0), 2.0)
-    return cv2.normalize(smooth, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-
-
-def _view(base: npt.NDArray[np.uint8], dx: float, dy: float) -> npt.NDArray[np.uint8]:
-    m = np.float32([[1, 0, dx - PAD], [0, 1, dy - PAD]])
-    return cv2.warpAffine(base, m, (W, H), flags=cv2.INTER_LINEAR)
-
-
-def _rgb(gray: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
-    return np.repeat(gray[:, :, None], 3, axis=2)
 
 
 def _translating(step: tuple[float, float], num: int = 4) -> npt.NDArray[np.uint8]:
