@@ -34,6 +34,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, to_gray
+from mosegpipe.track import MAX_CORNERS
 from mosegpipe.types import Tracks
 
 TRACKERS = ("klt", "flow", "klt+flow")
@@ -75,12 +76,14 @@ class FlowTrackConfig:
     klt_distance_px: float = 4.0
 
     def __post_init__(self) -> None:
-        if self.max_points < 1 or self.min_step_px < 1:
-            raise ValueError(f"max_points={self.max_points} and min_step_px={self.min_step_px} must be >= 1")
+        if not 1 <= self.max_points <= MAX_CORNERS or self.min_step_px < 1:
+            raise ValueError(
+                f"max_points={self.max_points} must lie in 1..{MAX_CORNERS} and min_step_px={self.min_step_px} be >= 1"
+            )
         if self.fb_rel < 0 or self.fb_abs_px < 0 or self.border_px < 0 or self.klt_distance_px < 0:
             raise ValueError("fb_rel, fb_abs_px, border_px and klt_distance_px must be >= 0")
-        if self.min_texture < 0:
-            raise ValueError(f"min_texture={self.min_texture} must be >= 0")
+        if self.min_texture < 0 or self.max_brightness < 0:
+            raise ValueError(f"min_texture={self.min_texture} and max_brightness={self.max_brightness} must be >= 0")
 
 
 def grid_seeds(image: npt.NDArray[np.uint8], cfg: FlowTrackConfig = FlowTrackConfig()) -> npt.NDArray[np.float32]:
