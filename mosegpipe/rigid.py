@@ -33,7 +33,8 @@ first frame and a later one its points obey one fundamental matrix (a camera mov
    one rigid model explains them and their displacements point within `max_angle_deg` of each other
    (the near and far ends of a deep object, a car passing close by, move in one direction at
    different speeds). Every other set of pieces that a rigid model of its own explains becomes a
-   cluster; the largest keeps the label.
+   cluster; the largest keeps the label. Run on up to MAX_CHECKED_POINTS points (clips and video
+   windows); larger track sets (`moseg tracks`) get steps 1-4 only.
 
 Measured on data that no protocol scores (docs/RESULTS.md, "The rigid-motion check"). Not applied
 when K is given, nor to image pairs (their outliers are their own group).
