@@ -33,8 +33,8 @@ first frame and a later one its points obey one fundamental matrix (a camera mov
    one rigid model explains them and their displacements point within `max_angle_deg` of each other
    (the near and far ends of a deep object, a car passing close by, move in one direction at
    different speeds). Every other set of pieces that a rigid model of its own explains becomes a
-   cluster; the largest keeps the label. Run on up to MAX_CHECKED_POINTS points (clips and video
-   windows); larger track sets (`moseg tracks`) get steps 1-4 only.
+   cluster; the largest keeps the label. Larger track sets (`moseg tracks`) are cut on the sample of
+   MAX_CHECKED_POINTS, the other points taking the label of their nearest sampled member.
 
 Measured on data that no protocol scores (docs/RESULTS.md, "The rigid-motion check"; step 5's guards
 for touching pieces were added after the in-sample `kt3d-video` protocol showed a near car cut up, see
@@ -460,18 +460,27 @@ def split_by_rigid_motion(
     room = n if max_k is None else max(max_k - np.unique(lab).size, 0)
     if n <= MAX_CHECKED_POINTS:
         out, splits = _split(xy, lab, radius, cfg, room)
-        if cfg.separate:  # clips and windows; not run on a sample
-            separated = _separate(xy, out, radius, cfg, room - len(splits))
-            return relabel_by_size(out), len(splits) + separated
-    else:
-        idx = np.sort(np.random.default_rng(seed).choice(n, size=MAX_CHECKED_POINTS, replace=False))
-        sample_xy = xy[idx]
-        sample_out, splits = _split(sample_xy, lab[idx], radius, cfg, room)
-        sampled = np.zeros(n, dtype=bool)
-        sampled[idx] = True
-        out = _follow(xy, lab, sampled, sample_xy, splits, radius, cfg)
-        out[idx] = sample_out
-    return relabel_by_size(out), len(splits)
+        separated = _separate(xy, out, radius, cfg, room - len(splits)) if cfg.separate else 0
+        return relabel_by_size(out), len(splits) + separated
+    idx = np.sort(np.random.default_rng(seed).choice(n, size=MAX_CHECKED_POINTS, replace=False))
+    sample_xy = xy[idx]
+    sample_out, splits = _split(sample_xy, lab[idx], radius, cfg, room)
+    sampled = np.zeros(n, dtype=bool)
+    sampled[idx] = True
+    out = _follow(xy, lab, sampled, sample_xy, splits, radius, cfg)
+    separated = 0
+    if cfg.separate:
+        # Step 5 on the sample; the other points of a cluster it cut take their nearest sampled member's label.
+        before = sample_out.copy()
+        separated = _separate(sample_xy, sample_out, radius, cfg, room - len(splits))
+        for c in np.unique(before[sample_out != before]):
+            members = np.flatnonzero(before == c)
+            rows = np.flatnonzero((out == c) & ~sampled)
+            if rows.size:
+                _, near = cKDTree(sample_xy[members, 0]).query(xy[rows, 0])
+                out[rows] = sample_out[members[near]]
+    out[idx] = sample_out
+    return relabel_by_size(out), len(splits) + separated
 
 
 def label_by_rigid_motion(

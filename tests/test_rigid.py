@@ -8,7 +8,13 @@ import pytest
 
 from mosegpipe.errors import InputError
 from mosegpipe.pipeline import PipelineConfig, check_rigid
-from mosegpipe.rigid import RigidCheckConfig, fit_rigid_motion, label_by_rigid_motion, split_by_rigid_motion
+from mosegpipe.rigid import (
+    MAX_CHECKED_POINTS,
+    RigidCheckConfig,
+    fit_rigid_motion,
+    label_by_rigid_motion,
+    split_by_rigid_motion,
+)
 from mosegpipe.types import Clustering
 
 SIZE_HW = (480, 640)
@@ -169,6 +175,22 @@ def test_two_objects_that_one_fundamental_matrix_explains_are_cut_apart() -> Non
     # --k-max caps what the check adds
     labels, split = split_by_rigid_motion(points, given, SIZE_HW, max_k=2)
     assert split == 0 and np.array_equal(labels, given)
+
+
+def test_many_points_are_cut_on_the_sample_and_the_rest_follow() -> None:
+    # More than MAX_CHECKED_POINTS: step 5 runs on the sample, every other point follows its nearest
+    # sampled member of its cluster.
+    rng = np.random.default_rng(1)
+    world = _static_background(rng, count=3000)
+    a = np.array([0.6, 0.2, 8.0]) + rng.uniform(-0.3, 0.3, size=(300, 3))
+    b = np.array([-0.4, -0.1, 8.0]) + rng.uniform(-0.3, 0.3, size=(300, 3))
+    points = _trajectories(rng, world, [(a, (0.08, 0, 0)), (b, (0, 0.08, 0))])
+    truth = np.r_[np.zeros(len(world), np.int64), np.ones(300, np.int64), np.full(300, 2)]
+    assert len(points) > MAX_CHECKED_POINTS
+    labels, split = split_by_rigid_motion(points, np.minimum(truth, 1), SIZE_HW)
+    assert split == 1
+    assert [np.unique(labels[truth == g]).size for g in range(3)] == [1, 1, 1]
+    assert np.unique(labels).size == 3
 
 
 def test_the_near_and_far_ends_of_a_deep_object_stay_one_motion() -> None:
