@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
+from mosegpipe.flow import FrameMotion
 from mosegpipe.io import default_palette
 from mosegpipe.motion import MotionMaskConfig, moving_masks
 from mosegpipe.types import Tracks
@@ -560,6 +561,7 @@ def motion_masks(
     cfg: MaskConfig = MaskConfig(),
     before: npt.NDArray[np.uint8] | None = None,
     after: npt.NDArray[np.uint8] | None = None,
+    motion: FrameMotion | None = None,
 ) -> npt.NDArray[np.uint8]:
     """The "motion" masks of a clip: moving pixels from the dense flow, labelled by the clip's tracks.
 
@@ -570,11 +572,12 @@ def motion_masks(
         labels: (M,) int64 their labels; the one most of them carry is the background.
         cfg: mask settings (cfg.motion; the watershed's for the borders between moving motions).
         before, after: the source's frames next to the clip, as evidence (`motion.moving_masks`).
+        motion: `motion.stack_motion` of the clip, if already computed (None = computed here).
 
     Returns:
         (T, H, W) uint8 masks.
     """
-    moving = moving_masks(images, cfg.motion, before=before, after=after)
+    moving = moving_masks(images, cfg.motion, before=before, after=after, motion=motion)
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     background = max(background_label(labels), 0)
     out = np.empty(moving.shape, dtype=np.uint8)

@@ -288,12 +288,47 @@ def moving_from_motion(
     return masks
 
 
+def stack_motion(
+    images: npt.NDArray[np.uint8],
+    cfg: MotionMaskConfig = MotionMaskConfig(),
+    before: npt.NDArray[np.uint8] | None = None,
+    after: npt.NDArray[np.uint8] | None = None,
+) -> FrameMotion:
+    """The flow evidence of a stack of frames as `moving_masks` uses it (the flows between its frames kept).
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB, T >= 2.
+        cfg: flow settings (cfg.flow).
+        before, after: the source's frames just before and after the stack (or None): with
+            cfg.flow.both_directions, their flows give the stack's end frames the evidence of both
+            directions too, as its inner frames have it; they take no other part (DAVIS dev, the
+            first 5 frames with the 6th as `after`: J 0.643 -> 0.668 in the harness of docs/RESULTS.md).
+
+    Returns:
+        FrameMotion of the T frames (forward / backward: the T - 1 flows between them).
+    """
+    if not cfg.flow.both_directions or (before is None and after is None):
+        return frame_motion(images, cfg.flow)
+    lead = 0 if before is None else 1
+    wide = np.concatenate([s for s in ([before], images, [after]) if s[0] is not None])
+    full = frame_motion(wide, cfg.flow)
+    end = lead + images.shape[0]
+    return FrameMotion(
+        full.residual[lead:end],
+        full.fb_error[lead:end],
+        full.scale,
+        None if full.forward is None else full.forward[lead : end - 1],
+        None if full.backward is None else full.backward[lead : end - 1],
+    )
+
+
 def moving_masks(
     images: npt.NDArray[np.uint8],
     cfg: MotionMaskConfig = MotionMaskConfig(),
     first: int = 0,
     before: npt.NDArray[np.uint8] | None = None,
     after: npt.NDArray[np.uint8] | None = None,
+    motion: FrameMotion | None = None,
 ) -> npt.NDArray[np.bool_]:
     """Masks of what moves against the camera's motion in a stack of frames.
 
@@ -301,25 +336,12 @@ def moving_masks(
         images: (T, H, W, 3) uint8 RGB, T >= 2.
         cfg: flow and mask settings.
         first: masks of frames first..T-1 only (`moving_from_motion`).
-        before, after: the source's frames just before and after the stack (or None): with
-            cfg.flow.both_directions, their flows give the stack's end frames the evidence of both
-            directions too, as its inner frames have it; they take no other part (DAVIS dev, the
-            first 5 frames with the 6th as `after`: J 0.643 -> 0.668 in the harness of docs/RESULTS.md).
+        before, after: the source's frames next to the stack, as evidence (`stack_motion`).
+        motion: `stack_motion` of these frames, if already computed (e.g. for the flow points).
 
     Returns:
         (T - first, H, W) bool, True = moving.
     """
-    if not cfg.flow.both_directions or (before is None and after is None):
-        return moving_from_motion(images, frame_motion(images, cfg.flow), cfg, first)
-    lead = 0 if before is None else 1
-    wide = np.concatenate([s for s in ([before], images, [after]) if s[0] is not None])
-    full = frame_motion(wide, cfg.flow)
-    end = lead + images.shape[0]
-    motion = FrameMotion(
-        full.residual[lead:end],
-        full.fb_error[lead:end],
-        full.scale,
-        None if full.forward is None else full.forward[lead : end - 1],
-        None if full.backward is None else full.backward[lead : end - 1],
-    )
+    if motion is None:
+        motion = stack_motion(images, cfg, before, after)
     return moving_from_motion(images, motion, cfg, first)

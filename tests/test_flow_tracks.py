@@ -150,3 +150,26 @@ def test_klt_plus_flow_holds_the_corners_and_more() -> None:
     np.testing.assert_array_equal(both.xy[: klt.num_tracks], klt.xy)  # the corners first, unchanged
     result = segment_frames(frames, PipelineConfig(frames=3, tracker="klt+flow"))
     assert result.tracks.num_tracks == both.num_tracks
+
+
+def test_flow_points_and_motion_masks_share_one_computation_of_the_flows(monkeypatch: pytest.MonkeyPatch) -> None:
+    import mosegpipe.flow_tracks as flow_tracks_module
+    import mosegpipe.motion as motion_module
+    from mosegpipe.io import read_video
+    from mosegpipe.pipeline import segment_frames
+
+    calls: list[int] = []
+
+    def counted(original):  # type: ignore[no-untyped-def]
+        def wrapper(images, cfg):  # type: ignore[no-untyped-def]
+            calls.append(len(images))
+            return original(images, cfg)
+
+        return wrapper
+
+    monkeypatch.setattr(motion_module, "frame_motion", counted(motion_module.frame_motion))
+    monkeypatch.setattr(flow_tracks_module, "frame_motion", counted(flow_tracks_module.frame_motion))
+    frames = read_video(ROOT / "samples" / "rendered" / "frames", max_frames=4)
+    result = segment_frames(frames, PipelineConfig(frames=4, tracker="flow"))
+    assert calls == [4]  # one stack of flows for the points and the masks
+    assert result.masks.shape[0] == 4 and result.tracks.num_tracks >= 500

@@ -13,12 +13,13 @@ import numpy.typing as npt
 
 from mosegpipe.cluster import cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.flow import flow_fits
+from mosegpipe.flow import FrameMotion, flow_fits
 from mosegpipe.flow_tracks import combine_tracks, track_flow
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder
 from mosegpipe.io import check_images, read_video, video_info
 from mosegpipe.masks import labels_to_masks, motion_masks
+from mosegpipe.motion import stack_motion
 from mosegpipe.pipeline.common import (
     _check_k,
     _frames,
@@ -95,12 +96,17 @@ def group_tracks(
     return emb, clustering
 
 
-def clip_tracks(frames: Frames, cfg: PipelineConfig) -> Tracks:
+def _uses_flow_points(frames: Frames, cfg: PipelineConfig) -> bool:
+    return cfg.tracker != "klt" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.mask.motion.flow)
+
+
+def clip_tracks(frames: Frames, cfg: PipelineConfig, motion: FrameMotion | None = None) -> Tracks:
     """A clip's point tracks by cfg.tracker: KLT corners, a grid carried along the dense flow (the flow
-    of the motion masks' settings), or both. One frame, or frames too small for the flow: KLT."""
-    if cfg.tracker == "klt" or frames.num_frames < 2 or not flow_fits(frames.size_hw, cfg.mask.motion.flow):
+    of the motion masks' settings; `motion`: those flows, if already computed), or both. One frame, or
+    frames too small for the flow: KLT."""
+    if not _uses_flow_points(frames, cfg):
         return track_klt(frames, cfg.track)
-    dense = track_flow(frames.images, cfg.flow_tracks, cfg.mask.motion.flow)
+    dense = track_flow(frames.images, cfg.flow_tracks, cfg.mask.motion.flow, motion)
     if cfg.tracker == "flow":
         return dense
     return combine_tracks(track_klt(frames, cfg.track), dense, cfg.flow_tracks.klt_distance_px)
@@ -129,7 +135,13 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
     model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
-    tracks = clip_tracks(frames, cfg)
+    # Flow points and motion masks share the clip's flows: computed once, here.
+    shared = (
+        stack_motion(frames.images, cfg.mask.motion, frames.before, frames.after)
+        if _uses_flow_points(frames, cfg) and cfg.mask.method == "motion"
+        else None
+    )
+    tracks = clip_tracks(frames, cfg, shared)
     timings["track"] = time.perf_counter() - t0
     traj = build_trajectories(tracks, frames=frames.num_frames)
     if traj.num_points < cfg.min_tracks:
@@ -143,7 +155,9 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     else:
         emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
     t0 = time.perf_counter()
-    masks = clip_masks(frames.images, tracks, traj.track_ids, clustering.labels, cfg, frames.before, frames.after)
+    masks = clip_masks(
+        frames.images, tracks, traj.track_ids, clustering.labels, cfg, frames.before, frames.after, shared
+    )
     timings["masks"] = time.perf_counter() - t0
     return ClipResult(frames, tracks, traj, emb, clustering, masks, timings, model_info(model))
 
@@ -170,6 +184,7 @@ def clip_masks(
     cfg: PipelineConfig = PipelineConfig(),
     before: npt.NDArray[np.uint8] | None = None,
     after: npt.NDArray[np.uint8] | None = None,
+    motion: FrameMotion | None = None,
 ) -> npt.NDArray[np.uint8]:
     """The dense masks of a clip from its labelled tracks (segment_frames' mask stage).
 
@@ -185,12 +200,13 @@ def clip_masks(
         cfg: mask settings (and the rigid-motion settings that label the extra tracks).
         before, after: the source's frames next to the clip (Frames.before / after), evidence for the
             motion masks only.
+        motion: the motion masks' flow evidence of the clip (`motion.stack_motion`), if already computed.
 
     Returns:
         (T, H, W) uint8 masks, 255 = unknown.
     """
     if cfg.mask.method == "motion" and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.mask.motion.flow):
-        return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after)
+        return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:
         corners = spread_corners(images[0], budget, tracks.xy[tracks.visible[:, 0], 0], cfg.track)
