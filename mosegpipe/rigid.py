@@ -151,7 +151,8 @@ def _h_residual_px(
 def _fit_pair(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cfg: RigidCheckConfig) -> PairResiduals | None:
     """The rigid model of most correspondences a -> b as a residual function (None: no model fits)."""
     h_mat, _ = cv2.findHomography(a, b, cv2.RANSAC, cfg.residual_px, maxIters=1000, confidence=0.999)
-    if len(a) >= _MIN_FUNDAMENTAL:
+    # With homography_ratio 0 a fitted homography always wins: no fundamental matrix to fit.
+    if len(a) >= _MIN_FUNDAMENTAL and (cfg.homography_ratio > 0 or h_mat is None):
         f_mat, _ = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, cfg.residual_px, 0.999, 1000)
         if f_mat is not None and f_mat.shape == (3, 3):
             f_in = (_sampson_px(f_mat, a, b) <= cfg.residual_px).sum()

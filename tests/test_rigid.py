@@ -26,6 +26,13 @@ def _project(points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return FOCAL * points[..., :2] / points[..., 2:] + np.array([SIZE_HW[1] / 2, SIZE_HW[0] / 2])
 
 
+def _static_background(rng: np.random.Generator, count: int = 400) -> npt.NDArray[np.float64]:
+    """(count, 3) camera-frame points of a static scene at depths 4-40, spread over the image."""
+    pix = rng.uniform([40, 40], [SIZE_HW[1] - 40, SIZE_HW[0] - 40], size=(count, 2))
+    depth = rng.uniform(4.0, 40.0, size=count)
+    return np.c_[(pix - [SIZE_HW[1] / 2, SIZE_HW[0] / 2]) * depth[:, None] / FOCAL, depth]
+
+
 def scene(
     camera: str,
     object_points: int = 25,
@@ -42,9 +49,7 @@ def scene(
     none). Returns the trajectories and the true labels (0 background, 1 object).
     """
     rng = np.random.default_rng(seed)
-    pix = rng.uniform([40, 40], [SIZE_HW[1] - 40, SIZE_HW[0] - 40], size=(background, 2))
-    depth = rng.uniform(4.0, 40.0, size=background)
-    world = np.c_[(pix - [SIZE_HW[1] / 2, SIZE_HW[0] / 2]) * depth[:, None] / FOCAL, depth]
+    world = _static_background(rng, background)
     centre = np.array([0.6, 0.2, 8.0])
     box = centre + rng.uniform(-0.3, 0.3, size=(object_points, 3))
     tracks = []
@@ -139,12 +144,6 @@ def test_pieces_of_one_rigid_motion_are_merged() -> None:
     apart = replace(RigidCheckConfig(), merge_consistency=None)
     labels, split = split_by_rigid_motion(points, given, SIZE_HW, apart)
     assert split == 2
-
-
-def _static_background(rng: np.random.Generator, count: int = 400) -> npt.NDArray[np.float64]:
-    pix = rng.uniform([40, 40], [SIZE_HW[1] - 40, SIZE_HW[0] - 40], size=(count, 2))
-    depth = rng.uniform(4.0, 40.0, size=count)
-    return np.c_[(pix - [SIZE_HW[1] / 2, SIZE_HW[0] / 2]) * depth[:, None] / FOCAL, depth]
 
 
 def _trajectories(
