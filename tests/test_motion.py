@@ -232,7 +232,13 @@ def test_a_small_fast_mover_outweighs_a_large_slow_drift() -> None:
     fb_error = np.zeros_like(residual)
     motion = FrameMotion(residual, fb_error, 1.0)
     base = dict(
-        work_scale=1.0, colour_weight=0.0, fb_weight=0.0, temporal_weight=0.0, min_residual_px=0.0, noise_factor=0.0
+        work_scale=1.0,
+        colour_weight=0.0,
+        fb_weight=0.0,
+        temporal_weight=0.0,
+        min_residual_px=0.0,
+        noise_factor=0.0,
+        guided_radius=0,
     )
     by_area = moving_from_motion(images, motion, MotionMaskConfig(component_power=0.0, **base))
     by_strength = moving_from_motion(images, motion, MotionMaskConfig(**base))
@@ -240,6 +246,66 @@ def test_a_small_fast_mover_outweighs_a_large_slow_drift() -> None:
     assert by_strength[:, 42:48, 32:38].all() and not by_strength[:, 5:25, 5:75].any()
     with pytest.raises(ValueError, match="component_power"):
         MotionMaskConfig(component_power=-1.0)
+
+
+def _bare(**kw: float) -> MotionMaskConfig:
+    """Motion-mask settings with every step but Otsu's threshold off, then `kw`."""
+    base: dict[str, float] = dict(
+        work_scale=1.0,
+        colour_weight=0.0,
+        fb_weight=0.0,
+        temporal_weight=0.0,
+        min_residual_px=0.0,
+        noise_factor=0.0,
+        min_component=0.0,
+        spread_weight=0.0,
+        guided_radius=0,
+    )
+    return MotionMaskConfig(**(base | kw))  # type: ignore[arg-type]
+
+
+def test_flow_that_varies_from_pixel_to_pixel_is_weak_evidence_of_motion() -> None:
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import moving_from_motion
+
+    num, h, w = 2, 60, 90
+    rng = np.random.default_rng(3)
+    images = np.stack([_texture(h, w, 4)] * num)
+    residual = np.full((num, h, w), 0.05, np.float32)
+    forward = np.zeros((num - 1, h, w, 2), np.float32)
+    residual[:, 15:45, 10:40] = 3.0  # an object: every pixel moves 3 px right
+    forward[:, 15:45, 10:40, 0] = 3.0
+    residual[:, 15:45, 50:80] = 3.0  # water: 3 px too, each pixel its own way
+    angle = rng.uniform(0, 2 * np.pi, (num - 1, 30, 30)).astype(np.float32)
+    forward[:, 15:45, 50:80] = 3.0 * np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+    motion = FrameMotion(residual, np.zeros_like(residual), 1.0, forward, -forward)
+    plain = moving_from_motion(images, motion, _bare())
+    spread = moving_from_motion(images, motion, _bare(spread_weight=1.0))
+    assert plain[:, 20:40, 15:35].all() and plain[:, 20:40, 55:75].all()
+    assert spread[:, 20:40, 15:35].all() and spread[:, 20:40, 55:75].mean() < 0.1
+    with pytest.raises(ValueError, match="spread_weight"):
+        MotionMaskConfig(spread_weight=-1.0)
+
+
+def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import moving_from_motion
+
+    num, h, w = 2, 60, 80
+    images = np.full((num, h, w, 3), 40, np.uint8)
+    images[:, 20:40, 20:50] = 200  # a bright object on a plain dark background
+    truth = np.zeros((h, w), bool)
+    truth[20:40, 20:50] = True
+    for spill_px in (0, 3):  # the flow's edge blurred across the object's border, and 3 px beyond two of them
+        moving = np.zeros((h, w), np.float32)
+        moving[20 : 40 + spill_px, 20 : 50 + spill_px] = 1.0
+        residual = np.stack([0.1 + 3.0 * cv2.GaussianBlur(moving, (0, 0), 3.0)] * num)
+        motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
+        plain = moving_from_motion(images, motion, _bare())
+        guided = moving_from_motion(images, motion, _bare(guided_radius=4))
+        assert _iou(guided[0], truth) > _iou(plain[0], truth) + 0.09
+    with pytest.raises(ValueError, match="guided_eps"):
+        MotionMaskConfig(guided_eps=0.0)
 
 
 def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
