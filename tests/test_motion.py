@@ -308,6 +308,28 @@ def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
         MotionMaskConfig(guided_eps=0.0)
 
 
+def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
+    from mosegpipe.motion import ColourMemory, _colour_log_ratio
+
+    image = np.full((40, 40, 3), 128, np.uint8)
+    image[10:30, 10:30] = (220, 30, 30)  # a red object on grey
+    red = np.zeros((40, 40), bool)
+    red[10:30, 10:30] = True
+    moved = np.where(red, 2.0, -2.0).astype(np.float32)  # window 1: the object moved
+    still = np.full((40, 40), -2.0, np.float32)  # window 2: nothing moved
+    cfg = MotionMaskConfig()
+    memory = ColourMemory(0.9)
+    assert _colour_log_ratio([image], [moved], cfg, memory)[0][red].min() > 0
+    assert _colour_log_ratio([image], [still], cfg)[0][red].max() < 0  # window 2 alone: red is static
+    assert _colour_log_ratio([image], [still], cfg, memory)[0][red].min() > 0  # remembered
+    memory.reset()
+    assert _colour_log_ratio([image], [still], cfg, memory)[0][red].max() < 0
+    with pytest.raises(ValueError, match="decay"):
+        ColourMemory(1.0)
+    with pytest.raises(ValueError, match="colour_memory"):
+        MotionMaskConfig(colour_memory=-0.1)
+
+
 def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
     from dataclasses import replace
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import weakref
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -261,6 +262,34 @@ def test_a_shot_cut_restarts_tracking_and_windows(tmp_path: Path, model_path: Pa
     assert PipelineConfig.from_dict(recorded) == PipelineConfig(frames=5)
     del recorded["video_cut_survival"]  # a summary written before the test existed: replayed without it
     assert PipelineConfig.from_dict(recorded).video_cut_survival is None
+
+
+def test_the_colour_model_is_carried_from_window_to_window_and_starts_afresh_at_a_cut(
+    tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mosegpipe.pipeline import segment_video
+
+    frames = np.concatenate([render_scene(11, seed=0).frames, render_scene(9, seed=1).frames])  # cut at 11
+    folder = write_frames(tmp_path / "cut", frames)
+    model = SubspaceNet.from_checkpoint(model_path)
+    seen: list[tuple[int, bool]] = []  # per window: the memory's id, whether it held counts on entry
+    original = video_module.moving_from_motion
+
+    def recorded(*args: object, **kwargs: object) -> np.ndarray:
+        memory = kwargs["colour"]
+        seen.append((id(memory), memory is not None and memory.moving is not None))  # type: ignore[attr-defined]
+        return original(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(video_module, "moving_from_motion", recorded)
+    windows = list(segment_video(folder, PipelineConfig(frames=5), model))
+    assert [w.start for w in windows] == [0, 4, 8, 11, 15]
+    assert len({i for i, _ in seen}) == 1  # one memory for the video
+    assert [held for _, held in seen] == [False, True, True, False, True]  # emptied at the cut (frame 11)
+    seen.clear()
+    mask = PipelineConfig().mask
+    alone = PipelineConfig(frames=5, mask=replace(mask, motion=replace(mask.motion, colour_memory=0.0)))
+    list(segment_video(folder, alone, model))
+    assert seen == [(id(None), False)] * 5
 
 
 def test_tracks_that_end_inside_a_window_keep_their_last_label(frames_dir: Path, model_path: Path) -> None:

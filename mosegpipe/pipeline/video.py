@@ -34,7 +34,7 @@ from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
 from mosegpipe.masks import MaskConfig, carry_unclustered, labels_to_mask, moving_to_labels
-from mosegpipe.motion import moving_from_motion
+from mosegpipe.motion import ColourMemory, moving_from_motion
 from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels
@@ -248,7 +248,8 @@ def segment_video(
             f"{path}: frames of {width}x{height} px are too small to track "
             f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
-    run = _VideoRun()
+    memory = cfg.mask.motion.colour_memory
+    run = _VideoRun(colour=ColourMemory(memory) if memory > 0 else None)
     with contextlib.ExitStack() as stack:
         # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
@@ -280,6 +281,7 @@ class _VideoRun:
         ambiguous: (first, last) frame of each window whose K was ambiguous.
         last_mask: the last labelled frame's mask (None at the start of a shot): the moving regions
             no clustered motion reached take the label they had there (`masks.carry_unclustered`).
+        colour: the motion masks' colour model of the shot's windows so far (None = each window alone).
     """
 
     book: LabelBook = field(default_factory=LabelBook)
@@ -292,6 +294,7 @@ class _VideoRun:
     cuts: set[int] = field(default_factory=set)
     ambiguous: list[tuple[int, int]] = field(default_factory=list)
     last_mask: npt.NDArray[np.uint8] | None = None
+    colour: ColourMemory | None = None
 
 
 def _no_labels() -> npt.NDArray[np.int64]:
@@ -468,10 +471,13 @@ def _label_window(
     by_id = found.by_id()
     skip = 1 if first_labelled else 0
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
+    if not first_labelled and run.colour is not None:  # a shot starts here: its colours are new
+        run.colour.reset()
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
-        moving = moving_from_motion(images, stream.motion(indices, after=after), cfg.mask.motion, first=skip)
+        motion = stream.motion(indices, after=after)
+        moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour)
         stream.forget(indices[-1])  # the next window starts on this one's last frame
     if not first_labelled:  # a shot starts here: nothing to carry over
         run.last_mask = None
