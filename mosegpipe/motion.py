@@ -165,7 +165,7 @@ class MotionMaskConfig:
 def _resize(x: npt.NDArray[np.float32], hw: tuple[int, int]) -> npt.NDArray[np.float32]:
     if x.shape[:2] == hw:
         return x
-    return cv2.resize(x, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+    return cv2.resize(x, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR)
 
 
 def _colour_index(image: npt.NDArray[np.uint8], bins: int) -> npt.NDArray[np.int64]:
@@ -333,7 +333,7 @@ def moving_from_motion(
     to_full = np.float32(1.0 / motion.scale)
     to_work = np.float32(cfg.work_scale / motion.scale)
     hw = (max(1, round(height * cfg.work_scale)), max(1, round(width * cfg.work_scale)))
-    small = [cv2.resize(im, (hw[1], hw[0]), interpolation=cv2.INTER_AREA) for im in images]
+    small = [cv2.resize(im, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) for im in images]
     res = [_resize(r * to_full, hw) for r in motion.residual]
     logs = [np.log(r + np.float32(cfg.eps_px)) for r in res]
     if cfg.fb_weight > 0:
