@@ -89,7 +89,10 @@ class MotionMaskConfig:
             flows in the FrameMotion).
         temporal_passes: how often that averaging is repeated (each pass reaches one frame further).
         colour_weight: weight of the colour model's log ratio (0 = off).
-        colour_bins: histogram bins per RGB channel.
+        colour_bins: histogram bins per RGB channel. With the colour memory, finer bins tell an object's
+            colours from the background's better: DAVIS dev, whole video J 16 0.744, 24 0.748, 32 0.750,
+            48 0.752 (first 5 frames: 16 0.699, 24 0.703, 32 0.707); rendered dev clips 0.582 / 0.580
+            (16 / 32).
         colour_margin: pixels more than this above (below) the frame's threshold in log units train
             the moving (static) colour model.
         colour_memory: whole-video mode: the colour counts of the windows before count, multiplied
@@ -120,7 +123,7 @@ class MotionMaskConfig:
     temporal_weight: float = 1.0
     temporal_passes: int = 2
     colour_weight: float = 0.5
-    colour_bins: int = 16
+    colour_bins: int = 32
     colour_margin: float = 0.5
     colour_memory: float = 0.9
     superpixels: int = 0

@@ -311,12 +311,12 @@ def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
 def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
     from mosegpipe.motion import ColourMemory, _colour_log_ratio
 
-    image = np.full((40, 40, 3), 128, np.uint8)
-    image[10:30, 10:30] = (220, 30, 30)  # a red object on grey
-    red = np.zeros((40, 40), bool)
-    red[10:30, 10:30] = True
+    image = np.full((200, 200, 3), 128, np.uint8)  # (a frame's counts outweigh the histograms' prior)
+    image[60:140, 60:140] = (220, 30, 30)  # a red object on grey
+    red = np.zeros((200, 200), bool)
+    red[60:140, 60:140] = True
     moved = np.where(red, 2.0, -2.0).astype(np.float32)  # window 1: the object moved
-    still = np.full((40, 40), -2.0, np.float32)  # window 2: nothing moved
+    still = np.full((200, 200), -2.0, np.float32)  # window 2: nothing moved
     cfg = MotionMaskConfig()
     memory = ColourMemory(0.9)
     assert _colour_log_ratio([image], [moved], cfg, memory)[0][red].min() > 0
