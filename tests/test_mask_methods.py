@@ -101,3 +101,15 @@ def test_a_summary_without_extra_tracks_replays_without_them() -> None:
     assert PipelineConfig.from_dict(recorded).mask.extra_tracks == 1000
     del recorded["mask"]["extra_tracks"]  # written before the extra mask tracks existed
     assert PipelineConfig.from_dict(recorded).mask.extra_tracks == 0
+
+
+def test_a_summary_from_before_the_spread_and_guided_filter_replays_without_them() -> None:
+    from dataclasses import asdict
+
+    recorded = asdict(PipelineConfig())
+    assert PipelineConfig.from_dict(recorded) == PipelineConfig()
+    for name in ("spread_weight", "guided_radius", "guided_eps", "colour_memory"):
+        del recorded["mask"]["motion"][name]  # written before these steps existed
+    recorded["mask"]["motion"]["colour_bins"] = 16
+    motion = PipelineConfig.from_dict(recorded).mask.motion
+    assert (motion.spread_weight, motion.guided_radius, motion.colour_memory, motion.colour_bins) == (0, 0, 0, 16)

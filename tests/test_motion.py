@@ -38,6 +38,22 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / max((a | b).sum(), 1))
 
 
+def _bare(**kw: float) -> MotionMaskConfig:
+    """Motion-mask settings with every step but Otsu's threshold off, then `kw`."""
+    base: dict[str, float] = dict(
+        work_scale=1.0,
+        colour_weight=0.0,
+        fb_weight=0.0,
+        temporal_weight=0.0,
+        min_residual_px=0.0,
+        noise_factor=0.0,
+        min_component=0.0,
+        spread_weight=0.0,
+        guided_radius=0,
+    )
+    return MotionMaskConfig(**(base | kw))  # type: ignore[arg-type]
+
+
 def test_camera_residual_of_a_pure_homography_is_zero() -> None:
     h, w = 60, 80
     hom = np.array([[1.01, 0.002, 2.0], [-0.003, 0.99, -1.5], [1e-5, 2e-5, 1.0]])
@@ -204,17 +220,8 @@ def test_scores_carried_along_the_flow_fill_a_frame_whose_flow_missed_the_mover(
     backward = -forward
     fb_error = np.zeros_like(residual)
     motion = FrameMotion(residual, fb_error, 1.0, forward, backward)
-    base = dict(
-        work_scale=1.0,
-        superpixels=0,
-        colour_weight=0.0,
-        fb_weight=0.0,
-        min_residual_px=0.0,
-        noise_factor=0.0,
-        min_component=0.0,
-    )
-    without = moving_from_motion(images, motion, MotionMaskConfig(temporal_weight=0.0, **base))
-    carried = moving_from_motion(images, motion, MotionMaskConfig(**base))
+    without = moving_from_motion(images, motion, _bare())
+    carried = moving_from_motion(images, motion, _bare(temporal_weight=1.0))
     assert not without[1, 12:18, 22:28].any()
     assert carried[1, 12:18, 22:28].all()  # where the square is in frame 1
     assert carried[0, 12:18, 12:18].all() and carried[2, 12:18, 32:38].all()
@@ -231,37 +238,12 @@ def test_a_small_fast_mover_outweighs_a_large_slow_drift() -> None:
     residual[:, 40:50, 30:40] = 12.0  # a small object moving fast
     fb_error = np.zeros_like(residual)
     motion = FrameMotion(residual, fb_error, 1.0)
-    base = dict(
-        work_scale=1.0,
-        colour_weight=0.0,
-        fb_weight=0.0,
-        temporal_weight=0.0,
-        min_residual_px=0.0,
-        noise_factor=0.0,
-        guided_radius=0,
-    )
-    by_area = moving_from_motion(images, motion, MotionMaskConfig(component_power=0.0, **base))
-    by_strength = moving_from_motion(images, motion, MotionMaskConfig(**base))
+    by_area = moving_from_motion(images, motion, _bare(min_component=0.3, component_power=0.0))
+    by_strength = moving_from_motion(images, motion, _bare(min_component=0.3))
     assert by_area[:, 5:25, 5:75].all() and not by_area[:, 42:48, 32:38].any()
     assert by_strength[:, 42:48, 32:38].all() and not by_strength[:, 5:25, 5:75].any()
     with pytest.raises(ValueError, match="component_power"):
         MotionMaskConfig(component_power=-1.0)
-
-
-def _bare(**kw: float) -> MotionMaskConfig:
-    """Motion-mask settings with every step but Otsu's threshold off, then `kw`."""
-    base: dict[str, float] = dict(
-        work_scale=1.0,
-        colour_weight=0.0,
-        fb_weight=0.0,
-        temporal_weight=0.0,
-        min_residual_px=0.0,
-        noise_factor=0.0,
-        min_component=0.0,
-        spread_weight=0.0,
-        guided_radius=0,
-    )
-    return MotionMaskConfig(**(base | kw))  # type: ignore[arg-type]
 
 
 def test_flow_that_varies_from_pixel_to_pixel_is_weak_evidence_of_motion() -> None:

@@ -97,9 +97,10 @@ class PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid`, `video_cut_survival` and `mask.extra_tracks`: a summary without them was made before
-        the rigid-motion check (the shot-cut test, the extra mask tracks) existed, so it stays off and
-        a replay segments as that run did. An unknown field, a value of the wrong type or one the
+        `rigid`, `video_cut_survival`, `mask.extra_tracks` and `mask.motion.spread_weight`: a summary
+        without them was made before the rigid-motion check (the shot-cut test, the extra mask tracks,
+        the motion masks' spread, guided filter and colour memory) existed, so it stays off and a
+        replay segments as that run did. An unknown field, a value of the wrong type or one the
         config classes refuse is an error.
 
         Args:
@@ -118,6 +119,10 @@ class PipelineConfig:
             config = replace(config, video_cut_survival=None)
         if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:
             config = replace(config, mask=replace(config.mask, extra_tracks=0))
+        motion = data.get("mask", {}).get("motion") if isinstance(data, Mapping) else None
+        if isinstance(motion, Mapping) and "spread_weight" not in motion:
+            before = replace(config.mask.motion, spread_weight=0.0, guided_radius=0, colour_memory=0.0)
+            config = replace(config, mask=replace(config.mask, motion=before))
         return config
 
 
