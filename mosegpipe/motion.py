@@ -12,8 +12,9 @@ video"; the 10 val clips were not used to choose anything):
    the flow leads to, twice (so two frames either side count): a mover that one frame's flow misses
    keeps its evidence (dev J 0.617 -> 0.640, all 25 frames pooled).
 3. A colour model of the clip: RGB histograms of the confidently moving and confidently static pixels
-   of all frames; their log ratio is added to the motion score (the object's colours pull in its
-   untextured parts; the background's push out the flow's spill over the border).
+   of all frames (in whole-video mode, of the shot's windows before too, decayed: `ColourMemory`);
+   their log ratio is added to the motion score (the object's colours pull in its untextured parts;
+   the background's push out the flow's spill over the border).
 4. Optionally (off by default), superpixels (SLIC, scikit-image): the score is averaged over each.
    They helped with half-resolution flow; with full-resolution flow carried along the flow they
    cost J (dev 0.661 without, 0.646 with 600 superpixels; F 0.605 vs 0.568) and 15 % of the CPU.
@@ -83,7 +84,8 @@ class MotionMaskConfig:
             size 0.722, radius 2 0.739, 8 0.735; the colour frame as the guide 0.743 at 13x the cost,
             22 against 1.6 ms per 640x360 frame; 0 = off).
         guided_eps: the guided filter's regulariser, in (intensity / 255)^2: edges of lower contrast
-            than its square root are smoothed over (0.01 0.740, 0.001 0.743, 0.0001 0.743, colour guide).
+            than its square root are smoothed over (0.01 0.740, 0.001 0.743, 0.0001 0.743 with the colour
+            guide; with the grey guide and every later step, 0.003 0.749 against 0.001's 0.750).
         temporal_weight: each frame's score is averaged with its neighbours' scores carried to it along
             the flow, each neighbour with this weight against the frame's own 1 (0 = off; needs the
             flows in the FrameMotion).
