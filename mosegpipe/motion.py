@@ -200,7 +200,7 @@ class ColourMemory:
         self, moving: npt.NDArray[np.float64], static: npt.NDArray[np.float64]
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """The remembered counts after adding one window's."""
-        if self.moving is None or self.static is None or self.moving.shape != moving.shape:
+        if self.moving is None or self.static is None:
             self.moving, self.static = moving.copy(), static.copy()
         else:
             self.moving = self.decay * self.moving + moving
@@ -348,7 +348,8 @@ def moving_from_motion(
             logs[t] = logs[t] - np.float32(cfg.fb_weight) * cv2.blur(inconsistency, box)
     forward: list[npt.NDArray[np.float32]] = []
     backward: list[npt.NDArray[np.float32]] = []
-    if motion.forward is not None and motion.backward is not None and num > 1:
+    uses_flows = cfg.spread_weight > 0 or cfg.temporal_weight > 0
+    if uses_flows and motion.forward is not None and motion.backward is not None and num > 1:
         forward = [_resize(f, hw) * to_work for f in motion.forward]
         backward = [_resize(f, hw) * to_work for f in motion.backward]
     if cfg.spread_weight > 0 and forward:

@@ -471,16 +471,16 @@ def _label_window(
     by_id = found.by_id()
     skip = 1 if first_labelled else 0
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
-    if not first_labelled and run.colour is not None:  # a shot starts here: its colours are new
-        run.colour.reset()
+    if not first_labelled:  # a shot starts here: no mask to carry over, and its colours are new
+        run.last_mask = None
+        if run.colour is not None:
+            run.colour.reset()
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
         motion = stream.motion(indices, after=after)
         moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour)
         stream.forget(indices[-1])  # the next window starts on this one's last frame
-    if not first_labelled:  # a shot starts here: nothing to carry over
-        run.last_mask = None
     labelled = []
     for item, moved in zip(window[skip:], moving):
         frame = _labelled_frame(item, by_id, before, cfg.mask, masks, moved)
