@@ -108,8 +108,12 @@ def test_a_summary_from_before_the_spread_and_guided_filter_replays_without_them
 
     recorded = asdict(PipelineConfig())
     assert PipelineConfig.from_dict(recorded) == PipelineConfig()
+    del recorded["mask"]["motion"]["anchor_tracks"]  # written before the regions kept by tracks
+    assert PipelineConfig.from_dict(recorded).mask.motion.anchor_tracks == 0
+    assert PipelineConfig.from_dict(recorded).mask.motion.spread_weight == 0.5
     for name in ("spread_weight", "guided_radius", "guided_eps", "colour_memory"):
         del recorded["mask"]["motion"][name]  # written before these steps existed
     recorded["mask"]["motion"]["colour_bins"] = 16
     motion = PipelineConfig.from_dict(recorded).mask.motion
     assert (motion.spread_weight, motion.guided_radius, motion.colour_memory, motion.colour_bins) == (0, 0, 0, 16)
+    assert motion.anchor_tracks == 0

@@ -246,6 +246,43 @@ def test_a_small_fast_mover_outweighs_a_large_slow_drift() -> None:
         MotionMaskConfig(component_power=-1.0)
 
 
+def test_a_weak_region_survives_when_the_tracks_say_it_is_a_motion_of_its_own() -> None:
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import moving_from_motion
+
+    num, h, w = 2, 60, 80
+    images = np.stack([_texture(h, w, 9)] * num)
+    residual = np.full((num, h, w), 0.05, np.float32)
+    residual[:, 5:25, 5:25] = 12.0  # a fast object
+    residual[:, 35:55, 50:70] = 2.0  # a slow one: 36x weaker, dropped by strength alone
+    motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
+    cfg = _bare(min_component=0.3, anchor_tracks=3)
+    grid = np.stack(np.meshgrid(np.arange(8.0, 24, 4), np.arange(8.0, 24, 4)), -1).reshape(-1, 2)  # 16 points
+    fast, slow = grid.astype(np.float32), (grid + [45, 30]).astype(np.float32)
+
+    def held(slow_labels: list[int], fast_label: int = 1, shown_before: tuple[int, ...] = (1, 2)) -> bool:
+        """Whether the slow region is moving with these labels on its points (background 0)."""
+        xy = np.concatenate([fast, slow[: len(slow_labels)]])
+        labels = np.array([fast_label] * len(fast) + slow_labels, np.int64)
+        anchors = [(xy, labels, 0, np.array(shown_before, np.int64))] * num
+        masks = moving_from_motion(images, motion, cfg, anchors=anchors)
+        assert masks[:, 10:20, 10:20].all()
+        return bool(masks[:, 40:50, 55:65].all())
+
+    assert not held([])  # no points: strength decides
+    assert held([2] * 3)  # a motion no kept region shows, shown in the frame before
+    assert not held([2] * 3, shown_before=(1,))  # one the frame before did not show: a new mover must be strong
+    assert not held([2] * 2)  # too few of its points
+    assert not held([1] * 16)  # the fast region's motion: it shows already
+    assert not held([0] * 16)  # the background's
+    assert not held([2] * 3 + [0] * 4)  # more background points than the motion's
+    assert held([2] * 16, fast_label=0)  # the fast region taken for the background: the slow one stays
+    unanchored = moving_from_motion(images, motion, cfg)
+    assert not unanchored[:, 40:50, 55:65].any()
+    with pytest.raises(ValueError, match="anchor_tracks"):
+        MotionMaskConfig(anchor_tracks=-1)
+
+
 def test_flow_that_varies_from_pixel_to_pixel_is_weak_evidence_of_motion() -> None:
     from mosegpipe.flow import FrameMotion
     from mosegpipe.motion import moving_from_motion

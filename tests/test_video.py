@@ -292,6 +292,43 @@ def test_the_colour_model_is_carried_from_window_to_window_and_starts_afresh_at_
     assert seen == [(id(None), False)] * 5
 
 
+def test_each_window_hands_its_frames_tracks_and_the_motions_shown_before_to_the_masks(
+    tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mosegpipe.masks import MOVING_UNCLUSTERED, UNKNOWN
+    from mosegpipe.pipeline import segment_video
+
+    frames = np.concatenate([render_scene(11, seed=0).frames, render_scene(9, seed=1).frames])  # cut at 11
+    folder = write_frames(tmp_path / "cut", frames)
+    model = SubspaceNet.from_checkpoint(model_path)
+    handed: list[list] = []
+    original = video_module.moving_from_motion
+
+    def recorded(*args: object, **kwargs: object) -> np.ndarray:
+        handed.append(kwargs["anchors"])  # type: ignore[arg-type]
+        return original(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(video_module, "moving_from_motion", recorded)
+    windows = list(segment_video(folder, PipelineConfig(frames=5), model))
+    assert [len(a) for a in handed] == [len(w.frames) for w in windows]
+    last_mask = None
+    for window, anchors in zip(windows, handed):
+        for frame, (xy, labels, background, shown_here) in zip(window.frames, anchors):
+            np.testing.assert_array_equal(xy, frame.xy)
+            np.testing.assert_array_equal(labels, frame.labels)
+            assert background == np.bincount(labels[labels >= 0]).argmax()
+            np.testing.assert_array_equal(shown_here, anchors[0][3])  # one set for the window
+        shown = anchors[0][3]
+        if window.shot_start or last_mask is None:
+            assert shown.size == 0  # a shot's first window: nothing was shown before
+        else:
+            on_mask = np.unique(last_mask)
+            common = np.bincount(last_mask.ravel()).argmax()
+            assert set(shown) == set(on_mask) - {common, UNKNOWN, MOVING_UNCLUSTERED}
+        last_mask = window.frames[-1].mask
+    assert any(a[0][3].size for a in handed)  # the scene's movers were shown and handed on
+
+
 def test_tracks_that_end_inside_a_window_keep_their_last_label(frames_dir: Path, model_path: Path) -> None:
     from mosegpipe.pipeline import segment_video
 

@@ -97,10 +97,10 @@ class PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid`, `video_cut_survival`, `mask.extra_tracks` and `mask.motion.spread_weight`: a summary
-        without them was made before the rigid-motion check (the shot-cut test, the extra mask tracks,
-        the motion masks' spread, guided filter and colour memory) existed, so it stays off and a
-        replay segments as that run did. An unknown field, a value of the wrong type or one the
+        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.motion.spread_weight` and
+        `mask.motion.anchor_tracks`: a summary without them was made before the rigid-motion check (the
+        shot-cut test, the extra mask tracks, the motion masks' spread, guided filter and colour memory,
+        their regions kept by tracks) existed, so it stays off and a replay segments as that run did. An unknown field, a value of the wrong type or one the
         config classes refuse is an error.
 
         Args:
@@ -123,6 +123,8 @@ class PipelineConfig:
         if isinstance(motion, Mapping) and "spread_weight" not in motion:
             before = replace(config.mask.motion, spread_weight=0.0, guided_radius=0, colour_memory=0.0)
             config = replace(config, mask=replace(config.mask, motion=before))
+        if isinstance(motion, Mapping) and "anchor_tracks" not in motion:
+            config = replace(config, mask=replace(config.mask, motion=replace(config.mask.motion, anchor_tracks=0)))
         return config
 
 

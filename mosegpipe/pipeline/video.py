@@ -33,7 +33,15 @@ from mosegpipe.flow import FlowStream, flow_fits
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
-from mosegpipe.masks import MaskConfig, carry_unclustered, labels_to_mask, moving_to_labels
+from mosegpipe.masks import (
+    MOVING_UNCLUSTERED,
+    UNKNOWN,
+    MaskConfig,
+    background_label,
+    carry_unclustered,
+    labels_to_mask,
+    moving_to_labels,
+)
 from mosegpipe.motion import ColourMemory, moving_from_motion
 from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames
 from mosegpipe.pipeline.config import PipelineConfig
@@ -479,7 +487,9 @@ def _label_window(
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
         motion = stream.motion(indices, after=after)
-        moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour)
+        shown = _shown_motions(run.last_mask)
+        anchors = [(*_anchors(item, by_id, before), shown) for item in window[skip:]]
+        moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
         stream.forget(indices[-1])  # the next window starts on this one's last frame
     labelled = []
     for item, moved in zip(window[skip:], moving):
@@ -510,6 +520,28 @@ def _label_window(
     return result
 
 
+def _frame_labels(item: _Frame, labels: dict[int, int], before: dict[int, int]) -> npt.NDArray[np.int64]:
+    """The labels of one frame's tracks: this window's (`labels`), else the window before's (`before`), else -1."""
+    return np.array([labels.get(int(i), before.get(int(i), -1)) for i in item[2]], dtype=np.int64)
+
+
+def _anchors(
+    item: _Frame, labels: dict[int, int], before: dict[int, int]
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], int]:
+    """A frame's track positions, their labels and the background's label (the first three of `motion.Anchors`)."""
+    lab = _frame_labels(item, labels, before)
+    return item[3], lab, background_label(lab)
+
+
+def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
+    """The moving motions a frame's mask shows: its labels but the background (the most common) and unknown."""
+    if mask is None:
+        return np.zeros(0, np.int64)
+    counts = np.bincount(mask.ravel(), minlength=256)
+    counts[np.array([counts.argmax(), MOVING_UNCLUSTERED, UNKNOWN])] = 0
+    return np.flatnonzero(counts).astype(np.int64)
+
+
 def _labelled_frame(
     item: _Frame,
     labels: dict[int, int],
@@ -520,7 +552,7 @@ def _labelled_frame(
 ) -> VideoFrame:
     """One frame with its tracks' labels (`labels`, else the window before's `before`, else -1) and its mask."""
     t, img, ids, xy = item
-    lab = np.array([labels.get(int(i), before.get(int(i), -1)) for i in ids], dtype=np.int64)
+    lab = _frame_labels(item, labels, before)
     frame = VideoFrame(t, img, ids, xy, lab, None, moving)
     return replace(frame, mask=frame_mask(frame, cfg)) if masks else frame
 
