@@ -118,7 +118,10 @@ class MotionMaskConfig:
             strong). Long rendered dev clips (seeds 10-21): video J 0.816 -> 0.832, labels per object
             1.72 -> 1.68; DAVIS dev, whole video J 0.750 either way. Adding motions never shown as well
             cost DAVIS (5 frames: 0.707 -> 0.692, flamingo 0.82 -> 0.59: the other flamingos walk
-            too, and DAVIS-2016 labels only the main object). 0 = off.
+            too, and DAVIS-2016 labels only the main object). Clips and a window's own frames as
+            "before" (a motion strong in one frame of the stack keeps its weak regions in the others):
+            rendered dev clips J 0.580 -> 0.584, DAVIS dev 5 frames 0.707 either way, long rendered dev
+            clips unchanged: not kept. 0 = off.
     """
 
     flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=3))
@@ -310,19 +313,27 @@ def _region_motions(regions: npt.NDArray[np.int32], n: int, anchors: Anchors, mi
     return owner
 
 
+def _shown(kept: npt.NDArray[np.bool_], anchors: Anchors, min_points: int) -> npt.NDArray[np.int64]:
+    """The moving motions that hold a region of `kept` (`_region_motions`)."""
+    n, regions = cv2.connectedComponents(kept.astype(np.uint8), connectivity=8)
+    owners = _region_motions(regions, n, anchors, min_points)
+    return np.unique(owners[owners >= 0])
+
+
 def _add_anchored(
     kept: npt.NDArray[np.bool_], candidates: npt.NDArray[np.bool_], anchors: Anchors, min_points: int
 ) -> npt.NDArray[np.bool_]:
     """`kept` and the regions of `candidates` apart from it that a moving motion holds (`_region_motions`)
-    which the frame before showed and no region of `kept` holds: a motion the clipping of weak regions
-    would drop although its tracks go on."""
-    num_kept, kept_regions = cv2.connectedComponents(kept.astype(np.uint8), connectivity=8)
-    shown = np.unique(_region_motions(kept_regions, num_kept, anchors, min_points))
+    which the frame before showed (`anchors`) and no region of `kept` holds: its weaker regions, which the
+    strength test dropped although its tracks go on."""
+    allowed = anchors[3]
+    if allowed.size == 0 or np.array_equal(kept, candidates):  # nothing to add, or nothing dropped
+        return kept
     n, regions = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
     owner = _region_motions(regions, n, anchors, min_points)
     touching = np.zeros(n, bool)
     touching[regions[kept]] = True
-    add = (owner >= 0) & np.isin(owner, anchors[3]) & ~np.isin(owner, shown) & ~touching
+    add = (owner >= 0) & np.isin(owner, allowed) & ~np.isin(owner, _shown(kept, anchors, min_points)) & ~touching
     add[0] = False
     added: npt.NDArray[np.bool_] = kept | add[regions]
     return added
@@ -383,9 +394,9 @@ def moving_from_motion(
             video's window starts on a frame the window before already masked.
         colour: the colour model of the windows before (a video's), updated with this window's (None =
             this window's frames only).
-        anchors: per masked frame (T - first), the points the clustering labelled (`Anchors`): a region
-            that holds cfg.anchor_tracks points of moving motions survives step 5 however weak its flow
-            (None = none known).
+        anchors: per masked frame (T - first), the points the clustering labelled and the motions the
+            frame before showed (`Anchors`): a region step 5 drops survives when cfg.anchor_tracks points
+            of such a motion hold it and no kept region shows that motion (None = none known: clips).
 
     Returns:
         (T - first, H, W) bool, True = moving.
@@ -436,8 +447,8 @@ def moving_from_motion(
         eps = cfg.guided_eps * 255.0**2
         guides = [cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) for im in small]
         scores = [cv2.ximgproc.guidedFilter(g, z, cfg.guided_radius, eps) for g, z in zip(guides, scores)]
-    masks = np.zeros((num - first, height, width), bool)
     to_small = np.array([hw[1] / width, hw[0] / height], np.float32)
+    masks = np.zeros((num - first, height, width), bool)
     for t, (z, r) in enumerate(zip(scores, res)):
         moving = z > 0
         floor = max(cfg.min_residual_px, cfg.noise_factor * float(np.median(r)))
@@ -446,10 +457,8 @@ def moving_from_motion(
         kept = _keep_strong(moving, r, cfg.min_component, cfg.component_power)
         if anchors is not None and cfg.anchor_tracks > 0:
             xy, labels, background, shown_before = anchors[t]
-            held = (xy * to_small, labels, background, shown_before)
-            kept = _add_anchored(kept, moving, held, cfg.anchor_tracks)
-        moving = kept
-        masks[t] = cv2.resize(moving.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
+            kept = _add_anchored(kept, moving, (xy * to_small, labels, background, shown_before), cfg.anchor_tracks)
+        masks[t] = cv2.resize(kept.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
     return masks
 
 
@@ -494,7 +503,6 @@ def moving_masks(
     before: npt.NDArray[np.uint8] | None = None,
     after: npt.NDArray[np.uint8] | None = None,
     motion: FrameMotion | None = None,
-    anchors: list[Anchors] | None = None,
 ) -> npt.NDArray[np.bool_]:
     """Masks of what moves against the camera's motion in a stack of frames.
 
@@ -504,11 +512,10 @@ def moving_masks(
         first: masks of frames first..T-1 only (`moving_from_motion`).
         before, after: the source's frames next to the stack, as evidence (`stack_motion`).
         motion: `stack_motion` of these frames, if already computed (e.g. for the flow points).
-        anchors: per masked frame, the points the clustering labelled (`moving_from_motion`).
 
     Returns:
         (T - first, H, W) bool, True = moving.
     """
     if motion is None:
         motion = stack_motion(images, cfg, before, after)
-    return moving_from_motion(images, motion, cfg, first, anchors=anchors)
+    return moving_from_motion(images, motion, cfg, first)
