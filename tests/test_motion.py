@@ -69,6 +69,22 @@ def test_camera_residual_of_a_pure_homography_is_zero() -> None:
     assert np.median(res) < 0.05
 
 
+def test_the_camera_fit_keeps_to_the_background_beside_a_large_slowly_moving_object() -> None:
+    h, w = 120, 160
+    hom = np.array([[1.01, 0.002, 3.0], [-0.001, 1.01, -1.5], [1e-5, 0.0, 1.0]])
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    pts = np.stack([xs, ys], -1).reshape(1, -1, 2)
+    flow = (cv2.perspectiveTransform(pts, hom).reshape(h, w, 2) - pts.reshape(h, w, 2)).astype(np.float32)
+    obj = np.zeros((h, w), bool)
+    obj[20:100, 30:110] = True  # a third of the frame, 2.2 px against the camera
+    flow[obj] += np.float32([2.0, 1.0])
+    flow += np.random.default_rng(0).normal(0, 0.05, flow.shape).astype(np.float32)
+    res = camera_residual(flow, fit_camera(flow, None, FlowConfig()))  # MAGSAC's fit: 0.77 px on the background
+    assert np.median(res[~obj]) < 0.1 and np.median(res[obj]) > 2.0
+    with pytest.raises(ValueError, match="camera_fit"):
+        FlowConfig(camera_fit="lmeds")
+
+
 def test_frame_motion_separate_the_moving_square() -> None:
     images, gt = _scene()
     motion = frame_motion(images, FlowConfig())

@@ -186,7 +186,9 @@ class FlowHomographyConfig:
     Attributes:
         preset: DIS preset, "medium" or "fast".
         grid_step_px: spacing of the flow samples the homography is fitted to, pixels.
-        ransac_px: reprojection threshold of the robust fit (USAC MAGSAC), pixels.
+        ransac_px: reprojection threshold of the robust fit, pixels.
+        camera_fit: the robust fit (`FlowConfig.camera_fit`): USAC MAGSAC, as the baseline was first
+            measured (the pipeline's motion masks fit with RANSAC since; the baseline stays as defined).
         threshold_px: a pixel is foreground where |flow - homography flow| exceeds this, pixels ...
         noise_factor: ... or this many robust noise scales (1.4826 x median residual), whichever is larger.
         open_px: side of the square opening that removes isolated specks, pixels (0 = none).
@@ -196,6 +198,7 @@ class FlowHomographyConfig:
     preset: str = "medium"
     grid_step_px: int = 8
     ransac_px: float = 1.0
+    camera_fit: str = "magsac"
     threshold_px: float = 1.5
     noise_factor: float = 3.0
     open_px: int = 5
@@ -207,7 +210,9 @@ def _residual_foreground(
 ) -> npt.NDArray[np.bool_]:
     """(H, W) pixels of gray image `a` whose flow to `b` the best homography does not explain."""
     fwd = flow(a, b)
-    fit = FlowConfig(preset=cfg.preset, grid_step_px=cfg.grid_step_px, ransac_px=cfg.ransac_px)
+    fit = FlowConfig(
+        preset=cfg.preset, grid_step_px=cfg.grid_step_px, ransac_px=cfg.ransac_px, camera_fit=cfg.camera_fit
+    )
     residual = camera_residual(fwd, fit_camera(fwd, None, fit))
     fg = (residual > max(cfg.threshold_px, cfg.noise_factor * 1.4826 * float(np.median(residual)))).astype(np.uint8)
     if cfg.open_px:

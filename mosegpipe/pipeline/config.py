@@ -97,10 +97,11 @@ class PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.motion.spread_weight` and
-        `mask.motion.anchor_tracks`: a summary without them was made before the rigid-motion check (the
-        shot-cut test, the extra mask tracks, the motion masks' spread, guided filter and colour memory,
-        their regions kept by tracks) existed, so it stays off and a replay segments as that run did. An unknown field, a value of the wrong type or one the
+        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.motion.spread_weight`,
+        `mask.motion.anchor_tracks` and `mask.motion.flow.camera_fit`: a summary without them was made
+        before the rigid-motion check (the shot-cut test, the extra mask tracks, the motion masks' spread,
+        guided filter and colour memory, their regions kept by tracks) existed, so it stays off, or
+        before the camera's fit by RANSAC, so it fits by MAGSAC; a replay segments as that run did. An unknown field, a value of the wrong type or one the
         config classes refuse is an error.
 
         Args:
@@ -125,6 +126,10 @@ class PipelineConfig:
             config = replace(config, mask=replace(config.mask, motion=before))
         if isinstance(motion, Mapping) and "anchor_tracks" not in motion:
             config = replace(config, mask=replace(config.mask, motion=replace(config.mask.motion, anchor_tracks=0)))
+        flow = motion.get("flow") if isinstance(motion, Mapping) else None
+        if isinstance(flow, Mapping) and "camera_fit" not in flow:
+            before_fit = replace(config.mask.motion.flow, camera_fit="magsac")
+            config = replace(config, mask=replace(config.mask, motion=replace(config.mask.motion, flow=before_fit)))
         return config
 
 
