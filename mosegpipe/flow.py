@@ -65,7 +65,8 @@ class FlowConfig:
             background (median background residual 0.2-0.7 px where a least-squares fit of the true
             background leaves 0.05-0.08; rendered clips, seeds 12 and 17), and the noise floor then hides
             slow movers. RANSAC leaves 0.04 there, in half MAGSAC's time (2.5 against 4.9 ms for 5 400
-            samples). DAVIS dev, whole video J / F 0.750 / 0.714 -> 0.759 / 0.726 (elephant 0.67 -> 0.81).
+            samples). DAVIS dev, whole video J / F 0.750 / 0.714 -> 0.759 / 0.726 (elephant 0.67 -> 0.81;
+            ransac_px 0.5 0.751, 2.0 0.754), first 5 frames 0.707 / 0.672 -> 0.718 / 0.683.
         workers: threads that compute the flows and fits of a stack (`frame_motion`); OpenCV releases
             the GIL, so two threads use both cores of a small machine (each thread has its own DIS).
         patch_stride: DIS patch stride in pixels (None = the preset's: 3 for medium).
