@@ -7,6 +7,7 @@ import weakref
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -264,31 +265,49 @@ def test_a_shot_cut_restarts_tracking_and_windows(tmp_path: Path, model_path: Pa
     assert PipelineConfig.from_dict(recorded).video_cut_survival is None
 
 
-def test_the_colour_model_is_carried_from_window_to_window_and_starts_afresh_at_a_cut(
-    tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def _mask_calls(
+    monkeypatch: pytest.MonkeyPatch, folder: Path, model: SubspaceNet, cfg: PipelineConfig, capture: Any
+) -> tuple[list[Any], list[Any]]:
+    """segment_video's windows of `folder` and, per call of moving_from_motion, `capture(its keyword arguments)`
+    (taken when called: the colour memory changes afterwards)."""
     from mosegpipe.pipeline import segment_video
 
-    frames = np.concatenate([render_scene(11, seed=0).frames, render_scene(9, seed=1).frames])  # cut at 11
-    folder = write_frames(tmp_path / "cut", frames)
-    model = SubspaceNet.from_checkpoint(model_path)
-    seen: list[tuple[int, bool]] = []  # per window: the memory's id, whether it held counts on entry
+    calls: list[Any] = []
     original = video_module.moving_from_motion
 
     def recorded(*args: object, **kwargs: object) -> np.ndarray:
-        memory = kwargs["colour"]
-        seen.append((id(memory), memory is not None and memory.moving is not None))  # type: ignore[attr-defined]
+        calls.append(capture(kwargs))
         return original(*args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(video_module, "moving_from_motion", recorded)
-    windows = list(segment_video(folder, PipelineConfig(frames=5), model))
+    windows = list(segment_video(folder, cfg, model))
+    monkeypatch.setattr(video_module, "moving_from_motion", original)
+    return windows, calls
+
+
+def _two_shots(tmp_path: Path) -> Path:
+    """A frame folder of two rendered shots, the cut at frame 11."""
+    frames = np.concatenate([render_scene(11, seed=0).frames, render_scene(9, seed=1).frames])
+    return write_frames(tmp_path / "cut", frames)
+
+
+def test_the_colour_model_is_carried_from_window_to_window_and_starts_afresh_at_a_cut(
+    tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder, model = _two_shots(tmp_path), SubspaceNet.from_checkpoint(model_path)
+
+    def memory_state(kwargs: dict[str, Any]) -> tuple[int, bool]:
+        """The memory's id and whether it held counts on entry."""
+        memory = kwargs["colour"]
+        return id(memory), memory is not None and memory.moving is not None
+
+    windows, seen = _mask_calls(monkeypatch, folder, model, PipelineConfig(frames=5), memory_state)
     assert [w.start for w in windows] == [0, 4, 8, 11, 15]
     assert len({i for i, _ in seen}) == 1  # one memory for the video
     assert [held for _, held in seen] == [False, True, True, False, True]  # emptied at the cut (frame 11)
-    seen.clear()
     mask = PipelineConfig().mask
     alone = PipelineConfig(frames=5, mask=replace(mask, motion=replace(mask.motion, colour_memory=0.0)))
-    list(segment_video(folder, alone, model))
+    _, seen = _mask_calls(monkeypatch, folder, model, alone, memory_state)
     assert seen == [(id(None), False)] * 5
 
 
@@ -296,20 +315,11 @@ def test_each_window_hands_its_frames_tracks_and_the_motions_shown_before_to_the
     tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from mosegpipe.masks import MOVING_UNCLUSTERED, UNKNOWN
-    from mosegpipe.pipeline import segment_video
 
-    frames = np.concatenate([render_scene(11, seed=0).frames, render_scene(9, seed=1).frames])  # cut at 11
-    folder = write_frames(tmp_path / "cut", frames)
-    model = SubspaceNet.from_checkpoint(model_path)
-    handed: list[list] = []
-    original = video_module.moving_from_motion
-
-    def recorded(*args: object, **kwargs: object) -> np.ndarray:
-        handed.append(kwargs["anchors"])  # type: ignore[arg-type]
-        return original(*args, **kwargs)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(video_module, "moving_from_motion", recorded)
-    windows = list(segment_video(folder, PipelineConfig(frames=5), model))
+    folder, model = _two_shots(tmp_path), SubspaceNet.from_checkpoint(model_path)
+    windows, handed = _mask_calls(
+        monkeypatch, folder, model, PipelineConfig(frames=5), lambda kwargs: kwargs["anchors"]
+    )
     assert [len(a) for a in handed] == [len(w.frames) for w in windows]
     last_mask = None
     for window, anchors in zip(windows, handed):
