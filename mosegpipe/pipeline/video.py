@@ -478,6 +478,10 @@ def _label_window(
     )
     by_id = found.by_id()
     skip = 1 if first_labelled else 0
+    # each frame's tracks: this window's labels, else the window before's (tracks that end inside it), else -1
+    labs = [
+        np.array([by_id.get(int(i), before.get(int(i), -1)) for i in ids], np.int64) for _, _, ids, _ in window[skip:]
+    ]
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
     if not first_labelled:  # a shot starts here: no mask to carry over, and its colours are new
         run.last_mask = None
@@ -488,12 +492,12 @@ def _label_window(
         images = np.stack([img for _, img, _, _ in window])
         motion = stream.motion(indices, after=after)
         shown = _shown_motions(run.last_mask)
-        anchors = [(*_anchors(item, by_id, before), shown) for item in window[skip:]]
+        anchors = [(item[3], lab, background_label(lab), shown) for item, lab in zip(window[skip:], labs)]
         moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
         stream.forget(indices[-1])  # the next window starts on this one's last frame
     labelled = []
-    for item, moved in zip(window[skip:], moving):
-        frame = _labelled_frame(item, by_id, before, cfg.mask, masks, moved)
+    for item, lab, moved in zip(window[skip:], labs, moving):
+        frame = _labelled_frame(item, lab, cfg.mask, masks, moved)
         if frame.mask is not None:
             frame = replace(frame, mask=carry_unclustered(frame.mask, run.last_mask))
             run.last_mask = frame.mask
@@ -520,19 +524,6 @@ def _label_window(
     return result
 
 
-def _frame_labels(item: _Frame, labels: dict[int, int], before: dict[int, int]) -> npt.NDArray[np.int64]:
-    """The labels of one frame's tracks: this window's (`labels`), else the window before's (`before`), else -1."""
-    return np.array([labels.get(int(i), before.get(int(i), -1)) for i in item[2]], dtype=np.int64)
-
-
-def _anchors(
-    item: _Frame, labels: dict[int, int], before: dict[int, int]
-) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], int]:
-    """A frame's track positions, their labels and the background's label (the first three of `motion.Anchors`)."""
-    lab = _frame_labels(item, labels, before)
-    return item[3], lab, background_label(lab)
-
-
 def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
     """The moving motions a frame's mask shows: its labels but the background (the most common) and unknown."""
     if mask is None:
@@ -544,16 +535,14 @@ def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
 
 def _labelled_frame(
     item: _Frame,
-    labels: dict[int, int],
-    before: dict[int, int],
+    labels: npt.NDArray[np.int64],
     cfg: MaskConfig,
     masks: bool,
     moving: npt.NDArray[np.bool_] | None = None,
 ) -> VideoFrame:
-    """One frame with its tracks' labels (`labels`, else the window before's `before`, else -1) and its mask."""
+    """One frame with its tracks' labels and its mask."""
     t, img, ids, xy = item
-    lab = _frame_labels(item, labels, before)
-    frame = VideoFrame(t, img, ids, xy, lab, None, moving)
+    frame = VideoFrame(t, img, ids, xy, labels, None, moving)
     return replace(frame, mask=frame_mask(frame, cfg)) if masks else frame
 
 
