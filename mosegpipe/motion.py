@@ -313,27 +313,20 @@ def _region_motions(regions: npt.NDArray[np.int32], n: int, anchors: Anchors, mi
     return owner
 
 
-def _shown(kept: npt.NDArray[np.bool_], anchors: Anchors, min_points: int) -> npt.NDArray[np.int64]:
-    """The moving motions that hold a region of `kept` (`_region_motions`)."""
-    n, regions = cv2.connectedComponents(kept.astype(np.uint8), connectivity=8)
-    owners = _region_motions(regions, n, anchors, min_points)
-    return np.unique(owners[owners >= 0])
-
-
 def _add_anchored(
     kept: npt.NDArray[np.bool_], candidates: npt.NDArray[np.bool_], anchors: Anchors, min_points: int
 ) -> npt.NDArray[np.bool_]:
-    """`kept` and the regions of `candidates` apart from it that a moving motion holds (`_region_motions`)
-    which the frame before showed (`anchors`) and no region of `kept` holds: its weaker regions, which the
-    strength test dropped although its tracks go on."""
+    """`kept` (whole regions of `candidates`, as `_keep_strong` gives them) and the other regions of
+    `candidates` that a moving motion holds (`_region_motions`) which the frame before showed (`anchors`)
+    and no kept region holds: its weaker regions, which the strength test dropped although its tracks go on."""
     allowed = anchors[3]
     if allowed.size == 0 or np.array_equal(kept, candidates):  # nothing to add, or nothing dropped
         return kept
     n, regions = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
     owner = _region_motions(regions, n, anchors, min_points)
-    touching = np.zeros(n, bool)
-    touching[regions[kept]] = True
-    add = (owner >= 0) & np.isin(owner, allowed) & ~np.isin(owner, _shown(kept, anchors, min_points)) & ~touching
+    is_kept = np.zeros(n, bool)
+    is_kept[regions[kept]] = True
+    add = (owner >= 0) & np.isin(owner, allowed) & ~np.isin(owner, owner[is_kept]) & ~is_kept
     add[0] = False
     added: npt.NDArray[np.bool_] = kept | add[regions]
     return added

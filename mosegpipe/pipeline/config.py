@@ -101,8 +101,8 @@ class PipelineConfig:
         `mask.motion.anchor_tracks` and `mask.motion.flow.camera_fit`: a summary without them was made
         before the rigid-motion check (the shot-cut test, the extra mask tracks, the motion masks' spread,
         guided filter and colour memory, their regions kept by tracks) existed, so it stays off, or
-        before the camera's fit by RANSAC, so it fits by MAGSAC; a replay segments as that run did. An unknown field, a value of the wrong type or one the
-        config classes refuse is an error.
+        before the camera's fit by RANSAC, so it fits by MAGSAC; a replay segments as that run did. An
+        unknown field, a value of the wrong type or one the config classes refuse is an error.
 
         Args:
             data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
@@ -121,15 +121,16 @@ class PipelineConfig:
         if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:
             config = replace(config, mask=replace(config.mask, extra_tracks=0))
         motion = data.get("mask", {}).get("motion") if isinstance(data, Mapping) else None
-        if isinstance(motion, Mapping) and "spread_weight" not in motion:
-            before = replace(config.mask.motion, spread_weight=0.0, guided_radius=0, colour_memory=0.0)
-            config = replace(config, mask=replace(config.mask, motion=before))
-        if isinstance(motion, Mapping) and "anchor_tracks" not in motion:
-            config = replace(config, mask=replace(config.mask, motion=replace(config.mask.motion, anchor_tracks=0)))
-        flow = motion.get("flow") if isinstance(motion, Mapping) else None
-        if isinstance(flow, Mapping) and "camera_fit" not in flow:
-            before_fit = replace(config.mask.motion.flow, camera_fit="magsac")
-            config = replace(config, mask=replace(config.mask, motion=replace(config.mask.motion, flow=before_fit)))
+        if isinstance(motion, Mapping):
+            older: dict[str, Any] = {}  # the motion masks' settings of a summary written before a step existed
+            if "spread_weight" not in motion:
+                older.update(spread_weight=0.0, guided_radius=0, colour_memory=0.0)
+            if "anchor_tracks" not in motion:
+                older["anchor_tracks"] = 0
+            if isinstance(motion.get("flow"), Mapping) and "camera_fit" not in motion["flow"]:
+                older["flow"] = replace(config.mask.motion.flow, camera_fit="magsac")
+            if older:
+                config = replace(config, mask=replace(config.mask, motion=replace(config.mask.motion, **older)))
         return config
 
 
