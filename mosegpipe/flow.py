@@ -327,32 +327,36 @@ class FlowStream:
                 self._pairs[before] = (index, job)
         self._last = (index, gray)
 
-    def motion(self, indices: Sequence[int], after: int | None = None) -> FrameMotion:
+    def motion(self, indices: Sequence[int], after: int | None = None, before: int | None = None) -> FrameMotion:
         """FrameMotion of successive frames (at least 2, added one after the other in one shot), waiting for their flows.
 
         Frame t uses its flow to the next frame (checked by the flow back); the last frame its flow
         back to the frame before (checked by the flow forward); with `cfg.both_directions` the frames
-        between take the smaller of both, as `frame_motion` does, and so does the last frame when
-        `after` names the frame added after it (its flows are used for that, not returned).
+        between take the smaller of both, as `frame_motion` does, and so do the last frame when
+        `after` names the frame added after it and the first frame when `before` names the frame
+        added before it (their flows are used for that, not returned).
         """
         if len(indices) < 2:
             raise ValueError(f"motion needs at least 2 frames, got {len(indices)}")
-        steps = list(zip(indices, [*indices[1:], *([] if after is None else [after])]))
+        lead = [] if before is None else [before]
+        frames = [*lead, *indices, *([] if after is None else [after])]
+        steps = list(zip(frames[:-1], frames[1:]))
         with self._lock:
             jobs = [self._pairs.get(a, (None, None)) for a, _ in steps]
         for (following, job), (a, b) in zip(jobs, steps):
             if following != b or job is None:
                 raise ValueError(f"no flow from frame {a} to frame {b} (not added in turn, forgotten or a shot cut)")
         pairs = [job.result() for _, job in jobs if job is not None]
-        inside = pairs[: len(indices) - 1]
+        inside = pairs[len(lead) : len(lead) + len(indices) - 1]
         last = inside[-1].back_evidence(self.cfg)
         residual = np.stack([p.residual for p in inside] + [last[0]])
         fb_error = np.stack([p.fb_error for p in inside] + [last[1]])
         if self.cfg.both_directions:
             for t in range(1, len(pairs)):  # frame t: pair t's forward flow and pair t-1's flow back
                 back_residual, back_fb_error = pairs[t - 1].back_evidence(self.cfg)
-                np.minimum(pairs[t].residual, back_residual, out=residual[t])
-                np.minimum(pairs[t].fb_error, back_fb_error, out=fb_error[t])
+                own = t - len(lead)  # the frame's place in `indices`
+                np.minimum(pairs[t].residual, back_residual, out=residual[own])
+                np.minimum(pairs[t].fb_error, back_fb_error, out=fb_error[own])
         return FrameMotion(
             residual,
             fb_error,

@@ -110,6 +110,9 @@ def test_a_summary_from_before_the_spread_and_guided_filter_replays_without_them
     assert PipelineConfig.from_dict(recorded) == PipelineConfig()
     del recorded["mask"]["motion"]["flow"]["camera_fit"]  # written before the camera's fit by RANSAC
     assert PipelineConfig.from_dict(recorded).mask.motion.flow.camera_fit == "magsac"
+    del recorded["mask"]["motion"]["local_colour_weight"]  # written before the local colour contrast
+    assert PipelineConfig.from_dict(recorded).mask.motion.local_colour_weight == 0
+    assert PipelineConfig.from_dict(recorded).mask.motion.anchor_tracks == 3
     del recorded["mask"]["motion"]["anchor_tracks"]  # written before the regions kept by tracks
     assert PipelineConfig.from_dict(recorded).mask.motion.anchor_tracks == 0
     assert PipelineConfig.from_dict(recorded).mask.motion.spread_weight == 0.5

@@ -50,6 +50,7 @@ def _bare(**kw: float) -> MotionMaskConfig:
         min_component=0.0,
         spread_weight=0.0,
         guided_radius=0,
+        local_colour_weight=0.0,
     )
     return MotionMaskConfig(**(base | kw))  # type: ignore[arg-type]
 
@@ -365,6 +366,39 @@ def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
         MotionMaskConfig(colour_memory=-0.1)
 
 
+def test_the_local_colour_contrast_cuts_a_spill_that_the_clips_colour_model_cannot() -> None:
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import _local_colour_contrast, moving_from_motion
+
+    num, h, w = 2, 120, 240
+    images = np.empty((num, h, w, 3), np.uint8)
+    images[:, :, :120] = (60, 60, 60)  # left: a bright object on dark ground
+    images[:, 40:80, 30:70] = (200, 200, 200)
+    images[:, :, 120:] = (200, 200, 200)  # right: a dark object on bright ground
+    images[:, 40:80, 150:190] = (60, 60, 60)
+    truth = np.zeros((h, w), bool)
+    truth[40:80, 30:70] = truth[40:80, 150:190] = True
+    moving = np.zeros((h, w), np.float32)  # the flow's residual spills 8 px below both objects
+    moving[40:88, 30:70] = moving[40:88, 150:190] = 1.0
+    noise = np.random.default_rng(0).uniform(0.0, 1.5, (num, h, w)).astype(np.float32)
+    residual = 6.0 * moving + noise
+    motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
+    # both colours move and stand still alike: the clip's colour model is no help
+    alone = moving_from_motion(images, motion, _bare(colour_weight=0.5))
+    local = moving_from_motion(images, motion, _bare(colour_weight=0.5, local_colour_weight=1.5))
+    assert _iou(alone[0], truth) < 0.85
+    assert _iou(local[0], truth) > 0.95
+    score = np.where(moving > 0, 1.0, -1.0).astype(np.float32)
+    contrast = _local_colour_contrast(images[0], score, 0.5, 61)
+    assert contrast[84, 50] < -0.5 and contrast[84, 170] < -0.5  # the spills
+    assert contrast[70, 50] > 0.5 and contrast[70, 170] > 0.5  # the objects
+    assert contrast[10, 10] == 0  # a box that holds one class only
+    assert _local_colour_contrast(images[0], score, 0.5, 31)[60, 50] == 0
+    assert (_local_colour_contrast(images[0], np.full((h, w), -1.0, np.float32), 0.5, 31) == 0).all()  # no movers
+    with pytest.raises(ValueError, match="local_colour_box_px"):
+        MotionMaskConfig(local_colour_box_px=1)
+
+
 def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
     from dataclasses import replace
 
@@ -417,6 +451,17 @@ def test_flow_stream_gives_what_frame_motion_gives_and_keeps_to_its_pairs() -> N
     np.testing.assert_array_equal(got.residual, whole.residual[:3])
     np.testing.assert_array_equal(got.fb_error, whole.fb_error[:3])
     np.testing.assert_array_equal(got.forward, whole.forward[:2])
+    # `before`: the first frame also takes its flow back to the frame before, as it would inside a longer stack
+    with FlowStream(FlowConfig()) as stream:
+        for t in range(1, 5):
+            stream.add(t, images[t])
+        got = stream.motion([2, 3, 4], before=1)
+        with pytest.raises(ValueError, match="from frame 0 to frame 1"):
+            stream.motion([1, 2], before=0)
+    for name in ("residual", "fb_error"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(whole, name)[1:])
+    assert not np.array_equal(got.residual[0], frame_motion(images[2:5], FlowConfig()).residual[0])
+    np.testing.assert_array_equal(got.forward, whole.forward[1:])
     # a stream that dropped frames: the flow runs from the frame before to the next one added
     with FlowStream(FlowConfig()) as stream:
         stream.add(0, images[0])

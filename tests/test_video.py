@@ -268,7 +268,7 @@ def test_a_shot_cut_restarts_tracking_and_windows(tmp_path: Path, model_path: Pa
 def _mask_calls(
     monkeypatch: pytest.MonkeyPatch, folder: Path, model: SubspaceNet, cfg: PipelineConfig, capture: Any
 ) -> tuple[list[Any], list[Any]]:
-    """segment_video's windows of `folder` and, per call of moving_from_motion, `capture(its keyword arguments)`
+    """segment_video's windows of `folder` and, per call of moving_from_motion, `capture(its arguments by name)`
     (taken when called: the colour memory changes afterwards)."""
     from mosegpipe.pipeline import segment_video
 
@@ -276,7 +276,7 @@ def _mask_calls(
     original = video_module.moving_from_motion
 
     def recorded(*args: object, **kwargs: object) -> np.ndarray:
-        calls.append(capture(kwargs))
+        calls.append(capture(dict(zip(("images", "motion"), args)) | kwargs))
         return original(*args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(video_module, "moving_from_motion", recorded)
@@ -309,6 +309,26 @@ def test_the_colour_model_is_carried_from_window_to_window_and_starts_afresh_at_
     alone = PipelineConfig(frames=5, mask=replace(mask, motion=replace(mask.motion, colour_memory=0.0)))
     _, seen = _mask_calls(monkeypatch, folder, model, alone, memory_state)
     assert seen == [(id(None), False)] * 5
+
+
+def test_a_windows_first_frame_takes_the_flow_back_to_the_frame_before_it_inside_a_shot(
+    tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from mosegpipe.flow import frame_motion
+
+    folder, model = _two_shots(tmp_path), SubspaceNet.from_checkpoint(model_path)
+    frames = np.stack([image for _, image in iter_video(folder)])
+    cfg = PipelineConfig(frames=5)
+    windows, motions = _mask_calls(monkeypatch, folder, model, cfg, lambda kwargs: kwargs["motion"])
+    assert [w.start for w in windows] == [0, 4, 8, 11, 15]
+    flow = cfg.mask.motion.flow
+    for window, motion in zip(windows, motions):
+        t = window.start
+        if window.shot_start or t == 0:  # no frame before it in the shot: the flow to the next frame only
+            np.testing.assert_array_equal(motion.residual[0], frame_motion(frames[t : t + 2], flow).residual[0])
+        else:  # as inside a longer stack: the smaller evidence of its flows to the frames before and after
+            np.testing.assert_array_equal(motion.residual[0], frame_motion(frames[t - 1 : t + 2], flow).residual[1])
+            assert not np.array_equal(motion.residual[0], frame_motion(frames[t : t + 2], flow).residual[0])
 
 
 def test_each_window_hands_its_frames_tracks_and_the_motions_shown_before_to_the_masks(

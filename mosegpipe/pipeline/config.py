@@ -98,11 +98,13 @@ class PipelineConfig:
 
         A field left out takes its default (a summary written before the field existed), except
         `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.motion.spread_weight`,
-        `mask.motion.anchor_tracks` and `mask.motion.flow.camera_fit`: a summary without them was made
-        before the rigid-motion check (the shot-cut test, the extra mask tracks, the motion masks' spread,
-        guided filter and colour memory, their regions kept by tracks) existed, so it stays off, or
-        before the camera's fit by RANSAC, so it fits by MAGSAC; a replay segments as that run did. An
-        unknown field, a value of the wrong type or one the config classes refuse is an error.
+        `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight` and `mask.motion.flow.camera_fit`: a
+        summary without them was made before the rigid-motion check (the shot-cut test, the extra mask
+        tracks, the motion masks' spread, guided filter and colour memory, their regions kept by tracks,
+        their local colour contrast) existed, so it stays off, or before the camera's fit by RANSAC, so it
+        fits by MAGSAC; a replay segments as that run did (but for whole videos' motion masks, whose
+        windows' first frames take the flow back to the frame before since `local_colour_weight` came
+        in). An unknown field, a value of the wrong type or one the config classes refuse is an error.
 
         Args:
             data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
@@ -127,6 +129,8 @@ class PipelineConfig:
                 older.update(spread_weight=0.0, guided_radius=0, colour_memory=0.0)
             if "anchor_tracks" not in motion:
                 older["anchor_tracks"] = 0
+            if "local_colour_weight" not in motion:
+                older["local_colour_weight"] = 0.0
             if isinstance(motion.get("flow"), Mapping) and "camera_fit" not in motion["flow"]:
                 older["flow"] = replace(config.mask.motion.flow, camera_fit="magsac")
             if older:

@@ -290,6 +290,8 @@ class _VideoRun:
         last_mask: the last labelled frame's mask (None at the start of a shot): the moving regions
             no clustered motion reached take the label they had there (`masks.carry_unclustered`).
         colour: the motion masks' colour model of the shot's windows so far (None = each window alone).
+        frame_before: the frame before the last motion-masked window's last frame (whose flows the stream
+            keeps: the next window's first frame takes its flow back to it), or None.
     """
 
     book: LabelBook = field(default_factory=LabelBook)
@@ -303,6 +305,7 @@ class _VideoRun:
     ambiguous: list[tuple[int, int]] = field(default_factory=list)
     last_mask: npt.NDArray[np.uint8] | None = None
     colour: ColourMemory | None = None
+    frame_before: int | None = None
 
 
 def _no_labels() -> npt.NDArray[np.int64]:
@@ -487,14 +490,17 @@ def _label_window(
         run.last_mask = None
         if run.colour is not None:
             run.colour.reset()
+        run.frame_before = None
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
-        motion = stream.motion(indices, after=after)
+        # a window that starts on the one before's last frame gives that frame the flow back to the frame before it too
+        motion = stream.motion(indices, after=after, before=run.frame_before)
         shown = _shown_motions(run.last_mask)
         anchors = [(item[3], lab, background_label(lab), shown) for item, lab in zip(window[skip:], labs)]
         moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
-        stream.forget(indices[-1])  # the next window starts on this one's last frame
+        stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
+        run.frame_before = indices[-2]
     labelled = []
     for item, lab, moved in zip(window[skip:], labs, moving):
         frame = _labelled_frame(item, lab, cfg.mask, masks, moved)
