@@ -86,7 +86,11 @@ class MotionMaskConfig:
             frame in grey as the guide, radius in work-scale pixels: the score's edges move onto the
             image's (DAVIS dev, whole video, with the spread: J 0.727 -> 0.740; a box filter of the same
             size 0.722, radius 2 0.739, 8 0.735; the colour frame as the guide 0.743 at 13x the cost,
-            22 against 1.6 ms per 640x360 frame; 0 = off).
+            22 against 1.6 ms per 640x360 frame). With the local colour contrast, which moves the score's
+            edges itself, a smaller radius: J / F 2 0.771 / 0.745, 3 0.769 / 0.744, 4 0.767 / 0.742, 6 0.761 /
+            0.736; with colour_weight 0.75, radius 2 0.773 / 0.749 against radius 4's 0.770 / 0.746, first
+            5 frames 0.733 / 0.707 against 0.734 / 0.706 (radius 2 and 0.5: 0.732 / 0.705; 4 and 0.5 0.727 /
+            0.700). 0 = off.
         guided_eps: the guided filter's regulariser, in (intensity / 255)^2: edges of lower contrast
             than its square root are smoothed over (0.01 0.740, 0.001 0.743, 0.0001 0.743 with the colour
             guide; with the grey guide and every later step, 0.003 0.749 against 0.001's 0.750).
@@ -94,7 +98,10 @@ class MotionMaskConfig:
             the flow, each neighbour with this weight against the frame's own 1 (0 = off; needs the
             flows in the FrameMotion).
         temporal_passes: how often that averaging is repeated (each pass reaches one frame further).
-        colour_weight: weight of the colour model's log ratio (0 = off).
+        colour_weight: weight of the colour model's log ratio (0 = off). 0.5 before the local colour
+            contrast; with it (DAVIS dev, whole video J / F, guided radius 4): 0.25 0.759 / 0.730, 0.5 0.767 /
+            0.742, 0.75 0.770 / 0.746; with radius 2: 0.5 0.771 / 0.745, 0.75 0.773 / 0.749, 1.0 0.773 / 0.751
+            (the local contrast at 1.0 instead of 1.5 with 0.75: 0.771 / 0.746).
         colour_bins: histogram bins per RGB channel. With the colour memory, finer bins tell an object's
             colours from the background's better: DAVIS dev, whole video J 16 0.744, 24 0.748, 32 0.750,
             48 0.752 (first 5 frames: 16 0.699, 24 0.703, 32 0.707); rendered dev clips 0.582 / 0.580
@@ -147,11 +154,11 @@ class MotionMaskConfig:
     fb_weight: float = 0.75
     fb_box_px: int = 7
     spread_weight: float = 0.5
-    guided_radius: int = 4
+    guided_radius: int = 2
     guided_eps: float = 0.001
     temporal_weight: float = 1.0
     temporal_passes: int = 2
-    colour_weight: float = 0.5
+    colour_weight: float = 0.75
     colour_bins: int = 32
     colour_margin: float = 0.5
     colour_memory: float = 0.9
