@@ -117,8 +117,8 @@ class MotionMaskConfig:
             first 5 frames 0.718 / 0.683 -> 0.729 / 0.704). Chosen on the dev clips before the first frame
             of a window took its flow back (base 0.759): weight 0.5 0.762-0.764 (box 15 / 31), 1.0 0.765
             (box 61 or 91), 1.5 0.766, 2.0 0.766; an isotropic Gaussian per class instead of the means
-            0.765. Hockey, motorbike, motocross-bumps, horsejump-low, bmx-bumps and tennis gain 0.01-0.03,
-            bus and flamingo lose up to 0.005. 0 = off.
+            0.765. At 1.5: hockey, motorbike, motocross-bumps, bmx-bumps, tennis and horsejump-low gain
+            0.01-0.04; flamingo, dog-agility and bus lose 0.01-0.02. 0 = off.
         local_colour_box_px: side of the box (work-scale pixels) of those local means.
         colour_memory: whole-video mode: the colour counts of the windows before count, multiplied
             by this once per window (`ColourMemory`; 0 = each window alone). DAVIS dev, whole video: J
