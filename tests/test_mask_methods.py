@@ -122,3 +122,41 @@ def test_a_summary_from_before_the_spread_and_guided_filter_replays_without_them
     motion = PipelineConfig.from_dict(recorded).mask.motion
     assert (motion.spread_weight, motion.guided_radius, motion.colour_memory, motion.colour_bins) == (0, 0, 0, 16)
     assert motion.anchor_tracks == 0
+
+
+def test_settings_by_dotted_path_change_only_those_fields() -> None:
+    cfg = PipelineConfig().with_settings(
+        [
+            "mask.motion.fb_weight=0.5",
+            "mask.motion.flow.camera_fit=magsac",
+            "mask.motion.flow.patch_stride=null",
+            "frames=7",
+        ]
+    )
+    motion = cfg.mask.motion
+    assert (motion.fb_weight, motion.flow.camera_fit, motion.flow.patch_stride, cfg.frames) == (0.5, "magsac", None, 7)
+    assert isinstance(motion.fb_weight, float)
+    back = cfg.with_settings(["mask.motion.fb_weight=0.75", "mask.motion.flow.camera_fit=ransac"])
+    back = back.with_settings(["mask.motion.flow.patch_stride=4", "frames=5"])
+    assert back == PipelineConfig()
+    assert PipelineConfig().with_settings([]) == PipelineConfig()
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("mask.motion.fb_weight=high", "settings.mask.motion.fb_weight: expected a number, got 'high'"),
+        ("mask.motion.fb_weight=-1", "fb_weight=-1.0 must be >= 0"),
+        ("mask.motion.nope=1", "--set mask.motion.nope: unknown setting"),
+        ("mask.method.x=1", "--set mask.method: not a group of settings"),
+        ("fb_weight", "expected dotted.field=value"),
+        ("mask..fb_weight=1", "expected dotted.field=value"),
+    ],
+)
+def test_a_bad_setting_is_named(setting: str, message: str) -> None:
+    import re
+
+    from mosegpipe.errors import InputError
+
+    with pytest.raises(InputError, match=re.escape(message)):
+        PipelineConfig().with_settings([setting])

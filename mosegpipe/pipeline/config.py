@@ -3,13 +3,16 @@
 `PipelineConfig.from_dict` reads the `dataclasses.asdict` form back (summary.json `config`, replay):
 every field is checked against its type hint by hand (`_typed_value`), with JSON / TOML types only (no
 coercion from strings), and an error names the field (`summary.json: config.track.max_corners: ...`).
+`PipelineConfig.with_settings` changes nested fields named by dotted paths (`mask.motion.fb_weight=0.5`),
+checked the same way (benchmarks/davis_settings.py compares such variants on the DAVIS clips).
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import types
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
@@ -91,6 +94,41 @@ class PipelineConfig:
             raise InputError(
                 f"video_cut_survival={self.video_cut_survival} must lie in (0, 1) (or None: no cut detection)"
             )
+
+    def with_settings(self, settings: Sequence[str]) -> PipelineConfig:
+        """These settings with nested fields changed, each given as `dotted.path=value`.
+
+        The value is read as JSON (`0.5`, `3`, `true`, `null`, `"ransac"`); a value that is not JSON is
+        taken as a string (`mask.motion.flow.camera_fit=magsac`). The result is checked as `from_dict`
+        checks a summary's settings.
+
+        Args:
+            settings: e.g. ["mask.motion.fb_weight=0.5", "mask.motion.flow.preset=fast"].
+
+        Raises:
+            InputError: a setting without `=`, an unknown field or a value of the wrong type, named
+                (`settings.mask.motion.fb_weight: expected a number, got 'high'`).
+        """
+        from dataclasses import asdict
+
+        data = asdict(self)
+        for setting in settings:
+            path, sep, text = setting.partition("=")
+            keys = path.strip().split(".")
+            if not sep or not all(keys):
+                raise InputError(f"--set {setting!r}: expected dotted.field=value, e.g. mask.motion.fb_weight=0.5")
+            node = data
+            for depth, key in enumerate(keys[:-1]):
+                if not isinstance(node.get(key), dict):
+                    raise InputError(f"--set {'.'.join(keys[: depth + 1])}: not a group of settings")
+                node = node[key]
+            if keys[-1] not in node:
+                raise InputError(f"--set {path.strip()}: unknown setting (known here: {', '.join(node)})")
+            try:
+                node[keys[-1]] = json.loads(text)
+            except json.JSONDecodeError:
+                node[keys[-1]] = text.strip()
+        return type(self).from_dict(data, where="settings")
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
