@@ -173,3 +173,54 @@ def test_carry_unclustered_gives_an_anonymous_mover_the_label_it_had_in_the_fram
     sliver[7:9, 7:22] = 3
     assert (carry_unclustered(mask, sliver)[7:22, 7:22] == MOVING_UNCLUSTERED).all()
     assert (carry_unclustered(mask, np.zeros_like(previous)) == mask).all()
+
+
+def _two_movers(b_flow: np.ndarray) -> tuple:
+    """A 120x160 frame: region A (tracked, motion 1, moving +3 px in x) and region B (no tracks, flow
+    `b_flow`), both labelled 1 as the nearest-track rule labels them; background tracks static."""
+    h, w = 120, 160
+    moving = np.zeros((h, w), bool)
+    moving[30:70, 20:60] = True  # A
+    moving[30:70, 100:140] = True  # B
+    mask = np.where(moving, 1, 0).astype(np.uint8)
+    flow = np.zeros((h, w, 2), np.float32)
+    flow[30:70, 20:60] = (3.0, 0.0)
+    flow[30:70, 100:140] = b_flow
+    rng = np.random.default_rng(0)
+    on_a = np.stack([rng.uniform(22, 58, 30), rng.uniform(32, 68, 30)], axis=1).astype(np.float32)
+    still = np.stack([rng.uniform(0, 160, 60), rng.uniform(80, 120, 60)], axis=1).astype(np.float32)
+    xy = np.concatenate([on_a, still])
+    xy_next = np.concatenate([on_a + np.float32([3.0, 0.0]), still])
+    labels = np.array([1] * 30 + [0] * 60, np.int64)
+    return mask, moving, (xy, xy_next), labels, flow
+
+
+def test_an_untracked_region_moving_otherwise_takes_the_unclustered_label() -> None:
+    from mosegpipe.masks import MOVING_UNCLUSTERED, split_unexplained
+
+    mask, moving, step, labels, flow = _two_movers(np.float32([0.0, -4.0]))
+    out = split_unexplained(mask, moving, step, labels, 0, flow, 1.0)
+    assert (out[30:70, 100:140] == MOVING_UNCLUSTERED).mean() > 0.95
+    assert (out[30:70, 20:60] == 1).all()  # the tracked region keeps its motion
+    assert (out[~moving] == 0).all()
+    assert (mask[30:70, 100:140] == 1).all()  # the input is left as it was
+    # The same at half the flow's resolution (flows in half-resolution pixels).
+    small = np.ascontiguousarray(flow[::2, ::2] / 2)
+    half = split_unexplained(mask, moving, step, labels, 0, small, 0.5)
+    assert (half[32:68, 102:138] == MOVING_UNCLUSTERED).all() and (half[30:70, 20:60] == 1).all()
+
+
+def test_a_region_moving_with_its_label_or_not_rigid_or_small_keeps_it() -> None:
+    from mosegpipe.masks import split_unexplained
+
+    mask, moving, step, labels, flow = _two_movers(np.float32([3.0, 0.0]))  # a piece cut off from its tracks
+    assert split_unexplained(mask, moving, step, labels, 0, flow, 1.0) is mask
+    mask, moving, step, labels, flow = _two_movers(np.float32([0.0, -4.0]))
+    rng = np.random.default_rng(1)
+    flow[30:70, 100:140] = rng.uniform(-8, 8, (40, 40, 2))  # no rigid motion of its own (flow noise, water)
+    assert split_unexplained(mask, moving, step, labels, 0, flow, 1.0) is mask
+    flow[30:70, 100:140] = (0.0, -4.0)
+    assert split_unexplained(mask, moving, step, labels, 0, flow, 1.0, MaskConfig(unexplained_area=0.1)) is mask
+    few = labels.copy()
+    few[5:30] = 0  # motion 1 has 5 tracks: not judged
+    assert split_unexplained(mask, moving, step, few, 0, flow, 1.0) is mask

@@ -135,13 +135,14 @@ class PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.motion.spread_weight`,
-        `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight` and `mask.motion.flow.camera_fit`: a
-        summary without them was made before the rigid-motion check (the shot-cut test, the extra mask
-        tracks, the motion masks' spread, guided filter and colour memory, their regions kept by tracks,
-        their local colour contrast) existed, so it stays off, or before the camera's fit by RANSAC, so it
-        fits by MAGSAC; a replay segments as that run did (but for whole videos' motion masks, whose
-        windows' first frames take the flow back to the frame before since `local_colour_weight` came
+        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.unexplained_px`,
+        `mask.motion.spread_weight`, `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight` and
+        `mask.motion.flow.camera_fit`: a summary without them was made before the rigid-motion check (the
+        shot-cut test, the extra mask tracks, the unexplained moving regions' own label, the motion masks'
+        spread, guided filter and colour memory, their regions kept by tracks, their local colour contrast)
+        existed, so it stays off, or before the camera's fit by RANSAC, so it fits by MAGSAC; a replay
+        segments as that run did (but for whole videos' motion masks, whose windows' first frames take the
+        flow back to the frame before since `local_colour_weight` came
         in). An unknown field, a value of the wrong type or one the config classes refuse is an error.
 
         Args:
@@ -160,6 +161,8 @@ class PipelineConfig:
             config = replace(config, video_cut_survival=None)
         if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:
             config = replace(config, mask=replace(config.mask, extra_tracks=0))
+        if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "unexplained_px" not in data["mask"]:
+            config = replace(config, mask=replace(config.mask, unexplained_px=0.0))
         motion = data.get("mask", {}).get("motion") if isinstance(data, Mapping) else None
         if isinstance(motion, Mapping):
             older: dict[str, Any] = {}  # the motion masks' settings of a summary written before a step existed
