@@ -262,6 +262,14 @@ def eval_(
             "pipeline's).",
         ),
     ] = None,
+    settings: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--set",
+            help="End-to-end protocols: change a pipeline setting by its dotted path, e.g. --set "
+            "mask.motion.fb_weight=0.5 (repeatable; the fields of PipelineConfig, values as JSON).",
+        ),
+    ] = None,
     data_root: DataRoot = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,
@@ -294,6 +302,7 @@ def eval_(
         mask_method=_value(mask_method) if mask_method is not None else None,
         method=_value(method) if method is not None else None,
         points=_value(points) if points is not None else None,
+        settings=tuple(settings or ()),
         progress=typer.echo,
     )
     result = proto.run(proto, request)

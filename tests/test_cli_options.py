@@ -425,7 +425,14 @@ def test_cli_defaults_are_the_library_defaults() -> None:
 # ---------------------------------------------------------------------------------------------
 
 FREE_TEXT = {("batch", "address"), ("view", "bind"), ("train", "exclude"), ("eval", "baselines")}
-FREE_TEXT |= {("eval", "folds"), ("study", "clips"), ("live", "source"), ("live", "connect"), ("live", "stdin_size")}
+FREE_TEXT |= {
+    ("eval", "folds"),
+    ("eval", "settings"),
+    ("study", "clips"),
+    ("live", "source"),
+    ("live", "connect"),
+    ("live", "stdin_size"),
+}
 """The only options that take free text (addresses, comma-separated lists); every other choice is an Enum."""
 
 

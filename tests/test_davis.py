@@ -229,11 +229,13 @@ def test_moseg_eval_davis_writes_both_methods(fake_davis: Path, tmp_path: Path) 
 
     out = tmp_path / "out"
     code, stdout, stderr = moseg(
-        "eval", "davis-clip5", "--data-root", fake_davis.parent, "--out", out, "--folds", "alpha,beta"
-    )
+        "eval", "davis-clip5", "--data-root", fake_davis.parent, "--out", out, "--folds", "alpha,beta",
+        "--set", "mask.unexplained_px=0",
+    )  # fmt: skip
     assert code == 0, stderr
     result = json.loads((out / "results.json").read_text())
     assert result["config"]["mode"] == "clip5"
+    assert result["config"]["settings"] == ["mask.unexplained_px=0"]
     methods = [(r["method"], r["clip"]) for r in result["rows"]]
     assert methods == [
         ("pipeline", "alpha"),

@@ -136,6 +136,15 @@ def test_eval_requests_take_the_points() -> None:
     assert _pipeline_config(EvalRequest(out_dir=Path("x"), points="klt+flow"), 5).tracker == "klt+flow"
     with pytest.raises(InputError, match="--points"):
         _pipeline_config(EvalRequest(out_dir=Path("x"), points="sift"), 5)
+    changed = _pipeline_config(EvalRequest(out_dir=Path("x"), settings=("mask.motion.fb_weight=0.5",)), 5)
+    assert changed.mask.motion.fb_weight == 0.5 and changed.frames == 5
+
+
+def test_a_bad_eval_setting_is_one_error_line(tmp_path: Path) -> None:
+    code, _, stderr = moseg("eval", "rendered", "--out", tmp_path / "o", "--set", "mask.motion.fb_weight=high")
+    assert code == 1
+    assert stderr.strip() == "moseg: error: --set mask.motion.fb_weight: expected a number, got 'high'"
+    assert not (tmp_path / "o").exists()
 
 
 def test_klt_plus_flow_holds_the_corners_and_more() -> None:

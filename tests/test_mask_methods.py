@@ -148,8 +148,8 @@ def test_settings_by_dotted_path_change_only_those_fields() -> None:
 @pytest.mark.parametrize(
     ("setting", "message"),
     [
-        ("mask.motion.fb_weight=high", "settings.mask.motion.fb_weight: expected a number, got 'high'"),
-        ("mask.motion.fb_weight=-1", "fb_weight=-1.0 must be >= 0"),
+        ("mask.motion.fb_weight=high", "--set mask.motion.fb_weight: expected a number, got 'high'"),
+        ("mask.motion.fb_weight=-1", "--set mask.motion: fb_weight=-1.0 must be >= 0"),
         ("mask.motion.nope=1", "--set mask.motion.nope: unknown setting"),
         ("mask.method.x=1", "--set mask.method: not a group of settings"),
         ("fb_weight", "expected dotted.field=value"),

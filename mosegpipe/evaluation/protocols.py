@@ -61,6 +61,8 @@ class EvalRequest:
             "geometric"; None = the default). With "geometric", k_max bounds its K too.
         points: end-to-end protocols: where a clip's points come from (PipelineConfig.tracker, "klt",
             "flow" or "klt+flow"; None = the default).
+        settings: end-to-end protocols: pipeline settings changed by dotted path ("mask.motion.fb_weight=0.5",
+            `PipelineConfig.with_settings`), after the options above.
         progress: called with one line per fold / stage.
     """
 
@@ -84,6 +86,7 @@ class EvalRequest:
     mask_method: str | None = None
     method: str | None = None
     points: str | None = None
+    settings: tuple[str, ...] = ()
     progress: Callable[[str], None] | None = field(default=None, compare=False)
 
 
@@ -218,7 +221,7 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
         rigid=RigidCheckConfig(enabled=req.rigid_check),
         geometric=replace(GeometricConfig(), k_max=req.k_max),
         mask=mask,
-    )
+    ).with_settings(req.settings)
 
 
 def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
@@ -241,6 +244,7 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "method": cfg.method,
         "points": cfg.tracker,
         "model": str(req.model or "shipped default"),
+        **({"settings": list(req.settings)} if req.settings else {}),
     }
     table = format_rows(rows)
     summary = summarize_rows(rows)
@@ -288,6 +292,7 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "points": cfg.tracker,
         "model": str(req.model or "shipped default"),
         "clips": list(req.folds) if req.folds else "all",
+        **({"settings": list(req.settings)} if req.settings else {}),
     }
     table = "\n\n".join(tables)
     write_results(req.out_dir, rows, summary, config, table)

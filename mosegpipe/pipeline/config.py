@@ -107,7 +107,7 @@ class PipelineConfig:
 
         Raises:
             InputError: a setting without `=`, an unknown field or a value of the wrong type, named
-                (`settings.mask.motion.fb_weight: expected a number, got 'high'`).
+                (`--set mask.motion.fb_weight: expected a number, got 'high'`).
         """
         from dataclasses import asdict
 
@@ -128,7 +128,10 @@ class PipelineConfig:
                 node[keys[-1]] = json.loads(text)
             except json.JSONDecodeError:
                 node[keys[-1]] = text.strip()
-        return type(self).from_dict(data, where="settings")
+        try:
+            return type(self).from_dict(data, where="settings")
+        except InputError as exc:  # named as the user wrote it
+            raise InputError(str(exc).replace("settings.", "--set ", 1)) from exc
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
