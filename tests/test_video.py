@@ -375,3 +375,21 @@ def test_tracks_that_end_inside_a_window_keep_their_last_label(frames_dir: Path,
                 assert lab == last.get(i, -1)
                 carried += i in last
     assert carried >= 5  # tracks do end inside windows here (14: the planes move over the wall)
+
+
+def test_masks_left_to_the_caller_are_the_masks_computed_in_order(tmp_path: Path, model_path: Path) -> None:
+    """With the motion masks a frame's labels depend on the frame before's mask (carried unclustered regions,
+    the next window's anchors): segment_video(masks=False), as `moseg run --whole` calls it, gives them all the
+    same, so the command writes what the protocols score."""
+    from mosegpipe.pipeline import frame_mask, segment_video
+
+    folder, model = _two_shots(tmp_path), SubspaceNet.from_checkpoint(model_path)
+    cfg = PipelineConfig(frames=5)
+    inline = [f.mask for w in segment_video(folder, cfg, model) for f in w.frames]
+    deferred = [f for w in segment_video(folder, cfg, model, masks=False) for f in w.frames]
+    assert len(inline) == len(deferred) == 20
+    for mask, frame in zip(inline, deferred):
+        assert frame.mask is not None  # computed in order, with the frame before's mask at hand
+        np.testing.assert_array_equal(frame_mask(frame, cfg.mask), mask)
+    watershed = replace(cfg, mask=replace(cfg.mask, method="watershed"))
+    assert all(f.mask is None for w in segment_video(folder, watershed, model, masks=False) for f in w.frames)

@@ -212,7 +212,11 @@ def segment_video(
         model: the model (None = shipped default for cfg.frames).
         max_frames: stop after this many frames (None = whole video).
         masks: compute each frame's dense mask; False leaves VideoFrame.mask None for the caller
-            to compute with `frame_mask` (e.g. on another thread, as outputs.write_video_outputs does).
+            to compute with `frame_mask` (e.g. on another thread, as outputs.write_video_outputs does),
+            except with the motion masks: their labels depend on the frame before's mask (its regions
+            that no clustered motion reaches keep the label they had there, `masks.carry_unclustered`, and
+            the next window keeps the weaker regions of the motions shown, `MotionMaskConfig.anchor_tracks`),
+            so those are always computed here, in order.
         frames: the frames themselves, (index, (H, W, 3) uint8 RGB) in increasing index order, read
             in place of `path`, which then only names the source in messages (a live source:
             mosegpipe.live); cfg.start and max_frames do not apply, and the caller checks the frame
@@ -503,7 +507,8 @@ def _label_window(
         run.frame_before = indices[-2]
     labelled = []
     for item, lab, moved in zip(window[skip:], labs, moving):
-        frame = _labelled_frame(item, lab, cfg.mask, masks, moved)
+        # the motion masks need the frame before's mask: computed here, in order, whatever `masks` says
+        frame = _labelled_frame(item, lab, cfg.mask, masks or moved is not None, moved)
         if frame.mask is not None:
             frame = replace(frame, mask=carry_unclustered(frame.mask, run.last_mask))
             run.last_mask = frame.mask
