@@ -51,6 +51,7 @@ def _bare(**kw: float) -> MotionMaskConfig:
         spread_weight=0.0,
         guided_radius=0,
         local_colour_weight=0.0,
+        smooth_lambda=0.0,
     )
     return MotionMaskConfig(**(base | kw))  # type: ignore[arg-type]
 
@@ -342,6 +343,27 @@ def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
         assert _iou(guided[0], truth) > _iou(plain[0], truth) + 0.09
     with pytest.raises(ValueError, match="guided_eps"):
         MotionMaskConfig(guided_eps=0.0)
+
+
+def test_the_global_smoother_spreads_the_score_within_the_objects_colour() -> None:
+    from mosegpipe.flow import FrameMotion
+    from mosegpipe.motion import moving_from_motion
+
+    num, h, w = 2, 60, 80
+    images = np.full((num, h, w, 3), 40, np.uint8)
+    images[:, 20:40, 20:50] = (200, 120, 60)  # an object of one colour on a plain dark background
+    truth = np.zeros((h, w), bool)
+    truth[20:40, 20:50] = True
+    for spill_px in (0, 3):  # the flow's edge blurred across the object's border, and 3 px beyond two of them
+        moving = np.zeros((h, w), np.float32)
+        moving[20 : 40 + spill_px, 20 : 50 + spill_px] = 1.0
+        residual = np.stack([0.1 + 3.0 * cv2.GaussianBlur(moving, (0, 0), 3.0)] * num)
+        motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
+        plain = moving_from_motion(images, motion, _bare())
+        smoothed = moving_from_motion(images, motion, _bare(smooth_lambda=16.0))
+        assert _iou(smoothed[0], truth) > _iou(plain[0], truth) + 0.1  # measured: 0.77 -> 1.0, 0.62 -> 0.81
+    with pytest.raises(ValueError, match="smooth_sigma"):
+        MotionMaskConfig(smooth_sigma=0.0)
 
 
 def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:

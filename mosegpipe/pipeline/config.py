@@ -139,10 +139,12 @@ class PipelineConfig:
 
         A field left out takes its default (a summary written before the field existed), except
         `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.unexplained_px`,
-        `mask.motion.spread_weight`, `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight` and
+        `mask.motion.spread_weight`, `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight`,
+        `mask.motion.smooth_lambda` and
         `mask.motion.flow.camera_fit`: a summary without them was made before the rigid-motion check (the
         shot-cut test, the extra mask tracks, the unexplained moving regions' own label, the motion masks'
-        spread, guided filter and colour memory, their regions kept by tracks, their local colour contrast)
+        spread, guided filter and colour memory, their regions kept by tracks, their local colour contrast, their
+        global smoother)
         existed, so it stays off, or before the camera's fit by RANSAC, so it fits by MAGSAC; a replay
         segments as that run did (but for whole videos' motion masks, whose windows' first frames take the
         flow back to the frame before since `local_colour_weight` came
@@ -175,6 +177,8 @@ class PipelineConfig:
                 older["anchor_tracks"] = 0
             if "local_colour_weight" not in motion:
                 older["local_colour_weight"] = 0.0
+            if "smooth_lambda" not in motion:
+                older["smooth_lambda"] = 0.0
             if isinstance(motion.get("flow"), Mapping) and "camera_fit" not in motion["flow"]:
                 older["flow"] = replace(config.mask.motion.flow, camera_fit="magsac")
             if older:
