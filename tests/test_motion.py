@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from typing import Any
+
 import cv2
 import numpy as np
 import pytest
@@ -324,20 +327,27 @@ def test_flow_that_varies_from_pixel_to_pixel_is_weak_evidence_of_motion() -> No
         MotionMaskConfig(spread_weight=-1.0)
 
 
-def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
+def _object_with_spill(colour: tuple[int, int, int]) -> Iterator[tuple[np.ndarray, np.ndarray, Any]]:
+    """An object of one colour on a plain dark background (2 frames, 60x80), its true mask, and per case the
+    frames' evidence: the flow's edge blurred across the object's border, and 3 px beyond two of them."""
     from mosegpipe.flow import FrameMotion
-    from mosegpipe.motion import moving_from_motion
 
     num, h, w = 2, 60, 80
     images = np.full((num, h, w, 3), 40, np.uint8)
-    images[:, 20:40, 20:50] = 200  # a bright object on a plain dark background
+    images[:, 20:40, 20:50] = colour
     truth = np.zeros((h, w), bool)
     truth[20:40, 20:50] = True
-    for spill_px in (0, 3):  # the flow's edge blurred across the object's border, and 3 px beyond two of them
+    for spill_px in (0, 3):
         moving = np.zeros((h, w), np.float32)
         moving[20 : 40 + spill_px, 20 : 50 + spill_px] = 1.0
         residual = np.stack([0.1 + 3.0 * cv2.GaussianBlur(moving, (0, 0), 3.0)] * num)
-        motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
+        yield images, truth, FrameMotion(residual, np.zeros_like(residual), 1.0)
+
+
+def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
+    from mosegpipe.motion import moving_from_motion
+
+    for images, truth, motion in _object_with_spill((200, 200, 200)):
         plain = moving_from_motion(images, motion, _bare())
         guided = moving_from_motion(images, motion, _bare(guided_radius=4))
         assert _iou(guided[0], truth) > _iou(plain[0], truth) + 0.09
@@ -346,19 +356,9 @@ def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
 
 
 def test_the_global_smoother_spreads_the_score_within_the_objects_colour() -> None:
-    from mosegpipe.flow import FrameMotion
     from mosegpipe.motion import moving_from_motion
 
-    num, h, w = 2, 60, 80
-    images = np.full((num, h, w, 3), 40, np.uint8)
-    images[:, 20:40, 20:50] = (200, 120, 60)  # an object of one colour on a plain dark background
-    truth = np.zeros((h, w), bool)
-    truth[20:40, 20:50] = True
-    for spill_px in (0, 3):  # the flow's edge blurred across the object's border, and 3 px beyond two of them
-        moving = np.zeros((h, w), np.float32)
-        moving[20 : 40 + spill_px, 20 : 50 + spill_px] = 1.0
-        residual = np.stack([0.1 + 3.0 * cv2.GaussianBlur(moving, (0, 0), 3.0)] * num)
-        motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
+    for images, truth, motion in _object_with_spill((200, 120, 60)):
         plain = moving_from_motion(images, motion, _bare())
         smoothed = moving_from_motion(images, motion, _bare(smooth_lambda=16.0))
         assert _iou(smoothed[0], truth) > _iou(plain[0], truth) + 0.1  # measured: 0.77 -> 1.0, 0.62 -> 0.81
