@@ -620,10 +620,9 @@ def motion_masks(
         if cfg.unexplained_px > 0 and motion is not None and motion.forward is not None and motion.backward is not None:
             other = t + 1 if t + 1 < num else t - 1
             flow = motion.forward[t] if other > t else motion.backward[t - 1]
-            both = track_ids[seen & tracks.visible[track_ids, other]]
-            labelled = labels[seen & tracks.visible[track_ids, other]]
-            step = (tracks.xy[both, t], tracks.xy[both, other])
-            out[t] = split_unexplained(out[t], moving[t], step, labelled, background, flow, motion.scale, cfg)
+            both = seen & tracks.visible[track_ids, other]
+            step = (tracks.xy[track_ids[both], t], tracks.xy[track_ids[both], other])
+            out[t] = split_unexplained(out[t], moving[t], step, labels[both], background, flow, motion.scale, cfg)
     return out
 
 
@@ -688,9 +687,7 @@ def split_unexplained(
     unexplained = cv2.morphologyEx(unexplained.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     n, regions, stats, _ = cv2.connectedComponentsWithStats(unexplained, connectivity=8)
     split = np.zeros(n, bool)
-    for r in np.nonzero(stats[:, cv2.CC_STAT_AREA] >= cfg.unexplained_area * height * width)[0]:
-        if r == 0:
-            continue
+    for r in 1 + np.nonzero(stats[1:, cv2.CC_STAT_AREA] >= cfg.unexplained_area * height * width)[0]:
         ry, rx = np.nonzero(regions == r)
         pick = slice(None, None, max(1, ry.size // 1500))
         p = np.stack([rx[pick], ry[pick]], axis=1).astype(np.float32)

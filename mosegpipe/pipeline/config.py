@@ -13,7 +13,7 @@ import contextlib
 import json
 import types
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields, is_dataclass, replace
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
 from mosegpipe.cluster import ClusterConfig
@@ -109,8 +109,6 @@ class PipelineConfig:
             InputError: a setting without `=`, an unknown field or a value of the wrong type, named
                 (`--set mask.motion.fb_weight: expected a number, got 'high'`).
         """
-        from dataclasses import asdict
-
         data = asdict(self)
         for setting in settings:
             path, sep, text = setting.partition("=")
@@ -138,17 +136,15 @@ class PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.unexplained_px`,
-        `mask.motion.spread_weight`, `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight`,
-        `mask.motion.smooth_lambda` and
+        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.unexplained_px`, `mask.motion.spread_weight`,
+        `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight`, `mask.motion.smooth_lambda` and
         `mask.motion.flow.camera_fit`: a summary without them was made before the rigid-motion check (the
         shot-cut test, the extra mask tracks, the unexplained moving regions' own label, the motion masks'
-        spread, guided filter and colour memory, their regions kept by tracks, their local colour contrast, their
-        global smoother)
-        existed, so it stays off, or before the camera's fit by RANSAC, so it fits by MAGSAC; a replay
-        segments as that run did (but for whole videos' motion masks, whose windows' first frames take the
-        flow back to the frame before since `local_colour_weight` came
-        in). An unknown field, a value of the wrong type or one the config classes refuse is an error.
+        spread, guided filter and colour memory, their regions kept by tracks, their local colour contrast,
+        their global smoother) existed, so it stays off, or before the camera's fit by RANSAC, so it fits by
+        MAGSAC; a replay segments as that run did (but for whole videos' motion masks, whose windows' first
+        frames take the flow back to the frame before since `local_colour_weight` came in). An unknown
+        field, a value of the wrong type or one the config classes refuse is an error.
 
         Args:
             data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
