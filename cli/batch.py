@@ -6,7 +6,7 @@ import math
 import time
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, TypeAlias
 
 import typer
 
@@ -14,7 +14,6 @@ from mosegpipe.cli.app import _fail, _friendly, _setup
 from mosegpipe.cli.common import _check_model_path, _print_total, _progress_columns
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
-    MAX_FRAMES,
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
@@ -30,23 +29,22 @@ from mosegpipe.cli.options import (
     Threads,
     TrackerOptions,
     Verbose,
+    _choices,
     _pipeline_cfg,
     _value,
     option_blocks,
 )
 from mosegpipe.errors import InputError
+from mosegpipe.settings import MAX_CLIP_TIMEOUT_S, MAX_FRAMES
+from mosegpipe.types import ENGINES, SEGMENT_METHODS, TRACKERS
 
-
-class EngineChoice(StrEnum):
-    """--engine: the values of mosegpipe.batch.ENGINES (a test keeps them equal)."""
-
-    process = "process"
-    ray = "ray"
-    inline = "inline"
+if TYPE_CHECKING:
+    EngineChoice: TypeAlias = StrEnum
+else:
+    EngineChoice = _choices("EngineChoice", ENGINES)  # --engine
 
 
 MAX_JOBS = 1024
-MAX_CLIP_TIMEOUT_S = 1e6  # 11.6 days: beyond it a float of seconds overflows the worker's timers
 
 
 def _check_clip_timeout(value: float | None) -> float | None:
@@ -74,8 +72,8 @@ def batch(
     ] = 5,
     start: Start = 0,
     clustering: ClusterOptions = ClusterOptions(),
-    method: Method = MethodChoice.subspacenet,
-    points: Points = PointsChoice.klt,
+    method: Method = MethodChoice(SEGMENT_METHODS[0]),
+    points: Points = PointsChoice(TRACKERS[0]),
     rigid_check: RigidCheck = True,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
@@ -101,7 +99,7 @@ def batch(
             "--engine",
             help="process (worker processes on this machine), ray (Ray tasks: pip install 'mosegpipe[ray]') or inline (this process, one clip after another).",
         ),
-    ] = EngineChoice.process,
+    ] = EngineChoice(ENGINES[0]),
     address: Annotated[
         str | None,
         typer.Option(
@@ -141,7 +139,7 @@ def batch(
     from rich.markup import escape
     from rich.progress import Progress
 
-    from mosegpipe.batch import ENGINES, check_ray, plan, run_batch
+    from mosegpipe.batch import check_ray, plan, run_batch
     from mosegpipe.inference import load_model
 
     cfg = _pipeline_cfg(
@@ -156,8 +154,6 @@ def batch(
         mask_extra_tracks=mask_extra_tracks,
     )
     engine = _value(engine)
-    if engine not in ENGINES:
-        raise InputError(f"--engine {engine!r}: choose {', '.join(map(repr, ENGINES))}")
     if address is not None and engine != "ray":
         raise InputError("--address only applies with --engine ray")
     if engine == "ray":

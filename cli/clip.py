@@ -21,8 +21,6 @@ from mosegpipe.cli.common import (
 )
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
-    MAX_FRAME_INDEX,
-    MAX_FRAMES,
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
@@ -44,6 +42,8 @@ from mosegpipe.cli.options import (
     option_blocks,
 )
 from mosegpipe.errors import InputError
+from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES
+from mosegpipe.types import SEGMENT_METHODS, TRACKERS
 
 
 @_friendly
@@ -84,8 +84,8 @@ def run(
         ),
     ] = True,
     clustering: ClusterOptions = ClusterOptions(),
-    method: Method = MethodChoice.subspacenet,
-    points: Points = PointsChoice.klt,
+    method: Method = MethodChoice(SEGMENT_METHODS[0]),
+    points: Points = PointsChoice(TRACKERS[0]),
     rigid_check: RigidCheck = True,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
@@ -247,7 +247,7 @@ def tracks(
         ),
     ] = None,
     clustering: ClusterOptions = ClusterOptions(),
-    method: Method = MethodChoice.subspacenet,
+    method: Method = MethodChoice(SEGMENT_METHODS[0]),
     rigid_check: RigidCheck = True,
     model: ModelOpt = None,
     video: Annotated[

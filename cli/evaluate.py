@@ -1,12 +1,13 @@
 """moseg train (a checkpoint from a named recipe), moseg eval (a benchmark protocol) and moseg study (a
-study of the paper), with the choices they offer (each kept equal to its library registry by a test)."""
+study of the paper), with the choices they offer: built from the library's registries, but for the recipes,
+losses and baselines, whose modules import torch or scikit-learn (kept equal to them by a test)."""
 
 from __future__ import annotations
 
 import sys
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, get_args
+from typing import TYPE_CHECKING, Annotated, TypeAlias, get_args
 
 import typer
 
@@ -23,11 +24,14 @@ from mosegpipe.cli.options import (
     PointsChoice,
     RigidCheck,
     Verbose,
+    _choices,
     _data_root,
     _value,
 )
-from mosegpipe.errors import InputError, check_choice
-from mosegpipe.types import KMethodName
+from mosegpipe.errors import InputError
+from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
+from mosegpipe.evaluation.studies import STUDIES, Budget
+from mosegpipe.types import K_METHODS
 
 
 class PresetChoice(StrEnum):
@@ -57,51 +61,16 @@ class LossChoice(StrEnum):
     mimi_mean = "mimi-mean"
 
 
-class ProtocolChoice(StrEnum):
-    """eval PROTOCOL: the names of mosegpipe.evaluation.protocols.PROTOCOLS (a test keeps them equal)."""
-
-    kt3d_test = "kt3d-test"
-    kt3d_loo = "kt3d-loo"
-    adelaide_test = "adelaide-test"
-    adelaide_loo = "adelaide-loo"
-    hopkins_test = "hopkins-test"
-    lce = "lce"
-    kt3d_video = "kt3d-video"
-    adelaide_pairs = "adelaide-pairs"
-    kt3d_video_loo = "kt3d-video-loo"
-    adelaide_pairs_loo = "adelaide-pairs-loo"
-    rendered = "rendered"
-    rendered_long = "rendered-long"
-    davis = "davis"
-    davis_clip5 = "davis-clip5"
-
-
-class VariantChoice(StrEnum):
-    """eval --variant: the values of mosegpipe.evaluation.protocols.Variant (a test keeps them equal)."""
-
-    vanilla = "vanilla"
-    augment = "augment"
-
-
-class StudyChoice(StrEnum):
-    """study NAME: the names of mosegpipe.evaluation.studies.STUDIES (a test keeps them equal)."""
-
-    model_selection = "model-selection"
-    tsne = "tsne"
-    sampling_imbalance = "sampling-imbalance"
-    lce_curve = "lce-curve"
-    losses = "losses"
-    weak_supervision = "weak-supervision"
-    embedding_dim = "embedding-dim"
-    networks = "networks"
-    depth = "depth"
-
-
-class BudgetChoice(StrEnum):
-    """study --budget: the values of mosegpipe.evaluation.studies.Budget (a test keeps them equal)."""
-
-    cpu = "cpu"
-    full = "full"
+if TYPE_CHECKING:
+    ProtocolChoice: TypeAlias = StrEnum
+    VariantChoice: TypeAlias = StrEnum
+    StudyChoice: TypeAlias = StrEnum
+    BudgetChoice: TypeAlias = StrEnum
+else:  # the registries and vocabularies of the library (light modules: they import nothing heavy)
+    ProtocolChoice = _choices("ProtocolChoice", list(PROTOCOLS))  # eval PROTOCOL
+    VariantChoice = _choices("VariantChoice", get_args(Variant))  # eval --variant
+    StudyChoice = _choices("StudyChoice", list(STUDIES))  # study NAME
+    BudgetChoice = _choices("BudgetChoice", get_args(Budget))  # study --budget
 
 
 BASELINE_NAMES = ("kmeans-raw", "spectral-raw", "ssc")
@@ -110,8 +79,6 @@ BASELINE_NAMES = ("kmeans-raw", "spectral-raw", "ssc")
 
 def _protocol_help() -> str:
     """The protocol names from the registry: benchmark ones, then end-to-end ones."""
-    from mosegpipe.evaluation.protocols import PROTOCOLS
-
     bench = [p.name for p in PROTOCOLS.values() if p.kind == "benchmark"]
     e2e = [p.name for p in PROTOCOLS.values() if p.kind == "end-to-end"]
     return f"{', '.join(bench)}; end to end: {', '.join(e2e)}."
@@ -197,7 +164,7 @@ def eval_(
         typer.Option(
             "--variant", help="kt3d-loo: vanilla (the paper's protocol) or augment (with track augmentation)."
         ),
-    ] = VariantChoice.vanilla,
+    ] = VariantChoice(get_args(Variant)[0]),
     frames: Annotated[
         int | None,
         typer.Option(
@@ -236,7 +203,7 @@ def eval_(
         typer.Option("--baselines", help=f"Comma-separated baselines from {', '.join(BASELINE_NAMES)} ('' for none)."),
     ] = ",".join(BASELINE_NAMES),
     folds: Annotated[str | None, typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
-    k_method: KMethod = KMethodChoice.silhouette,
+    k_method: KMethod = KMethodChoice(K_METHODS[0]),
     k_max: KMax = 8,
     rigid_check: RigidCheck = True,
     mask_method: Annotated[
@@ -280,7 +247,6 @@ def eval_(
 
     proto = get_protocol(_value(protocol))
     k_method = _value(k_method)
-    check_choice("--k-method", k_method, get_args(KMethodName))
     request = EvalRequest(
         out_dir=out,
         data_root=_data_root(data_root) if proto.data else data_root,
@@ -312,8 +278,6 @@ def eval_(
 
 def _study_help() -> str:
     """The study names from the registry, each with the part of the paper it reproduces."""
-    from mosegpipe.evaluation.studies import STUDIES
-
     return "; ".join(f"{s.name} ({s.paper})" for s in STUDIES.values()) + "."
 
 
@@ -325,7 +289,7 @@ def study(
     ],
     budget: Annotated[
         BudgetChoice, typer.Option("--budget", help="cpu (fits a small CPU machine) or full (the paper's scale).")
-    ] = BudgetChoice.cpu,
+    ] = BudgetChoice(get_args(Budget)[0]),
     model: Annotated[
         Path | None, typer.Option("--model", help="A 5-frame checkpoint for the KT3DMoSeg clips (default: shipped).")
     ] = None,

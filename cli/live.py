@@ -17,8 +17,6 @@ import typer
 from mosegpipe.cli.app import _STOP_SIGNALS, _click, _friendly, _setup, _stopped, _Terminated
 from mosegpipe.cli.common import _check_model_path, _print_total, _print_video_summary, stop_child
 from mosegpipe.cli.options import (
-    MAX_FRAME_INDEX,
-    MAX_FRAMES,
     ClusterOptions,
     MaskMethodChoice,
     MaskOptions,
@@ -36,6 +34,8 @@ from mosegpipe.cli.options import (
     option_blocks,
 )
 from mosegpipe.errors import InputError, MosegError
+from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES
+from mosegpipe.types import SEGMENT_METHODS
 
 DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
 """Where a Rerun viewer started on its own (`rerun`) listens: --connect's default, --viewer's port."""
@@ -268,7 +268,7 @@ def live(
         typer.Option("--shot-cuts/--no-shot-cuts", help="Start tracking and windows afresh at a shot cut."),
     ] = True,
     clustering: ClusterOptions = ClusterOptions(),
-    method: Method = MethodChoice.subspacenet,
+    method: Method = MethodChoice(SEGMENT_METHODS[0]),
     rigid_check: RigidCheck = True,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),

@@ -17,33 +17,52 @@ import dataclasses
 import functools
 import inspect
 import os
+import re
 import typing
-from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from enum import Enum, StrEnum
 from pathlib import Path
-from typing import Annotated, Any, cast, get_args
+from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, cast
 
 import typer
 
-from mosegpipe.cli.app import F, _one_line
-from mosegpipe.errors import InputError, check_choice
-from mosegpipe.types import KMethodName
+from mosegpipe.cli.app import F
+from mosegpipe.errors import InputError
+from mosegpipe.settings import (
+    MAX_CORNERS,
+    MAX_EXTRA_TRACKS,
+    MAX_FORCED_K,
+    MAX_FRAME_INDEX,
+    MAX_K,
+    MAX_MASK_DISTANCE_PX,
+    MAX_MASK_MEDIAN_PX,
+    MAX_MIN_DISTANCE_PX,
+    MAX_THREADS,
+    MAX_WIN_SIZE_PX,
+)
+from mosegpipe.types import K_METHODS, MASK_METHODS, SEGMENT_METHODS, TRACKERS
 
-# Upper bounds of the numeric options, checked before any work (a usage error naming the option): past
-# them OpenCV crashes (--min-distance 1e308: SIGSEGV), overflows (--max-corners 3000000000, --win-size
-# 100001: tracebacks) or runs for minutes (--mask-median 100001). The library's configs hold the same
-# bounds (TrackConfig, ClusterConfig); a --config file is checked by the options themselves.
-MAX_THREADS = 256
-MAX_K = 64  # --k-max: each K is a K-means fit (benchmarks have at most 5 motions)
-MAX_FORCED_K = 100_000  # --k: at most the tracks, which --max-corners bounds in clips
-MAX_FRAMES = 10_000  # --frames: a window of trajectories, (N, 2F) per window
-MAX_FRAME_INDEX = 2**31 - 1  # --start, --max-frames: frame indices OpenCV can seek to
-MAX_CORNERS = 100_000
-MAX_MIN_DISTANCE_PX = 10_000.0
-MAX_WIN_SIZE_PX = 255
-MAX_MASK_DISTANCE_PX = 100_000.0
-MAX_MASK_MEDIAN_PX = 255
-MAX_EXTRA_TRACKS = 100_000
+# The upper bounds of the numeric options are the library's (mosegpipe.settings), checked before any work
+# (a usage error naming the option): past them OpenCV crashes, overflows or runs for minutes.
+
+
+def _choices(name: str, values: Sequence[str]) -> Any:
+    """The choices of an option: a StrEnum of the library's vocabulary (Typer lists and checks it), the
+    members named after the values (`klt+flow` -> `klt_flow`)."""
+    return StrEnum(name, [(re.sub(r"\W", "_", v), v) for v in values])
+
+
+if TYPE_CHECKING:
+    KMethodChoice: TypeAlias = StrEnum
+    MaskMethodChoice: TypeAlias = StrEnum
+    MethodChoice: TypeAlias = StrEnum
+    PointsChoice: TypeAlias = StrEnum
+else:
+    KMethodChoice = _choices("KMethodChoice", K_METHODS)  # --k-method
+    MaskMethodChoice = _choices("MaskMethodChoice", MASK_METHODS)  # --mask-method
+    MethodChoice = _choices("MethodChoice", SEGMENT_METHODS)  # --method
+    PointsChoice = _choices("PointsChoice", TRACKERS)  # --points
 
 Threads = Annotated[
     int,
@@ -76,37 +95,6 @@ KOpt = Annotated[
         help=f"Force this many motions, 1..{MAX_FORCED_K} and at most the tracks (default: automatic K).",
     ),
 ]
-
-
-class KMethodChoice(StrEnum):
-    """--k-method: the values of mosegpipe.types.KMethodName (a test keeps them equal)."""
-
-    silhouette = "silhouette"
-    residual = "residual"
-
-
-class MaskMethodChoice(StrEnum):
-    """--mask-method: the values of mosegpipe.masks.MASK_METHODS (a test keeps them equal)."""
-
-    motion = "motion"
-    watershed = "watershed"
-    nearest = "nearest"
-    vote = "vote"
-
-
-class MethodChoice(StrEnum):
-    """--method: the values of mosegpipe.pipeline.config.SEGMENT_METHODS (a test keeps them equal)."""
-
-    subspacenet = "subspacenet"
-    geometric = "geometric"
-
-
-class PointsChoice(StrEnum):
-    """--points: the values of mosegpipe.flow_tracks.TRACKERS (a test keeps them equal)."""
-
-    klt = "klt"
-    flow = "flow"
-    klt_flow = "klt+flow"
 
 
 def _value(choice: Any) -> Any:
@@ -307,7 +295,7 @@ class ClusterOptions:
     """--k, --k-method, --k-max: how many motions (run, pair, tracks, batch)."""
 
     k: KOpt = None
-    k_method: KMethod = KMethodChoice.silhouette
+    k_method: KMethod = KMethodChoice(K_METHODS[0])
     k_max: KMax = 8
 
 
@@ -332,7 +320,7 @@ class MaskOptions:
     (run, pair, batch; --mask-extra-tracks is an option of run and batch only). Each field's metadata
     names the MaskConfig field it sets."""
 
-    mask_method: MaskMethod = field(default=MaskMethodChoice.motion, metadata={"config": "method"})
+    mask_method: MaskMethod = field(default=MaskMethodChoice(MASK_METHODS[0]), metadata={"config": "method"})
     mask_max_distance: MaskMaxDistance = field(default=40.0, metadata={"config": "max_distance_px"})
     mask_min_agree: MaskMinAgree = field(default=1, metadata={"config": "min_agree"})
     mask_median: MaskMedian = field(default=0, metadata={"config": "median_px"})
@@ -410,8 +398,8 @@ def _pipeline_cfg(
     frames: int,
     clustering: ClusterOptions,
     *,
-    segment_method: MethodChoice | str = MethodChoice.subspacenet,
-    points: PointsChoice | str = PointsChoice.klt,
+    segment_method: StrEnum | str | None = None,
+    points: StrEnum | str | None = None,
     start: int = 0,
     rigid_check: bool = True,
     shot_cuts: bool = True,
@@ -419,44 +407,28 @@ def _pipeline_cfg(
     masks: MaskOptions | None = None,
     mask_extra_tracks: int | None = None,
 ) -> Any:
-    """The PipelineConfig of a command's options (tracker / masks None: the library's defaults;
-    mask_extra_tracks None: not an option of the command)."""
-    from mosegpipe.cluster import ClusterConfig
-    from mosegpipe.flow_tracks import TRACKERS
-    from mosegpipe.grouping import GeometricConfig
-    from mosegpipe.masks import MASK_METHODS, MaskConfig
+    """The PipelineConfig of a command's options (`PipelineConfig.from_options`; tracker / masks None: the
+    library's defaults; mask_extra_tracks None: not an option of the command)."""
+    from mosegpipe.masks import MaskConfig
     from mosegpipe.pipeline import PipelineConfig
-    from mosegpipe.pipeline.config import SEGMENT_METHODS
-    from mosegpipe.rigid import RigidCheckConfig
-    from mosegpipe.track import TrackConfig
 
-    method = cast(KMethodName, check_choice("--k-method", _value(clustering.k_method), get_args(KMethodName)))
-    segment = check_choice("--method", _value(segment_method), SEGMENT_METHODS)
-    source = check_choice("--points", _value(points), TRACKERS)
     track = tracker.config_fields() if tracker is not None else {}
     mask = masks.config_fields() if masks is not None else {}
     if mask_extra_tracks is not None:
         mask["extra_tracks"] = mask_extra_tracks
-    if mask.get("method", "motion") not in MASK_METHODS:
-        raise InputError(f"--mask-method {mask['method']!r}: choose {', '.join(map(repr, MASK_METHODS))}")
     _check_settings(track, mask, MaskConfig().vote_k)
-    try:
-        track_cfg = replace(TrackConfig(), **track)
-        mask_cfg = replace(MaskConfig(), **mask)
-    except ValueError as exc:  # the checks above should have caught it; still one line, not a traceback
-        raise InputError(_one_line(str(exc))) from exc
-    return PipelineConfig(
-        frames=frames,
+    return PipelineConfig.from_options(
+        frames,
         start=start,
         k=clustering.k,
-        method=segment,
-        tracker=source,
-        track=track_cfg,
-        cluster=replace(ClusterConfig(), method=method, k_max=clustering.k_max),
-        geometric=replace(GeometricConfig(), k_max=clustering.k_max),
-        rigid=RigidCheckConfig(enabled=rigid_check),
-        mask=mask_cfg,
-        video_cut_survival=PipelineConfig().video_cut_survival if shot_cuts else None,
+        k_method=_value(clustering.k_method),
+        k_max=clustering.k_max,
+        method=_value(segment_method),
+        points=_value(points),
+        rigid_check=rigid_check,
+        shot_cuts=shot_cuts,
+        track=track,
+        mask=mask,
     )
 
 

@@ -47,16 +47,15 @@ from mosegpipe.io import IMAGE_SUFFIXES, atomic_write, write_json
 from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import write_clip_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip
+from mosegpipe.settings import MAX_CLIP_TIMEOUT_S
+from mosegpipe.types import ENGINES
 
 log = logging.getLogger(__name__)
 
 VIDEO_EXTENSIONS = {".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv"}
 IMAGE_EXTENSIONS = IMAGE_SUFFIXES
-ENGINES = ("process", "ray", "inline")
 SUMMARY_FILES = ("batch_summary.csv", "batch_summary.json")
 LOCK_FILE = ".moseg-batch.lock"
-MAX_CLIP_TIMEOUT_S = 1e6
-"""Largest clip_timeout (11.6 days): beyond it a float of seconds overflows the workers' timers."""
 FIELDS = ("name", "status", "k", "tracks", "seconds", "output", "error")
 #: Output folder names longer than this (bytes) are shortened and get a hash suffix (NAME_MAX is 255).
 MAX_NAME_BYTES = 200

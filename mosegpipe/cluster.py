@@ -29,6 +29,7 @@ from sklearn.metrics import pairwise_distances
 
 from mosegpipe.errors import ConfigError, InputError
 from mosegpipe.runtime import limited_threads
+from mosegpipe.settings import MAX_K, MAX_THREADS, SettingError
 from mosegpipe.types import Clustering, KMethodName
 
 logger = logging.getLogger(__name__)
@@ -44,8 +45,6 @@ _RESIDUAL_FLOOR = 1e-9
 # without a sample 20 000 tracks took 3.3 GB and 100 000 asked for 74.5 GiB. 3000 points cost about
 # 70 MB of distances and keep clips and video windows (< 1100 tracks) exactly as they were.
 MAX_SCORED_POINTS = 3000
-
-MAX_K = 64  # the largest k_max (the CLI's --k-max and --k hold the same bound)
 
 
 @dataclass(frozen=True)
@@ -105,27 +104,27 @@ class ClusterConfig:
         if self.method not in _METHODS:
             raise ConfigError(f"cluster method {self.method!r} is not one of {', '.join(_METHODS)}")
         if self.k_min < 1:
-            raise InputError(f"k_min={self.k_min} must be at least 1")
+            raise ConfigError(f"k_min={self.k_min} must be at least 1")
         if self.k_max < self.k_min:
-            raise InputError(f"k_max={self.k_max} is smaller than k_min={self.k_min}")
+            raise ConfigError(f"k_max={self.k_max} is smaller than k_min={self.k_min}")
         if self.k_max > MAX_K:
-            raise InputError(f"k_max={self.k_max} is larger than {MAX_K} (each K is a K-means fit)")
+            raise ConfigError(f"k_max={self.k_max} is larger than {MAX_K} (each K is a K-means fit)")
         if self.n_init < 1:
-            raise InputError(f"n_init={self.n_init} must be at least 1")
-        if self.num_threads < 1:
-            raise InputError(f"num_threads={self.num_threads} must be at least 1")
+            raise ConfigError(f"n_init={self.n_init} must be at least 1")
+        if not 1 <= self.num_threads <= MAX_THREADS:
+            raise SettingError("num_threads", f"{self.num_threads} must lie in 1..{MAX_THREADS}")
         if not -1.0 <= self.min_elbow <= 1.0:
-            raise InputError(f"min_elbow={self.min_elbow} must lie in [-1, 1]")
+            raise ConfigError(f"min_elbow={self.min_elbow} must lie in [-1, 1]")
         if not -1.0 <= self.min_silhouette <= 1.0:
-            raise InputError(f"min_silhouette={self.min_silhouette} must lie in [-1, 1]")
+            raise ConfigError(f"min_silhouette={self.min_silhouette} must lie in [-1, 1]")
         if not 0.0 <= self.min_spread < 1.0:
-            raise InputError(f"min_spread={self.min_spread} must lie in [0, 1)")
+            raise ConfigError(f"min_spread={self.min_spread} must lie in [0, 1)")
         if not 0.0 <= self.one_motion_spread <= 1.0:
-            raise InputError(f"one_motion_spread={self.one_motion_spread} must lie in [0, 1]")
+            raise ConfigError(f"one_motion_spread={self.one_motion_spread} must lie in [0, 1]")
         if self.static_residual_px is not None and not self.static_residual_px >= 0:
-            raise InputError(f"static_residual_px={self.static_residual_px} must be >= 0 (or None)")
+            raise ConfigError(f"static_residual_px={self.static_residual_px} must be >= 0 (or None)")
         if not self.ambiguity_margin >= 0:
-            raise InputError(f"ambiguity_margin={self.ambiguity_margin} must be >= 0")
+            raise ConfigError(f"ambiguity_margin={self.ambiguity_margin} must be >= 0")
 
 
 def _check_embeddings(emb: npt.ArrayLike) -> npt.NDArray[np.float64]:

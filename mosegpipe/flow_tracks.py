@@ -33,13 +33,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from mosegpipe.errors import ConfigError
 from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, to_gray
-from mosegpipe.track import MAX_CORNERS
+from mosegpipe.settings import MAX_CORNERS
 from mosegpipe.types import Tracks
-
-TRACKERS = ("klt", "flow", "klt+flow")
-"""Where a clip's points come from: KLT corners (`mosegpipe.track`), a grid carried along the dense flow
-(`track_flow`), or both (`combine_tracks`)."""
 
 
 @dataclass(frozen=True)
@@ -77,13 +74,13 @@ class FlowTrackConfig:
 
     def __post_init__(self) -> None:
         if not 1 <= self.max_points <= MAX_CORNERS or self.min_step_px < 1:
-            raise ValueError(
+            raise ConfigError(
                 f"max_points={self.max_points} must lie in 1..{MAX_CORNERS} and min_step_px={self.min_step_px} be >= 1"
             )
         if self.fb_rel < 0 or self.fb_abs_px < 0 or self.border_px < 0 or self.klt_distance_px < 0:
-            raise ValueError("fb_rel, fb_abs_px, border_px and klt_distance_px must be >= 0")
+            raise ConfigError("fb_rel, fb_abs_px, border_px and klt_distance_px must be >= 0")
         if self.min_texture < 0 or self.max_brightness < 0:
-            raise ValueError(f"min_texture={self.min_texture} and max_brightness={self.max_brightness} must be >= 0")
+            raise ConfigError(f"min_texture={self.min_texture} and max_brightness={self.max_brightness} must be >= 0")
 
 
 def grid_seeds(image: npt.NDArray[np.uint8], cfg: FlowTrackConfig = FlowTrackConfig()) -> npt.NDArray[np.float32]:

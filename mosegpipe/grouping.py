@@ -40,7 +40,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.cluster import kmeans, relabel_by_size
-from mosegpipe.errors import InputError
+from mosegpipe.errors import ConfigError, InputError
 from mosegpipe.rigid import _MIN_FUNDAMENTAL, _h_residual_px, _sampson_px
 from mosegpipe.types import Clustering
 
@@ -84,20 +84,20 @@ class GeometricConfig:
 
     def __post_init__(self) -> None:
         if not self.residual_px > 0:
-            raise InputError(f"geometric grouping: residual_px={self.residual_px} must be positive")
+            raise ConfigError(f"geometric grouping: residual_px={self.residual_px} must be positive")
         if self.min_group < 1:
-            raise InputError(f"geometric grouping: min_group={self.min_group} must be at least 1")
+            raise ConfigError(f"geometric grouping: min_group={self.min_group} must be at least 1")
         if not 0 <= self.min_share < 1:
-            raise InputError(f"geometric grouping: min_share={self.min_share} must lie in [0, 1)")
+            raise ConfigError(f"geometric grouping: min_share={self.min_share} must lie in [0, 1)")
         if self.k_max < 1:
-            raise InputError(f"geometric grouping: k_max={self.k_max} must be at least 1")
+            raise ConfigError(f"geometric grouping: k_max={self.k_max} must be at least 1")
         for name in ("homography_ratio", "planar_share"):
             if not 0 < getattr(self, name) <= 1:
-                raise InputError(f"geometric grouping: {name}={getattr(self, name)} must lie in (0, 1]")
+                raise ConfigError(f"geometric grouping: {name}={getattr(self, name)} must lie in (0, 1]")
         if self.ransac_iters < 1:
-            raise InputError(f"geometric grouping: ransac_iters={self.ransac_iters} must be at least 1")
+            raise ConfigError(f"geometric grouping: ransac_iters={self.ransac_iters} must be at least 1")
         if not 0 < self.confidence < 1:
-            raise InputError(f"geometric grouping: confidence={self.confidence} must lie in (0, 1)")
+            raise ConfigError(f"geometric grouping: confidence={self.confidence} must lie in (0, 1)")
 
 
 @dataclass(frozen=True)

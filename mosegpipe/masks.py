@@ -42,7 +42,7 @@ from mosegpipe.errors import InputError
 from mosegpipe.flow import FrameMotion
 from mosegpipe.io import default_palette
 from mosegpipe.motion import MotionMaskConfig, moving_masks, stack_motion
-from mosegpipe.types import Tracks
+from mosegpipe.types import MASK_METHODS, Tracks
 
 MAX_LABEL = 254
 """Largest motion label a uint8 mask can hold (the mask value is the label)."""
@@ -52,9 +52,6 @@ UNKNOWN = 255
 
 MOVING_UNCLUSTERED = MAX_LABEL
 """"motion" masks: moving pixels with no track of a moving motion in their frame."""
-
-MASK_METHODS = ("motion", "watershed", "nearest", "vote")
-"""The densifiers `MaskConfig.method` accepts; the first is the default."""
 
 
 @dataclass(frozen=True)

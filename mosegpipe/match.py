@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import InputError
+from mosegpipe.errors import ConfigError, InputError
 from mosegpipe.types import Matches
 
 logger = logging.getLogger(__name__)
@@ -52,11 +52,11 @@ class MatchConfig:
 
     def __post_init__(self) -> None:
         if not 0.0 < self.ratio <= 1.0:
-            raise ValueError(f"ratio={self.ratio} must be in (0, 1]")
+            raise ConfigError(f"ratio={self.ratio} must be in (0, 1]")
         if self.matcher not in ("bf", "flann"):
-            raise ValueError(f"matcher={self.matcher!r} must be 'bf' or 'flann'")
+            raise ConfigError(f"matcher={self.matcher!r} must be 'bf' or 'flann'")
         if self.nfeatures < 0:
-            raise ValueError(f"nfeatures={self.nfeatures} must be >= 0")
+            raise ConfigError(f"nfeatures={self.nfeatures} must be >= 0")
 
 
 def _gray(image: npt.NDArray[np.uint8], name: str) -> npt.NDArray[np.uint8]:

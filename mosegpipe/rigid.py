@@ -56,7 +56,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mosegpipe.cluster import relabel_by_size
-from mosegpipe.errors import InputError
+from mosegpipe.errors import ConfigError
 
 _MIN_FUNDAMENTAL = 15  # fewer points: only the homography is fitted (8 would do, but barely constrain it)
 
@@ -106,17 +106,17 @@ class RigidCheckConfig:
     def __post_init__(self) -> None:
         for name in ("residual_px", "neighbour_frac", "motion_px"):
             if not getattr(self, name) > 0:
-                raise InputError(f"rigid check: {name}={getattr(self, name)} must be positive")
+                raise ConfigError(f"rigid check: {name}={getattr(self, name)} must be positive")
         if self.merge_consistency is not None and not 0 <= self.merge_consistency <= 1:
-            raise InputError(f"rigid check: merge_consistency={self.merge_consistency} must lie in [0, 1] (or None)")
+            raise ConfigError(f"rigid check: merge_consistency={self.merge_consistency} must lie in [0, 1] (or None)")
         for name in ("motion_frac", "consistency", "homography_ratio", "min_share"):
             if not 0 <= getattr(self, name) <= 1:
-                raise InputError(f"rigid check: {name}={getattr(self, name)} must lie in [0, 1]")
+                raise ConfigError(f"rigid check: {name}={getattr(self, name)} must lie in [0, 1]")
         if not 0 <= self.max_angle_deg <= 180:
-            raise InputError(f"rigid check: max_angle_deg={self.max_angle_deg} must lie in [0, 180]")
+            raise ConfigError(f"rigid check: max_angle_deg={self.max_angle_deg} must lie in [0, 180]")
         for name in ("min_tracks", "min_host"):
             if getattr(self, name) < 1:
-                raise InputError(f"rigid check: {name}={getattr(self, name)} must be at least 1")
+                raise ConfigError(f"rigid check: {name}={getattr(self, name)} must be at least 1")
 
 
 def _sampson_px(

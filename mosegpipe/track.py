@@ -15,14 +15,11 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import InputError
+from mosegpipe.errors import ConfigError, InputError
+from mosegpipe.settings import MAX_CORNERS, MAX_MIN_DISTANCE_PX, MAX_WIN_SIZE_PX
 from mosegpipe.types import Frames, Tracks
 
 logger = logging.getLogger(__name__)
-
-MAX_CORNERS = 100_000
-MAX_WIN_SIZE_PX = 255
-MAX_MIN_DISTANCE_PX = 10_000.0
 
 
 @dataclass(frozen=True)
@@ -73,19 +70,19 @@ class TrackConfig:
         # Upper bounds: past them OpenCV crashes (min_distance 1e308: SIGSEGV in goodFeaturesToTrack)
         # or overflows its int arguments (max_corners 3e9, win_size 100001); the CLI's options hold the same.
         if not 1 <= self.max_corners <= MAX_CORNERS:
-            raise ValueError(f"max_corners={self.max_corners} must lie in 1..{MAX_CORNERS}")
+            raise ConfigError(f"max_corners={self.max_corners} must lie in 1..{MAX_CORNERS}")
         if not 3 <= self.win_size_px <= MAX_WIN_SIZE_PX:
-            raise ValueError(f"win_size_px={self.win_size_px} must lie in 3..{MAX_WIN_SIZE_PX}")
+            raise ConfigError(f"win_size_px={self.win_size_px} must lie in 3..{MAX_WIN_SIZE_PX}")
         if not 0 <= self.min_distance_px <= MAX_MIN_DISTANCE_PX:
-            raise ValueError(f"min_distance_px={self.min_distance_px} must lie in [0, {MAX_MIN_DISTANCE_PX:g}]")
+            raise ConfigError(f"min_distance_px={self.min_distance_px} must lie in [0, {MAX_MIN_DISTANCE_PX:g}]")
         if not 0 < self.quality_level <= 1:
-            raise ValueError(f"quality_level={self.quality_level} must lie in (0, 1]")
+            raise ConfigError(f"quality_level={self.quality_level} must lie in (0, 1]")
         if self.max_level < 0:
-            raise ValueError(f"max_level={self.max_level} must be >= 0")
+            raise ConfigError(f"max_level={self.max_level} must be >= 0")
         if self.fb_threshold_px is not None and self.fb_threshold_px <= 0:
-            raise ValueError(f"fb_threshold_px={self.fb_threshold_px} must be > 0 (or None to disable)")
+            raise ConfigError(f"fb_threshold_px={self.fb_threshold_px} must be > 0 (or None to disable)")
         if self.reseed_every < 1:
-            raise ValueError(f"reseed_every={self.reseed_every} must be >= 1")
+            raise ConfigError(f"reseed_every={self.reseed_every} must be >= 1")
 
 
 def _inside(xy: npt.NDArray[np.float32], size_hw: tuple[int, int], border_px: float) -> npt.NDArray[np.bool_]:

@@ -7,13 +7,36 @@ E embedding dimension, K clusters.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 import numpy.typing as npt
 
-KMethodName = Literal["residual", "silhouette"]
-"""Automatic-K rules of cluster.cluster_auto_k: the elbow of the K-means residual, or the silhouette."""
+# The vocabularies of the settings, each spelled once: the library checks against them and the CLI builds
+# its choices from them (in this order, the default first).
+
+KMethodName = Literal["silhouette", "residual"]
+"""Automatic-K rules of cluster.cluster_auto_k: the silhouette, or the elbow of the K-means residual."""
+K_METHODS: tuple[KMethodName, ...] = get_args(KMethodName)
+
+SegmentMethod = Literal["subspacenet", "geometric"]
+"""How tracks become motions (PipelineConfig.method): "subspacenet" (the learned embedding, automatic K by
+K-means, the rigid-motion check) or "geometric" (sequential homography / fundamental-matrix fitting,
+mosegpipe.grouping)."""
+SEGMENT_METHODS: tuple[SegmentMethod, ...] = get_args(SegmentMethod)
+
+PointSource = Literal["klt", "flow", "klt+flow"]
+"""Where a clip's points come from (PipelineConfig.tracker): KLT corners (`mosegpipe.track`), a grid
+carried along the dense flow (`flow_tracks.track_flow`), or both (`flow_tracks.combine_tracks`)."""
+TRACKERS: tuple[PointSource, ...] = get_args(PointSource)
+
+MaskMethod = Literal["motion", "watershed", "nearest", "vote"]
+"""How sparse labels become dense masks (MaskConfig.method, mosegpipe.masks)."""
+MASK_METHODS: tuple[MaskMethod, ...] = get_args(MaskMethod)
+
+BatchEngine = Literal["process", "ray", "inline"]
+"""Where `run_batch` runs its clips (mosegpipe.batch): a local process pool, Ray tasks, or this process."""
+ENGINES: tuple[BatchEngine, ...] = get_args(BatchEngine)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mosegpipe.batch import MAX_CLIP_TIMEOUT_S, run_batch
+from mosegpipe.batch import run_batch
 from mosegpipe.errors import InputError
 
 from helpers import moseg, motion_checkpoint, one_error_line, render_scene, write_avi
@@ -69,12 +69,6 @@ def test_api_clip_timeout_out_of_range_creates_nothing(tmp_path: Path, clips: Pa
     with pytest.raises(InputError, match="--clip-timeout .* must be > 0 and at most 1e\\+06 seconds"):
         run_batch(clips, out, clip_timeout=value)
     assert not out.exists()
-
-
-def test_clip_timeout_bound_is_the_cli_one() -> None:
-    from mosegpipe.cli import batch
-
-    assert batch.MAX_CLIP_TIMEOUT_S == MAX_CLIP_TIMEOUT_S
 
 
 # ---------------------------------------------------------------------------------------------

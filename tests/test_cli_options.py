@@ -19,19 +19,21 @@ import numpy as np
 import pytest
 import typer.main
 
+from mosegpipe.cli import batch as cli_batch
 from mosegpipe.cli import config as cli_config
 from mosegpipe.cli import evaluate as cli_evaluate
 from mosegpipe.cli import options as cli_options
 from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig
 from mosegpipe.io import read_palette_png
-from mosegpipe.masks import MASK_METHODS, MaskConfig
+from mosegpipe.masks import MaskConfig
 from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_video
 from mosegpipe.provenance import source_identity
 from mosegpipe.rigid import RigidCheckConfig
 from mosegpipe.track import TrackConfig
+from mosegpipe.types import MASK_METHODS
 
 from helpers import moseg, motion_checkpoint, one_error_line, render_scene, write_avi, write_frames
 
@@ -449,20 +451,40 @@ def test_every_option_has_help_and_every_choice_is_an_enum() -> None:
                 assert (name, param.name) in FREE_TEXT, f"moseg {name} {param.name}: a choice should be an Enum"
 
 
-def test_enums_hold_the_library_names() -> None:
+def test_choices_come_from_the_library() -> None:
+    """Each choice is the library's vocabulary or registry itself, its default the library's default (the
+    first of the vocabulary); only the recipes, losses and baselines are copies (their modules import torch
+    or scikit-learn, which --help must not)."""
+    from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
     from mosegpipe.evaluation.studies import STUDIES, Budget
+    from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.training.losses import LOSSES
     from mosegpipe.training.recipes import RECIPES
+    from mosegpipe.types import ENGINES, K_METHODS, SEGMENT_METHODS, TRACKERS
 
-    assert [c.value for c in cli_options.MaskMethodChoice] == list(MASK_METHODS)
+    vocabularies = {
+        cli_options.KMethodChoice: K_METHODS,
+        cli_options.MaskMethodChoice: MASK_METHODS,
+        cli_options.MethodChoice: SEGMENT_METHODS,
+        cli_options.PointsChoice: TRACKERS,
+        cli_batch.EngineChoice: ENGINES,
+        cli_evaluate.ProtocolChoice: tuple(PROTOCOLS),
+        cli_evaluate.StudyChoice: tuple(STUDIES),
+        cli_evaluate.VariantChoice: typing.get_args(Variant),
+        cli_evaluate.BudgetChoice: typing.get_args(Budget),
+    }
+    for choice, names in vocabularies.items():
+        assert tuple(c.value for c in choice) == tuple(names), choice
+    defaults = (ClusterConfig().method, MaskConfig().method, PipelineConfig().method, PipelineConfig().tracker)
+    assert defaults == (K_METHODS[0], MASK_METHODS[0], SEGMENT_METHODS[0], TRACKERS[0])
+    group = typer.main.get_command(app)
+    for command in ("run", "batch"):
+        given = {p.name: cli_options._value(p.default) for p in group.commands[command].params}
+        assert (given["k_method"], given["mask_method"], given["method"], given["points"]) == defaults, command
     assert [c.value for c in cli_evaluate.PresetChoice] == list(RECIPES)
     assert [c.value for c in cli_evaluate.LossChoice] == list(LOSSES)
-    assert [c.value for c in cli_evaluate.ProtocolChoice] == list(PROTOCOLS)
-    assert [c.value for c in cli_evaluate.StudyChoice] == list(STUDIES)
-    assert [c.value for c in cli_evaluate.VariantChoice] == list(typing.get_args(Variant))
-    assert [c.value for c in cli_evaluate.BudgetChoice] == list(typing.get_args(Budget))
     assert list(cli_evaluate.BASELINE_NAMES) == list(BASELINES)
 
 

@@ -12,7 +12,7 @@ import pytest
 from test_track import H, W, _rgb, _texture, _view
 
 from mosegpipe.errors import InputError
-from mosegpipe.flow_tracks import TRACKERS, FlowTrackConfig, combine_tracks, grid_seeds, track_flow
+from mosegpipe.flow_tracks import FlowTrackConfig, combine_tracks, grid_seeds, track_flow
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.types import Tracks
 
@@ -101,12 +101,6 @@ def test_pipeline_config_checks_the_tracker() -> None:
         FlowTrackConfig(max_points=0)
 
 
-def test_points_choices_are_the_library_trackers() -> None:
-    from mosegpipe.cli import options as cli_options
-
-    assert [c.value for c in cli_options.PointsChoice] == list(TRACKERS)
-
-
 def test_run_with_flow_points_segments_the_rendered_sample(tmp_path: Path) -> None:
     out = tmp_path / "flow"
     clip = ROOT / "samples" / "rendered" / "frames"
@@ -134,7 +128,7 @@ def test_eval_requests_take_the_points() -> None:
 
     assert _pipeline_config(EvalRequest(out_dir=Path("x")), 5).tracker == "klt"
     assert _pipeline_config(EvalRequest(out_dir=Path("x"), points="klt+flow"), 5).tracker == "klt+flow"
-    with pytest.raises(InputError, match="--points"):
+    with pytest.raises(InputError, match="tracker .sift.: choose"):
         _pipeline_config(EvalRequest(out_dir=Path("x"), points="sift"), 5)
     changed = _pipeline_config(EvalRequest(out_dir=Path("x"), settings=("mask.motion.fb_weight=0.5",)), 5)
     assert changed.mask.motion.fb_weight == 0.5 and changed.frames == 5

@@ -154,13 +154,6 @@ def test_run_records_the_method_in_summary(tmp_path: Path) -> None:
     assert PipelineConfig.from_dict(summary["config"]).method == "geometric"
 
 
-def test_method_choices_are_the_library_methods() -> None:
-    from mosegpipe.cli import options as cli_options
-    from mosegpipe.pipeline.config import SEGMENT_METHODS
-
-    assert [c.value for c in cli_options.MethodChoice] == list(SEGMENT_METHODS)
-
-
 def test_geometric_segment_frames_gives_displacements_for_embeddings() -> None:
     from mosegpipe.io import read_video
     from mosegpipe.pipeline import segment_frames

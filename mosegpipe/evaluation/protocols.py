@@ -170,8 +170,12 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
     from mosegpipe.model import SubspaceNet
     from mosegpipe.training.loop import TrainConfig, with_overrides
 
+    if req.settings:
+        raise ConfigError(
+            f"--set {req.settings[0]}: --set applies to end-to-end protocols only ({protocol.name} is not one)"
+        )
     variant = cast(Variant, check_choice("--variant", req.variant, get_args(Variant)))
-    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
+    k_method = cast(KMethodName, req.k_method)  # ClusterConfig checks it
     f = req.frames if req.frames is not None else protocol.default_frames
     train_cfg = with_overrides(
         TrainConfig(frames=f, steps=500), steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss
@@ -198,30 +202,19 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
 
 
 def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
-    """The pipeline settings an end-to-end protocol runs with: F frames, the request's K rule and check."""
-    from dataclasses import replace
-
-    from mosegpipe.cluster import ClusterConfig
-    from mosegpipe.flow_tracks import TRACKERS
-    from mosegpipe.grouping import GeometricConfig
-    from mosegpipe.masks import MASK_METHODS, MaskConfig
+    """The pipeline settings an end-to-end protocol runs with: F frames, the request's options and settings."""
     from mosegpipe.pipeline import PipelineConfig
-    from mosegpipe.pipeline.config import SEGMENT_METHODS
-    from mosegpipe.rigid import RigidCheckConfig
 
-    k_method = cast(KMethodName, check_choice("--k-method", req.k_method, get_args(KMethodName)))
-    mask = MaskConfig()
-    if req.mask_method is not None:
-        mask = replace(mask, method=check_choice("--mask-method", req.mask_method, MASK_METHODS))
-    return PipelineConfig(
-        frames=frames,
-        method=check_choice("--method", req.method or PipelineConfig.method, SEGMENT_METHODS),
-        tracker=check_choice("--points", req.points or PipelineConfig.tracker, TRACKERS),
-        cluster=replace(ClusterConfig(), method=k_method, k_max=req.k_max),
-        rigid=RigidCheckConfig(enabled=req.rigid_check),
-        geometric=replace(GeometricConfig(), k_max=req.k_max),
-        mask=mask,
-    ).with_settings(req.settings)
+    return PipelineConfig.from_options(
+        frames,
+        k_method=req.k_method,
+        k_max=req.k_max,
+        method=req.method,
+        points=req.points,
+        rigid_check=req.rigid_check,
+        mask={"method": req.mask_method} if req.mask_method is not None else None,
+        settings=req.settings,
+    )
 
 
 def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:

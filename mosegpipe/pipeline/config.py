@@ -14,20 +14,18 @@ import json
 import types
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
-from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
+from typing import Any, Literal, Union, cast, get_args, get_origin, get_type_hints
 
 from mosegpipe.cluster import ClusterConfig
-from mosegpipe.errors import InputError, check_choice
-from mosegpipe.flow_tracks import TRACKERS, FlowTrackConfig
+from mosegpipe.errors import ConfigError, check_choice
+from mosegpipe.flow_tracks import FlowTrackConfig
 from mosegpipe.grouping import GeometricConfig
 from mosegpipe.masks import MaskConfig
 from mosegpipe.match import MatchConfig
 from mosegpipe.rigid import RigidCheckConfig
+from mosegpipe.settings import SettingError, check_setting, check_settings
 from mosegpipe.track import TrackConfig
-
-SEGMENT_METHODS = ("subspacenet", "geometric")
-"""How tracks become motions: "subspacenet" (the learned embedding, automatic K by K-means, the rigid-motion
-check) or "geometric" (sequential homography / fundamental-matrix fitting, mosegpipe.grouping)."""
+from mosegpipe.types import SEGMENT_METHODS, TRACKERS, KMethodName
 
 
 @dataclass(frozen=True)
@@ -88,12 +86,78 @@ class PipelineConfig:
     def __post_init__(self) -> None:
         check_choice("method", self.method, SEGMENT_METHODS)
         check_choice("tracker", self.tracker, TRACKERS)
+        check_settings(self)
         if self.video_k_step is not None and self.video_k_step < 1:
-            raise InputError(f"video_k_step={self.video_k_step} must be at least 1 (or None: no limit)")
+            raise SettingError("video_k_step", f"{self.video_k_step} must be at least 1 (or None: no limit)")
         if self.video_cut_survival is not None and not 0 < self.video_cut_survival < 1:
-            raise InputError(
-                f"video_cut_survival={self.video_cut_survival} must lie in (0, 1) (or None: no cut detection)"
+            raise SettingError(
+                "video_cut_survival", f"{self.video_cut_survival} must lie in (0, 1) (or None: no cut detection)"
             )
+
+    @classmethod
+    def from_options(
+        cls,
+        frames: int,
+        *,
+        start: int = 0,
+        k: int | None = None,
+        k_method: str | None = None,
+        k_max: int | None = None,
+        method: str | None = None,
+        points: str | None = None,
+        rigid_check: bool = True,
+        shot_cuts: bool = True,
+        track: Mapping[str, Any] | None = None,
+        mask: Mapping[str, Any] | None = None,
+        settings: Sequence[str] = (),
+    ) -> PipelineConfig:
+        """The settings of a command's options (`moseg run`, `pair`, `tracks`, `batch`, `live`, `eval`): the
+        one way from options to a PipelineConfig. None (or left out) = the library's default.
+
+        Args:
+            frames: F.
+            start: the first frame read.
+            k: force this many motions (None = automatic K).
+            k_method: the automatic-K rule (ClusterConfig.method).
+            k_max: the largest K, of automatic K and of method "geometric" alike.
+            method: how tracks become motions (SEGMENT_METHODS).
+            points: where a clip's points come from (TRACKERS).
+            rigid_check: the rigid-motion check after automatic K.
+            shot_cuts: whole videos: detect shot cuts (video_cut_survival; False = None).
+            track: TrackConfig fields to change.
+            mask: MaskConfig fields to change.
+            settings: then settings changed by dotted path (`with_settings`).
+
+        Raises:
+            ConfigError: a value that is not allowed, named.
+        """
+        defaults = cls()
+        cluster, geometric = defaults.cluster, defaults.geometric
+        if k_method is not None:
+            cluster = replace(cluster, method=cast(KMethodName, k_method))  # ClusterConfig checks it
+        if k_max is not None:
+            cluster, geometric = replace(cluster, k_max=k_max), replace(geometric, k_max=k_max)
+        try:
+            track_cfg = replace(defaults.track, **(track or {}))
+            mask_cfg = replace(defaults.mask, **(mask or {}))
+        except ConfigError:
+            raise
+        except ValueError as exc:  # MaskConfig's own checks raise ValueError: one line, not a traceback
+            raise ConfigError(" ".join(str(exc).split())) from exc
+        config = cls(
+            frames=frames,
+            start=start,
+            k=k,
+            method=method if method is not None else defaults.method,
+            tracker=points if points is not None else defaults.tracker,
+            track=track_cfg,
+            cluster=cluster,
+            geometric=geometric,
+            rigid=replace(defaults.rigid, enabled=rigid_check),
+            mask=mask_cfg,
+            video_cut_survival=defaults.video_cut_survival if shot_cuts else None,
+        )
+        return config.with_settings(settings) if settings else config
 
     def with_settings(self, settings: Sequence[str]) -> PipelineConfig:
         """These settings with nested fields changed, each given as `dotted.path=value`.
@@ -106,7 +170,7 @@ class PipelineConfig:
             settings: e.g. ["mask.motion.fb_weight=0.5", "mask.motion.flow.preset=fast"].
 
         Raises:
-            InputError: a setting without `=`, an unknown field or a value of the wrong type, named
+            ConfigError: a setting without `=`, an unknown field or a value of the wrong type, named
                 (`--set mask.motion.fb_weight: expected a number, got 'high'`).
         """
         data = asdict(self)
@@ -114,22 +178,22 @@ class PipelineConfig:
             path, sep, text = setting.partition("=")
             keys = path.strip().split(".")
             if not sep or not all(keys):
-                raise InputError(f"--set {setting!r}: expected dotted.field=value, e.g. mask.motion.fb_weight=0.5")
+                raise ConfigError(f"--set {setting!r}: expected dotted.field=value, e.g. mask.motion.fb_weight=0.5")
             node = data
             for depth, key in enumerate(keys[:-1]):
                 if not isinstance(node.get(key), dict):
-                    raise InputError(f"--set {'.'.join(keys[: depth + 1])}: not a group of settings")
+                    raise ConfigError(f"--set {'.'.join(keys[: depth + 1])}: not a group of settings")
                 node = node[key]
             if keys[-1] not in node:
-                raise InputError(f"--set {path.strip()}: unknown setting (known here: {', '.join(node)})")
+                raise ConfigError(f"--set {path.strip()}: unknown setting (known here: {', '.join(node)})")
             try:
                 node[keys[-1]] = json.loads(text)
             except json.JSONDecodeError:
                 node[keys[-1]] = text.strip()
         try:
             return type(self).from_dict(data, where="settings")
-        except InputError as exc:  # named as the user wrote it
-            raise InputError(str(exc).replace("settings.", "--set ", 1)) from exc
+        except ConfigError as exc:  # named as the user wrote it
+            raise ConfigError(str(exc).replace("settings.", "--set ", 1)) from exc
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
@@ -151,10 +215,10 @@ class PipelineConfig:
             where: how errors name the dict (`summary.json: config`).
 
         Raises:
-            InputError: naming the field, e.g. `summary.json: config.track.max_corners: expected an
+            ConfigError: naming the field, e.g. `summary.json: config.track.max_corners: expected an
                 integer, got 'many'`.
         """
-        config = _dataclass_from_dict(cls, data, where)
+        config = _dataclass_from_dict(cls, data, where, "")
         assert isinstance(config, cls)
         if isinstance(data, Mapping) and "rigid" not in data:
             config = replace(config, rigid=RigidCheckConfig(enabled=False))
@@ -182,28 +246,36 @@ class PipelineConfig:
         return config
 
 
-def _dataclass_from_dict(cls: type, data: Any, where: str) -> Any:
+def _dataclass_from_dict(cls: type, data: Any, where: str, path: str) -> Any:
     if not isinstance(data, dict):
-        raise InputError(f"{where}: expected a table of settings, got {type(data).__name__} {data!r}")
+        raise ConfigError(f"{where}: expected a table of settings, got {type(data).__name__} {data!r}")
     hints = get_type_hints(cls)
     names = [f.name for f in fields(cls)]
     unknown = [key for key in data if key not in names]
     if unknown:
-        raise InputError(f"{where}.{unknown[0]}: unknown setting (known: {', '.join(names)})")
-    values = {name: _typed_value(hints[name], value, f"{where}.{name}") for name, value in data.items()}
+        raise ConfigError(f"{where}.{unknown[0]}: unknown setting (known: {', '.join(names)})")
+    values = {}
+    for name, value in data.items():
+        values[name] = _typed_value(hints[name], value, f"{where}.{name}", f"{path}{name}")
+        try:  # before the value's config class checks it in its own terms: a NaN is named as such
+            check_setting(f"{path}{name}", values[name])
+        except SettingError as exc:
+            raise ConfigError(f"{where}.{name}: {exc.reason}") from exc
     try:
         return cls(**values)
-    except (ValueError, InputError) as exc:
-        raise InputError(f"{where}: {' '.join(str(exc).split())}") from exc
+    except SettingError as exc:  # the field is known: named by its path
+        raise ConfigError(f"{where}.{exc.path.removeprefix(path)}: {exc.reason}") from exc
+    except ValueError as exc:  # a config class's own check (ConfigError, or ValueError in masks, motion, flow)
+        raise ConfigError(f"{where}: {' '.join(str(exc).split())}") from exc
 
 
 _TYPE_NAMES = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
 
 
-def _typed_value(hint: Any, value: Any, where: str) -> Any:
+def _typed_value(hint: Any, value: Any, where: str, path: str) -> Any:
     """`value` checked against the type hint of a config field (JSON / TOML types: no coercion from strings)."""
     if is_dataclass(hint):
-        return _dataclass_from_dict(hint, value, where)  # type: ignore[arg-type]
+        return _dataclass_from_dict(hint, value, where, f"{path}.")  # type: ignore[arg-type]
     origin = get_origin(hint)
     if origin is Union or origin is types.UnionType:
         options = get_args(hint)
@@ -211,13 +283,13 @@ def _typed_value(hint: Any, value: Any, where: str) -> Any:
             return None
         for option in options:
             if option is not type(None):
-                with contextlib.suppress(InputError):
-                    return _typed_value(option, value, where)
+                with contextlib.suppress(ConfigError):
+                    return _typed_value(option, value, where, path)
         wanted = " or ".join("null" if o is type(None) else _TYPE_NAMES.get(o, str(o)) for o in options)
-        raise InputError(f"{where}: expected {wanted}, got {value!r}")
+        raise ConfigError(f"{where}: expected {wanted}, got {value!r}")
     if origin is Literal:
         if value not in get_args(hint):
-            raise InputError(f"{where}: {value!r} is not one of {', '.join(map(repr, get_args(hint)))}")
+            raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(repr, get_args(hint)))}")
         return value
     ok = {
         bool: isinstance(value, bool),
@@ -228,5 +300,5 @@ def _typed_value(hint: Any, value: Any, where: str) -> Any:
     if hint not in ok:
         raise TypeError(f"{where}: config fields of type {hint} are not supported")
     if not ok[hint]:
-        raise InputError(f"{where}: expected {_TYPE_NAMES[hint]}, got {value!r}")
+        raise ConfigError(f"{where}: expected {_TYPE_NAMES[hint]}, got {value!r}")
     return float(value) if hint is float else value
