@@ -2,8 +2,9 @@
 
 Two rules of DESIGN.md: no module imports itself back through others (no import circles), and the
 inference stages never import training/, evaluation/ or synth/. An import inside a function body
-counts (a lazy import still closes a circle once it runs); one under `if TYPE_CHECKING:` does not
-(it never runs). The cli folder is installed as mosegpipe.cli and is read as such.
+counts (a lazy import still closes a circle once it runs), and so does one under `if TYPE_CHECKING:` (it
+never runs, but the two modules still lean on each other: a circle of types is a circle to untangle).
+The cli folder is installed as mosegpipe.cli and is read as such.
 
 An edge is an import the module writes: `import a.b` and `from a import b` (b a module) lead to a.b,
 `from a import name` to a (a package: its __init__). Python also runs a package's __init__ before a
@@ -60,20 +61,10 @@ def module_files(packages: Mapping[str, Path]) -> dict[str, Path]:
     return modules
 
 
-def _is_type_checking(node: ast.If) -> bool:
-    test = node.test
-    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
-        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
-    )
-
-
 def _import_nodes(node: ast.AST) -> Iterator[ast.Import | ast.ImportFrom]:
-    """Every import statement in `node`, function bodies included, `if TYPE_CHECKING:` bodies not."""
+    """Every import statement in `node`: function bodies and `if TYPE_CHECKING:` bodies included."""
     if isinstance(node, (ast.Import, ast.ImportFrom)):
         yield node
-    elif isinstance(node, ast.If) and _is_type_checking(node):
-        for other in node.orelse:
-            yield from _import_nodes(other)
     else:
         for child in ast.iter_child_nodes(node):
             yield from _import_nodes(child)
@@ -169,7 +160,7 @@ def test_import_graph_resolves_relative_lazy_and_package_imports(tmp_path: Path)
         "a.py": "from typing import TYPE_CHECKING\nfrom . import b\nif TYPE_CHECKING:\n    from pkg import c\n"
         "def f():\n    import pkg.sub.d\n",
         "b.py": "from .sub import d\nfrom .sub.d import g\n",
-        "c.py": "import pkg\nimport os\n",
+        "c.py": "import os\n",
         "sub/__init__.py": "from ..a import f\n",
         "sub/d.py": "def g():\n    from pkg import b\n",
     }
@@ -178,9 +169,9 @@ def test_import_graph_resolves_relative_lazy_and_package_imports(tmp_path: Path)
     graph = import_graph({"pkg": pkg})
     assert graph == {
         "pkg": {"pkg.a"},
-        "pkg.a": {"pkg.b", "pkg.sub.d"},  # the TYPE_CHECKING import of pkg.c is left out
+        "pkg.a": {"pkg.b", "pkg.c", "pkg.sub.d"},  # the TYPE_CHECKING import of pkg.c counts too
         "pkg.b": {"pkg.sub.d"},
-        "pkg.c": {"pkg"},
+        "pkg.c": set(),
         "pkg.sub": {"pkg.a"},
         "pkg.sub.d": {"pkg.b"},
     }

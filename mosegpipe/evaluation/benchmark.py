@@ -33,7 +33,7 @@ from mosegpipe.training.run import train_sources
 from mosegpipe.types import LabeledClip
 
 if TYPE_CHECKING:
-    from mosegpipe.evaluation.protocols import Protocol, Variant
+    from mosegpipe.evaluation.records import Protocol, Variant
 
 log = logging.getLogger(__name__)
 
