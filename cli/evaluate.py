@@ -15,6 +15,7 @@ from mosegpipe.cli.app import _friendly, _setup
 from mosegpipe.cli.common import _check_model_path
 from mosegpipe.cli.options import (
     DataRoot,
+    Device,
     KMax,
     KMethod,
     KMethodChoice,
@@ -118,6 +119,7 @@ def train(
     ] = None,
     time_budget: Annotated[float | None, typer.Option("--time-budget", help="Stop after this many seconds.")] = None,
     data_root: DataRoot = None,
+    device: Device = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads for torch.")] = 2,
     verbose: Verbose = False,
 ) -> None:
@@ -127,8 +129,10 @@ def train(
     synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
     """
     _setup(threads, verbose)
+    from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
 
+    where = resolve_device(device or "cpu")
     preset = _value(preset)
     dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
     root = _data_root(data_root) if needs_data(preset, dropped) else data_root
@@ -142,6 +146,7 @@ def train(
         ),
         exclude_sources=dropped,
         command=" ".join(["moseg", *sys.argv[1:]]),
+        device=where,
         on_start=lambda recipe, cfg, described: typer.echo(
             f"training {recipe.name}: {cfg.steps} steps × {cfg.batch_size} clips, sources {described}"
         ),
@@ -238,6 +243,7 @@ def eval_(
         ),
     ] = None,
     data_root: DataRoot = None,
+    device: Device = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,
 ) -> None:
@@ -269,6 +275,7 @@ def eval_(
         method=_value(method) if method is not None else None,
         points=_value(points) if points is not None else None,
         settings=tuple(settings or ()),
+        device=device or "cpu",
         progress=typer.echo,
     )
     result = proto.run(proto, request)
@@ -303,6 +310,7 @@ def study(
     ] = None,
     k_max: KMax = 8,
     data_root: DataRoot = None,
+    device: Device = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,
     verbose: Verbose = False,
 ) -> None:
@@ -322,6 +330,7 @@ def study(
         pair_model=pair_model,
         clips=tuple(c.strip() for c in clips.split(",") if c.strip()) if clips else None,
         k_max=k_max,
+        device=device,
         progress=typer.echo if verbose else None,
     )
     result = chosen.run(chosen, request)

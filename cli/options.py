@@ -442,3 +442,13 @@ def _data_root(data_root: Path | None) -> Path:
 DataRoot = Annotated[
     Path | None, typer.Option("--data-root", help="Benchmark folder (default: $MOSEG_DATA or ../shared/data).")
 ]
+
+
+Device = Annotated[
+    str | None,
+    typer.Option(
+        "--device",
+        help="Where models train: cpu (the default; lce-curve --budget full: cuda when there is one), cuda, "
+        "cuda:N or auto (cuda when torch sees one).",
+    ),
+]

@@ -434,6 +434,10 @@ FREE_TEXT |= {
     ("live", "source"),
     ("live", "connect"),
     ("live", "stdin_size"),
+    # --device: cpu, cuda, cuda:N or auto (a GPU index cannot be an Enum); checked by training.loop.resolve_device.
+    ("train", "device"),
+    ("eval", "device"),
+    ("study", "device"),
 }
 """The only options that take free text (addresses, comma-separated lists); every other choice is an Enum."""
 

@@ -12,6 +12,7 @@ import torch
 from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
+from mosegpipe.errors import ConfigError
 from mosegpipe.model import ModelConfig, SubspaceNet
 from mosegpipe.training.loop import (
     TrainConfig,
@@ -19,13 +20,14 @@ from mosegpipe.training.loop import (
     clip_sampler,
     mixture_sampler,
     recipe_of,
+    resolve_device,
     train_model,
     with_overrides,
 )
 from mosegpipe.training.recipes import RECIPES, build_sampler, get_recipe
 from mosegpipe.types import LabeledClip
 
-from helpers import tiny_config
+from helpers import moseg, one_error_line, tiny_config
 
 TINY = tiny_config(2)
 
@@ -424,3 +426,41 @@ def test_train_recipe_trains_its_init_first_then_reuses_it(tmp_path: Path, monke
     train_recipe("tiny-fine", out, overrides=TrainOverrides(steps=1), on_start=lambda r, c, d: started.append(r.name))
     assert started == ["tiny-base", "tiny-fine", "tiny-fine"]  # the base checkpoint is reused
     assert SubspaceNet.from_checkpoint(out).recipe["steps_done"] == 1
+
+
+def test_device_names_are_checked_and_cpu_stays_the_default(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert resolve_device("cpu") == "cpu"
+    assert resolve_device(" CPU ") == "cpu"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == "cpu"  # a GPU only when there is one, and only when asked for
+    for bad in ("gpu", "cuda:", "cuda:x", "mps0", ""):
+        with pytest.raises(ConfigError, match="choose cpu, cuda, cuda:N, auto"):
+            resolve_device(bad)
+    with pytest.raises(ConfigError, match="no CUDA device"):
+        resolve_device("cuda")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    assert resolve_device("auto") == "cuda"
+    assert resolve_device("cuda:0") == "cuda:0"
+    with pytest.raises(ConfigError, match="1 CUDA device"):
+        resolve_device("cuda:1")
+
+
+def test_training_on_the_cpu_device_is_the_default_run() -> None:
+    """device="cpu" given explicitly trains exactly as the default does."""
+    rng = np.random.default_rng(0)
+    sampler = clip_sampler([affine_clip(rng, name=f"c{i}") for i in range(3)])
+    cfg = TrainConfig(frames=2, steps=3, batch_size=2, warmup=1, seed=3)
+    a = train_model(sampler, cfg, TINY)
+    b = train_model(sampler, cfg, TINY, device=resolve_device("cpu"))
+    assert next(b.model.parameters()).device.type == "cpu"
+    for (name, x), (_, y) in zip(a.model.state_dict().items(), b.model.state_dict().items(), strict=True):
+        assert torch.equal(x, y), name
+
+
+@pytest.mark.parametrize("command", [["train", "--preset", "lce", "--steps", "1"], ["study", "lce-curve"]])
+def test_a_bad_device_is_one_error_line(tmp_path: Path, command: list[str]) -> None:
+    code, _, err = moseg(*command, "--out", tmp_path / "out", "--device", "gpu")
+    assert code == 1
+    assert "--device 'gpu': choose cpu, cuda, cuda:N, auto" in one_error_line(err)
+    assert not (tmp_path / "out").exists()  # nothing trained or written

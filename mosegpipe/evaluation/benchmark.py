@@ -133,6 +133,7 @@ def run_protocol(
     model: SubspaceNet | None = None,
     init: SubspaceNet | None = None,
     progress: Callable[[str], None] | None = None,
+    device: str = "cpu",
 ) -> tuple[list[dict[str, Any]], dict[str, Any], str]:
     """Runs a protocol and writes results.{json,csv,md} under out_dir.
 
@@ -146,6 +147,7 @@ def run_protocol(
         model: the model to test for "*-test" protocols (and "lce" without training).
         init: starting point of each LOO fold's training (e.g. a synthetic-only model); None = from scratch.
         progress: called with a one-line message after each fold / stage.
+        device: where the folds train (a checked name, see training.loop.resolve_device); scoring embeds there too.
 
     Returns:
         (rows, summary, markdown table).
@@ -206,7 +208,7 @@ def run_protocol(
             sources.append(("synthetic-pair" if cfg.frames == 2 else "synthetic", cfg.synthetic_weight))
         exclude = () if protocol.fold_key is None else (held_out,)
         train_cfg = replace(cfg.train, frames=cfg.frames)
-        result, recipe = train_sources(sources, data_root, train_cfg, init=init, exclude=exclude)
+        result, recipe = train_sources(sources, data_root, train_cfg, init=init, exclude=exclude, device=device)
         fold_rows = evaluate_clips(result.model, test, cfg.cluster, cfg.baselines)
         for r in fold_rows:
             r["train_seconds"] = round(result.seconds, 1)

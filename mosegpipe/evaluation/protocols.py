@@ -45,13 +45,14 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
     from mosegpipe.evaluation.benchmark import EvalConfig, run_protocol
     from mosegpipe.inference import load_model
     from mosegpipe.model import SubspaceNet
-    from mosegpipe.training.loop import TrainConfig, with_overrides
+    from mosegpipe.training.loop import TrainConfig, resolve_device, with_overrides
 
     if req.settings:
         raise ConfigError(
             f"--set {req.settings[0]}: --set applies to end-to-end protocols only ({protocol.name} is not one)"
         )
     variant = cast(Variant, check_choice("--variant", req.variant, get_args(Variant)))
+    device = resolve_device(req.device)
     k_method = cast(KMethodName, req.k_method)  # ClusterConfig checks it
     f = req.frames if req.frames is not None else protocol.default_frames
     train_cfg = with_overrides(
@@ -74,7 +75,9 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
         net = SubspaceNet.from_checkpoint(req.model)
     start = SubspaceNet.from_checkpoint(req.init) if req.init else None
     root = req.data_root if req.data_root is not None else Path(".")
-    rows, summary, table = run_protocol(protocol, cfg, root, req.out_dir, model=net, init=start, progress=req.progress)
+    rows, summary, table = run_protocol(
+        protocol, cfg, root, req.out_dir, model=net, init=start, progress=req.progress, device=device
+    )
     return EvalResult(rows, summary, table)
 
 
@@ -187,6 +190,7 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
     from mosegpipe.io import write_text
     from mosegpipe.model import SubspaceNet
+    from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.recipes import get_recipe
     from mosegpipe.training.run import TrainOverrides, train_recipe, train_sources
 
@@ -200,6 +204,7 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
             f"{protocol.default_frames} frames"
         )
     train_cfg = TrainOverrides(steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss).apply(recipe.train)
+    device = resolve_device(req.device)
     cfg = _pipeline_config(req, train_cfg.frames)
     say = req.progress or (lambda _msg: None)
     names = protocol.fold_names(req.data_root)
@@ -215,7 +220,7 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
         init_path = req.out_dir / f"{recipe.init}.pt"
         if not (init_path.is_file() and SubspaceNet.from_checkpoint(init_path).recipe.get("name") == recipe.init):
             say(f"training the folds' starting point {recipe.init} -> {init_path}")
-            train_recipe(recipe.init, init_path, req.data_root)
+            train_recipe(recipe.init, init_path, req.data_root, device=device)
     init_hash = None
     if init_path is not None:
         init = SubspaceNet.from_checkpoint(init_path)
@@ -234,7 +239,13 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
             trained = "trained earlier"
         else:
             result, rec = train_sources(
-                recipe.sources, req.data_root, train_cfg, model_cfg=recipe.model, init=init, exclude=(name,)
+                recipe.sources,
+                req.data_root,
+                train_cfg,
+                model_cfg=recipe.model,
+                init=init,
+                exclude=(name,),
+                device=device,
             )
             model, seconds = result.model, round(result.seconds, 1)
             rec.update(name=f"{protocol.name}/{name}", init=str(init_path) if init_path else None, excluded=[name])

@@ -48,6 +48,8 @@ class EvalRequest:
             "flow" or "klt+flow"; None = the default).
         settings: end-to-end protocols: pipeline settings changed by dotted path ("mask.motion.fb_weight=0.5",
             `PipelineConfig.with_settings`), after the options above.
+        device: where protocols that train train their models ("cpu", "cuda", "cuda:N" or "auto"; see
+            training.loop.resolve_device).
         progress: called with one line per fold / stage.
     """
 
@@ -72,6 +74,7 @@ class EvalRequest:
     method: str | None = None
     points: str | None = None
     settings: tuple[str, ...] = ()
+    device: str = "cpu"
     progress: Callable[[str], None] | None = field(default=None, compare=False)
 
 

@@ -40,6 +40,8 @@ class StudyRequest:
         pair_model: a two-view checkpoint instead of the shipped one (AdelaideRMF pairs).
         clips: tsne: the clips to show (KT3DMoSeg sequence or AdelaideRMF pair names; None = defaults).
         k_max: largest K considered by every automatic-K rule.
+        device: where training studies train ("cpu", "cuda", "cuda:N" or "auto"; see
+            training.loop.resolve_device); None: cpu, except lce-curve --budget full (cuda when there is one).
         progress: called with one line per finished part.
     """
 
@@ -50,6 +52,7 @@ class StudyRequest:
     pair_model: Path | None = None
     clips: tuple[str, ...] | None = None
     k_max: int = 8
+    device: str | None = None
     progress: Callable[[str], None] | None = field(default=None, compare=False)
 
 

@@ -252,9 +252,14 @@ def _kmeans_reference(req: StudyRequest, clips: Sequence[LabeledClip], chash: st
     return float(payload["error_true_k"])
 
 
-def _device(budget: str) -> str:
+def _device(budget: str, requested: str | None = None) -> str:
+    """The request's device when it names one (checked), else cuda for --budget full when there is one."""
     import torch
 
+    from mosegpipe.training.loop import resolve_device
+
+    if requested is not None:
+        return resolve_device(requested)
     return "cuda" if budget == "full" and torch.cuda.is_available() else "cpu"
 
 
@@ -279,7 +284,7 @@ def _run_config(
     steps = budget.full_steps or cc.cpu_steps
     cfg = TrainConfig(**{**asdict(cc.train), "steps": steps})
     cps = checkpoint_steps(steps, budget.num_checkpoints)
-    device = _device(budget_name)
+    device = _device(budget_name, req.device)
     chash = _hash(
         {
             "study": "lce-curve",
@@ -468,6 +473,7 @@ def run_lce_curve(
         budget: what req.budget means (None: BUDGETS[req.budget]); tests pass a tiny one.
     """
     budget_name = _check_budget(req)
+    device = _device(budget_name, req.device)  # checked before anything is computed
     budget = budget or BUDGETS[budget_name]
     configs = tuple(configs or CURVE_CONFIGS)[: budget.num_configs]
     if budget.batch_size is not None:
@@ -489,7 +495,7 @@ def run_lce_curve(
         f"scored on the first {len(clips['val'])} val and first {len(clips['test'])} test samples (K = 4 each). "
         f"Error: misclassification (Hungarian matching), auto K by the silhouette rule (K in 1..{req.k_max}) and "
         "with the true K; NMI with auto K. Learning rate constant after a linear warm-up. Device: "
-        f"{_device(budget_name)}. This call: {wall:.0f} s wall, {cpu:.0f} s CPU (training and scoring; stored parts "
+        f"{device}. This call: {wall:.0f} s wall, {cpu:.0f} s CPU (training and scoring; stored parts "
         "reused; train s in the table is wall time).",
     ]
     lines = [

@@ -227,8 +227,14 @@ def train_and_score(
     held_out: Sequence[str],
     test: Sequence[LabeledClip],
     seed: int = 0,
+    device: str = "cpu",
+    time_budget_s: float | None = None,
 ) -> dict[str, Any]:
     """Trains one model of a variant from scratch and scores it on the held-out clips.
+
+    Args:
+        device: where the model trains (a checked name, see training.loop.resolve_device).
+        time_budget_s: stop training after this many seconds (None: all steps); "steps" says how many ran.
 
     Returns:
         {"rows": one dict per test clip (name, k_true, k_pred, error, error_true_k, nmi),
@@ -238,11 +244,19 @@ def train_and_score(
     from mosegpipe.training.loop import TrainConfig, train_model
 
     model_cfg = dataclasses.replace(data.model, **dict(variant.model))
-    cfg = TrainConfig(frames=data.frames, loss=variant.loss, steps=steps, batch_size=8, lr=1e-3, seed=seed)
+    cfg = TrainConfig(
+        frames=data.frames,
+        loss=variant.loss,
+        steps=steps,
+        batch_size=8,
+        lr=1e-3,
+        seed=seed,
+        time_budget_s=time_budget_s,
+    )
     if data.name == "lce":
         cfg = dataclasses.replace(cfg, reverse=False)  # one frame: nothing to reverse
     sampler, described = study_sampler(data, root, held_out, variant.label_fraction, seed)
-    result = train_model(sampler, cfg, model_cfg=model_cfg)
+    result = train_model(sampler, cfg, model_cfg=model_cfg, device=device)
     rows = evaluate_clips(result.model, test)
     keys = ("name", "k_true", "k_pred", "error", "error_true_k", "nmi")
     return {
@@ -320,9 +334,11 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
     """Trains and scores every (variant, dataset, fold, trial) of `spec`, then writes the table and plot."""
     from mosegpipe.evaluation import study_common as st
     from mosegpipe.runtime import limited_threads
+    from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.losses import LOSS_REVISIONS
 
     budget_name: Budget = st._check_budget(req)
+    device = resolve_device(req.device or "cpu")
     budget = spec.budgets[budget_name]
     say = req.progress or (lambda _msg: None)
     datasets = _datasets()
@@ -366,7 +382,7 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
                     if payload is None:
                         with limited_threads(1):
                             payload = train_and_score(
-                                data, variant, budget.steps, req.data_root, held_out, test, seed=trial
+                                data, variant, budget.steps, req.data_root, held_out, test, seed=trial, device=device
                             )
                         payload |= {"dataset": dname, "variant": variant.label, "fold": fold, "trial": trial}
                         st._save_part(path, chash, payload)

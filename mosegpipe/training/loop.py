@@ -131,6 +131,33 @@ def _to_cpu(obj: Any) -> Any:
     return obj
 
 
+DEVICE_CHOICES = ("cpu", "cuda", "cuda:N", "auto")
+"""--device values: "cpu" (the default everywhere), "cuda" / "cuda:N" (a GPU), "auto" (cuda when there is one)."""
+
+
+def resolve_device(name: str) -> str:
+    """The torch device a `--device` value names, checked: "cpu", "cuda", "cuda:N" or "auto".
+
+    "auto" is cuda when torch sees a GPU and cpu otherwise; nothing picks a GPU unless asked.
+
+    Raises:
+        ConfigError: not one of the values above, or a GPU asked for where torch sees none (or not that one).
+    """
+    value = name.strip().lower()
+    if value == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if value == "cpu":
+        return "cpu"
+    index = value.removeprefix("cuda:") if value.startswith("cuda:") else None
+    if value != "cuda" and not (index is not None and index.isdigit()):
+        raise ConfigError(f"--device {name!r}: choose {', '.join(DEVICE_CHOICES)}")
+    if not torch.cuda.is_available():
+        raise ConfigError(f"--device {name!r}: torch sees no CUDA device here (use cpu or auto)")
+    if index is not None and int(index) >= torch.cuda.device_count():
+        raise ConfigError(f"--device {name!r}: torch sees {torch.cuda.device_count()} CUDA device(s)")
+    return value
+
+
 def clip_sampler(clips: Sequence[LabeledClip]) -> Sampler:
     """Uniformly draws one of `clips`."""
     if not clips:

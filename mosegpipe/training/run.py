@@ -29,6 +29,7 @@ def train_sources(
     exclude: Collection[str] = (),
     on_start: Callable[[dict[str, Any]], None] | None = None,
     on_log: Callable[[dict[str, float]], None] | None = None,
+    device: str = "cpu",
 ) -> tuple[TrainResult, dict[str, Any]]:
     """Trains one model on a weighted mix of training sources.
 
@@ -41,6 +42,7 @@ def train_sources(
         exclude: sequence / clip names left out of every source (the held-out fold).
         on_start: called with the description of the sources before the first step.
         on_log: called with each logged step (step, loss, lr, seconds).
+        device: where the model trains (a checked name, see loop.resolve_device; the model stays there).
 
     Returns:
         The training result and the plain-data recipe (settings, sources, seconds, steps) to store
@@ -52,7 +54,7 @@ def train_sources(
     sampler, described = build_sampler(sources, data_root, cfg.frames, exclude=exclude, seed=cfg.seed)
     if on_start is not None:
         on_start(described)
-    result = train_model(sampler, cfg, model_cfg=model_cfg, init=init, on_log=on_log)
+    result = train_model(sampler, cfg, model_cfg=model_cfg, init=init, on_log=on_log, device=device)
     return result, recipe_of(cfg, described, result)
 
 
@@ -107,6 +109,7 @@ def train_recipe(
     command: str = "",
     on_start: Callable[[Recipe, TrainConfig, dict[str, Any]], None] | None = None,
     on_log: Callable[[dict[str, float]], None] | None = None,
+    device: str = "cpu",
 ) -> TrainResult:
     """Trains recipe `name` and writes its checkpoint to `out`.
 
@@ -125,6 +128,7 @@ def train_recipe(
         command: the command line, recorded in the checkpoint.
         on_start: called with (recipe, settings, sources) before each training run starts.
         on_log: called with each logged step.
+        device: where it trains, its init recipe too ("cpu", "cuda", "cuda:N"; see loop.resolve_device).
 
     Returns:
         The training result; its model was saved to `out`.
@@ -143,7 +147,9 @@ def train_recipe(
         if init_path.is_file() and SubspaceNet.from_checkpoint(init_path).recipe.get("name") == recipe.init:
             log.info("%s: starting from %s (already trained)", name, init_path)
         else:
-            train_recipe(recipe.init, init_path, data_root, command=command, on_start=on_start, on_log=on_log)
+            train_recipe(
+                recipe.init, init_path, data_root, command=command, on_start=on_start, on_log=on_log, device=device
+            )
         start = SubspaceNet.from_checkpoint(init_path)
         init_label = str(init_path)
     cfg = overrides.apply(recipe.train)
@@ -155,6 +161,7 @@ def train_recipe(
         init=start,
         on_start=None if on_start is None else (lambda described: on_start(recipe, cfg, described)),
         on_log=on_log,
+        device=device,
     )
     rec.update(name=name, command=command, init=init_label, excluded=sorted(set(exclude_sources)))
     Path(out).parent.mkdir(parents=True, exist_ok=True)
