@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from collections import Counter
 from pathlib import Path
 
@@ -163,3 +164,46 @@ def one_error_line(stderr: str) -> str:
     lines = stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith("moseg: error: "), stderr
     return lines[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Shared by several test modules (a test module never imports another)
+# ---------------------------------------------------------------------------------------------
+
+TEXTURE_H, TEXTURE_W = 160, 240
+TEXTURE_PAD = 48
+
+
+def smooth_texture(seed: int, h: int = TEXTURE_H + 2 * TEXTURE_PAD, w: int = TEXTURE_W + 2 * TEXTURE_PAD) -> np.ndarray:
+    """(h, w) uint8 smoothed noise: texture KLT and the flow follow."""
+    noise = np.random.default_rng(seed).random((h, w)).astype(np.float32)
+    smooth = cv2.GaussianBlur(noise, (0, 0), 2.0)
+    return cv2.normalize(smooth, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def shifted_view(base: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """The (TEXTURE_H, TEXTURE_W) window of `base` with its content moved by (dx, dy) px; no wrap-around."""
+    m = np.float32([[1, 0, dx - TEXTURE_PAD], [0, 1, dy - TEXTURE_PAD]])
+    return cv2.warpAffine(base, m, (TEXTURE_W, TEXTURE_H), flags=cv2.INTER_LINEAR)
+
+
+def gray_to_rgb(gray: np.ndarray) -> np.ndarray:
+    return np.repeat(gray[:, :, None], 3, axis=2)
+
+
+FAULTY_CLIPS = ["a.avi", "boom.avi", "crash.avi", "hang.avi", "z.avi"]
+"""Batch clips by name (batch_faults.py): fine, raising, crashing its worker, hanging, fine."""
+
+
+def batch_rows(out: Path) -> list[dict[str, str]]:
+    """The rows of a batch's batch_summary.csv."""
+    with (out / "batch_summary.csv").open() as fh:
+        return list(csv.DictReader(fh))
+
+
+def file_tree(root: Path, names: list[str], data: bytes) -> Path:
+    """`root` holding a file of `data` at each relative name (folders made)."""
+    for name in names:
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_bytes(data)
+    return root

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import errno
 import fcntl
 import json
@@ -26,7 +25,7 @@ from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig
 
 from batch_faults import faulty_segment
-from helpers import motion_checkpoint, render_scene, write_avi, write_frames
+from helpers import FAULTY_CLIPS, batch_rows, file_tree, motion_checkpoint, render_scene, write_avi, write_frames
 
 runner = CliRunner(env={"COLUMNS": "200"})
 
@@ -66,9 +65,7 @@ def test_find_clips_and_plan(clips: Path, tmp_path: Path) -> None:
         find_clips(tmp_path / "nowhere")
 
 
-def _rows(out: Path) -> list[dict[str, str]]:
-    with (out / "batch_summary.csv").open() as fh:
-        return list(csv.DictReader(fh))
+_rows = batch_rows
 
 
 def test_batch_isolates_failures_and_resumes(clips: Path, tmp_path: Path, model_path: Path) -> None:
@@ -165,11 +162,7 @@ def clip_bytes(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     return write_avi(tmp_path_factory.mktemp("avi") / "clip.avi", render_scene(5).frames).read_bytes()
 
 
-def _tree(root: Path, names: list[str], data: bytes) -> Path:
-    for name in names:
-        (root / name).parent.mkdir(parents=True, exist_ok=True)
-        (root / name).write_bytes(data)
-    return root
+_tree = file_tree
 
 
 def test_output_names_are_unique_and_stable() -> None:
@@ -296,7 +289,7 @@ def test_a_second_batch_into_the_same_folder_is_refused(tmp_path: Path, model_pa
 # Worker processes: a failing, a crashing and a hanging clip; SIGKILL of the parent
 # ---------------------------------------------------------------------------------------------
 
-FAULTY = ["a.avi", "boom.avi", "crash.avi", "hang.avi", "z.avi"]
+FAULTY = FAULTY_CLIPS
 FAULTY_EXPECTED = [
     ("a.avi", "ok", ""),
     ("boom.avi", "failed", "RuntimeError: boom in two lines"),

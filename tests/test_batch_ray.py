@@ -25,7 +25,6 @@ if os.environ.get("CI"):
 else:
     ray = pytest.importorskip("ray", reason="Ray is the optional extra: pip install '.[ray]'")
 
-from test_batch import FAULTY, _rows, _tree
 
 from mosegpipe.batch import run_batch
 from mosegpipe.cli.main import app
@@ -33,6 +32,9 @@ from mosegpipe.pipeline import PipelineConfig
 
 import batch_faults
 from batch_faults import WARNING_TEXT, faulty_segment
+from helpers import FAULTY_CLIPS as FAULTY
+from helpers import batch_rows as _rows
+from helpers import file_tree as _tree
 from helpers import motion_checkpoint, render_scene, write_avi
 
 runner = CliRunner(env={"COLUMNS": "200"})

@@ -9,14 +9,18 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pytest
-from test_track import H, W, _rgb, _texture, _view
 
 from mosegpipe.errors import InputError
 from mosegpipe.flow_tracks import FlowTrackConfig, combine_tracks, grid_seeds, track_flow
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.types import Tracks
 
+from helpers import TEXTURE_H as H
+from helpers import TEXTURE_W as W
+from helpers import gray_to_rgb as _rgb
 from helpers import moseg
+from helpers import shifted_view as _view
+from helpers import smooth_texture as _texture
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,24 +8,10 @@ from mosegpipe.errors import InputError
 from mosegpipe.track import KLTTracker, TrackConfig, spread_corners, track_klt, track_points
 from mosegpipe.types import Frames
 
-H, W = 160, 240
-PAD = 48
+from helpers import TEXTURE_H, TEXTURE_PAD, TEXTURE_W, gray_to_rgb, shifted_view, smooth_texture
 
-
-def _texture(seed: int, h: int = H + 2 * PAD, w: int = W + 2 * PAD) -> np.ndarray:
-    noise = np.random.default_rng(seed).random((h, w)).astype(np.float32)
-    smooth = cv2.GaussianBlur(noise, (0, 0), 2.0)
-    return cv2.normalize(smooth, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-
-
-def _view(base: np.ndarray, dx: float, dy: float) -> np.ndarray:
-    """The (H, W) window of `base` with its content moved by (dx, dy) px; no wrap-around."""
-    m = np.float32([[1, 0, dx - PAD], [0, 1, dy - PAD]])
-    return cv2.warpAffine(base, m, (W, H), flags=cv2.INTER_LINEAR)
-
-
-def _rgb(gray: np.ndarray) -> np.ndarray:
-    return np.repeat(gray[:, :, None], 3, axis=2)
+H, W, PAD = TEXTURE_H, TEXTURE_W, TEXTURE_PAD
+_texture, _view, _rgb = smooth_texture, shifted_view, gray_to_rgb
 
 
 def _clip(step: tuple[float, float], num: int = 3, seed: int = 0) -> Frames:
