@@ -374,11 +374,13 @@ class _DeferredWarnings(logging.Handler):
         self.records.clear()
 
     def show(self) -> None:
+        """Prints the warnings held, each text once (a folder searched twice warns twice about one link)."""
         records, self.records = self.records, []
-        for record in records[: self.limit]:
-            typer.echo(f"moseg: warning: {_one_line(record.getMessage())}", err=True)
-        if len(records) > self.limit:
-            typer.echo(f"moseg: warning: ... and {len(records) - self.limit} more warnings (-v shows them)", err=True)
+        lines = list(dict.fromkeys(_one_line(record.getMessage()) for record in records))
+        for line in lines[: self.limit]:
+            typer.echo(f"moseg: warning: {line}", err=True)
+        if len(lines) > self.limit:
+            typer.echo(f"moseg: warning: ... and {len(lines) - self.limit} more warnings (-v shows them)", err=True)
 
 
 _WARNINGS = _DeferredWarnings()
@@ -414,14 +416,16 @@ def _friendly(fn: F) -> F:
 
 
 def _quiet_native_logs() -> None:
-    """Keeps FFmpeg's and OpenCV's own messages off stderr (they are read when the first video opens).
+    """Keeps FFmpeg's, OpenCV's and libpng's own messages off stderr (runtime.quiet_native_logs).
 
     FFmpeg inside OpenCV prints decoder complaints ("moov atom not found", "cinepak_decode failed")
-    straight to file descriptor 2; the failure they lead to is reported once, as a moseg error line.
-    A value the user set in the environment wins.
+    straight to file descriptor 2, OpenCV its warnings ("can't open camera by index") and errors (a
+    corrupt PNG); the failure they lead to is reported once, as a moseg error line. A value the user
+    set in the environment wins.
     """
-    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
-    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    from mosegpipe.runtime import quiet_native_logs
+
+    quiet_native_logs()
 
 
 def _setup(threads: int, verbose: bool, *preload: str) -> None:

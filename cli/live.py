@@ -48,14 +48,43 @@ def _check_connect_url(url: str) -> tuple[str, int]:
     """(host, port) of a viewer's gRPC URL, checked as Rerun checks it."""
     from urllib.parse import urlsplit
 
-    parts = urlsplit(url)
-    if parts.scheme not in ("rerun", "rerun+http", "rerun+https") or parts.path != "/proxy" or not parts.hostname:
-        raise InputError(f"--connect {url}: expected rerun+http://HOST:PORT/proxy (the URL a Rerun viewer prints)")
+    expected = f"--connect {url}: expected rerun+http://HOST:PORT/proxy (the URL a Rerun viewer prints)"
+    try:
+        parts = urlsplit(url)
+        hostname = parts.hostname
+    except ValueError:  # urllib's own complaint ("Invalid IPv6 URL")
+        raise InputError(expected) from None
+    if parts.scheme not in ("rerun", "rerun+http", "rerun+https") or parts.path != "/proxy" or not hostname:
+        raise InputError(expected)
     try:
         port = parts.port or (443 if parts.scheme == "rerun+https" else 9876)
     except ValueError:
         raise InputError(f"--connect {url}: the port is not a number in 1..65535") from None
-    return parts.hostname, port
+    return hostname, port
+
+
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+"""A client's HTTP/2 connection preface and an empty SETTINGS frame (RFC 9113, 3.4 and 6.5)."""
+
+
+def _speaks_grpc(host: str, port: int, timeout_s: float = 2.0) -> bool:
+    """Whether what listens at host:port answers as a gRPC server (a Rerun viewer) does: HTTP/2, its
+    first frame a SETTINGS frame (type 4). A web server, say, answers in HTTP/1 or not at all;
+    Rerun's SDK would then print its own errors for each frame sent."""
+    import socket
+
+    try:
+        with socket.create_connection((host, port), timeout=timeout_s) as sock:
+            sock.sendall(_HTTP2_PREFACE)
+            head = b""
+            while len(head) < 9:
+                chunk = sock.recv(9 - len(head))
+                if not chunk:
+                    break
+                head += chunk
+    except OSError:
+        return False
+    return len(head) == 9 and head[3] == 4
 
 
 def _listening(host: str, port: int, timeout_s: float = 2.0) -> bool:
@@ -100,6 +129,10 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
             host, port = _check_connect_url(connect)
             if not _listening(host, port):
                 raise InputError(f"--connect {connect}: no Rerun viewer listens there (start one with `rerun`)")
+            if not _speaks_grpc(host, port):
+                raise InputError(
+                    f"--connect {connect}: something listens there, but not a Rerun viewer (no gRPC answer)"
+                )
             sinks.append(rr.GrpcSink(connect))
         if viewer:
             if not _has_display():
@@ -108,6 +141,8 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
                 rr.spawn(port=9876, connect=False, hide_welcome_screen=True)
                 if not _wait_listening("127.0.0.1", 9876, VIEWER_START_S):
                     raise InputError(f"the Rerun viewer did not start listening in {VIEWER_START_S:.0f} s")
+            elif not _speaks_grpc("127.0.0.1", 9876):
+                raise InputError("--viewer: port 9876 is taken by something that is not a Rerun viewer")
             if connect is None or _check_connect_url(connect)[1] != 9876:
                 sinks.append(rr.GrpcSink(DEFAULT_VIEWER_URL))
         if serve:
@@ -131,6 +166,18 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
     finally:
         if child is not None:
             stop_child(child)
+
+
+def _stdin_size_value(value: str | None) -> str | None:
+    """--stdin-size checked as the option is parsed: a bad one is a usage error (exit code 2)."""
+    from mosegpipe.live import parse_size
+
+    if value is not None:
+        try:
+            parse_size(value)
+        except InputError as exc:  # "--stdin-size '...': why"; the option and value are named by the usage line
+            raise typer.BadParameter(str(exc).partition(": ")[2]) from None
+    return value
 
 
 class _Signals:
@@ -219,7 +266,12 @@ def live(
     ] = False,
     stdin_size: Annotated[
         str | None,
-        typer.Option("--stdin-size", help="WIDTHxHEIGHT of the raw frames on stdin (SOURCE -).", show_default=False),
+        typer.Option(
+            "--stdin-size",
+            callback=_stdin_size_value,
+            help="WIDTHxHEIGHT of the raw frames on stdin (SOURCE -).",
+            show_default=False,
+        ),
     ] = None,
     fps: Annotated[
         float | None,
@@ -241,8 +293,8 @@ def live(
         bool | None,
         typer.Option(
             "--drop/--no-drop",
-            help="When the machine falls behind: drop the oldest frames (default for a camera, a stream, stdin "
-            "and --realtime) or wait for it (default for a file; a pipe then blocks its writer).",
+            help="When the machine falls behind: drop the oldest frames (default for a camera, a stream and "
+            "--realtime) or wait for it (default for a file and stdin; a pipe then blocks its writer).",
             show_default=False,
         ),
     ] = None,
@@ -293,6 +345,13 @@ def live(
     started = time.perf_counter()
     from mosegpipe.live import parse_size, parse_source
 
+    if (source == "-") != (stdin_size is not None):
+        raise _click.exceptions.UsageError(
+            "SOURCE '-' (raw frames on stdin) needs --stdin-size WIDTHxHEIGHT"
+            if source == "-"
+            else "--stdin-size only applies to SOURCE '-' (raw frames on stdin)",
+            ctx=ctx,
+        )
     src = parse_source(source, realtime, None if stdin_size is None else parse_size(stdin_size), fps, drop)
     if not (viewer or connect or serve or out):
         raise InputError("nothing to show or write: pass --viewer, --connect URL, --serve or --out DIR")
@@ -359,7 +418,10 @@ def live(
     _print_total(started)
     line = _END_LINES.get(result.end) if src.kind in ("camera", "url") or result.end == "stalled" else None
     if result.partial_bytes:
-        line = f"the stream ended inside a frame ({result.partial_bytes} bytes of it, dropped)"
+        line = (
+            f"the stream ended inside a frame ({result.partial_bytes} bytes of it, dropped; "
+            f"is --stdin-size {stdin_size} right?)"
+        )
     if line is not None and signals.signum is None:
         typer.echo(
             f"moseg: warning: {src.name}: {line.format(timeout=stall_timeout)} after {result.stats.frames_read} frames",

@@ -33,6 +33,17 @@ REPLAY_KINDS = ("clip", "video", "pair", "tracks")
 """The summary.json kinds `moseg replay` re-runs (docs/OUTPUTS.md)."""
 
 
+_LIVE_NOT_REPLAYABLE = {"stdin": "frames piped on stdin", "camera": "a camera", "url": "a stream"}
+"""Live sources whose frames are gone once read (summary.json `live.source_kind`; "-" is stdin)."""
+
+
+_RRF2_FOOTER = b"RRF2FOOT"
+"""How a complete recording of the current .rrd format (its first bytes "RRF2") ends, but for a version
+number: what Rerun's FileSink writes when the recording is closed."""
+
+_RRF2_TAIL_BYTES = 64
+
+
 def _read_run_summary(path: Path) -> dict[str, Any]:
     """A run's summary.json, checked enough to replay it (kind, source, model; config in the library).
 
@@ -57,6 +68,11 @@ def _read_run_summary(path: Path) -> dict[str, Any]:
     if kind not in REPLAY_KINDS:
         raise InputError(f"{path}: kind {kind!r} cannot be replayed (kinds: {', '.join(REPLAY_KINDS)})")
     source = data.get("source")
+    live = data.get("live")
+    live_kind = live.get("source_kind") if isinstance(live, dict) else None
+    if kind == "video" and (source == "-" or live_kind in _LIVE_NOT_REPLAYABLE):
+        what = _LIVE_NOT_REPLAYABLE.get(str(live_kind), _LIVE_NOT_REPLAYABLE["stdin"])
+        raise InputError(f"{path}: a live run of {what} ({source}) cannot be replayed: its frames were not kept")
     sources = source if kind == "pair" else [source]
     if not isinstance(sources, list) or not sources or not all(isinstance(s, str) and s for s in sources):
         raise InputError(f"{path}: 'source' is missing or not a path: {source!r}")
@@ -465,8 +481,11 @@ def view(
     if not recording.is_file():
         raise InputError(f"{recording}: no such recording")
     with recording.open("rb") as f:
-        if f.read(3) != b"RRF":  # every .rrd version starts so
+        head = f.read(4)
+        if head[:3] != b"RRF":  # every .rrd version starts so
             raise InputError(f"{recording}: not a Rerun recording (.rrd)")
+        f.seek(max(0, recording.stat().st_size - _RRF2_TAIL_BYTES))
+        complete = head != b"RRF2" or _RRF2_FOOTER in f.read()
     exe = _find_viewer()
     if exe is None:
         raise InputError(
@@ -477,6 +496,13 @@ def view(
         raise InputError(f"no display to open a window on (DISPLAY is unset); try 'moseg view --web {recording}'")
     if not web and (bind != "127.0.0.1" or web_port is not None or grpc_port != 0):
         raise InputError("--bind, --web-port and --grpc-port only apply with --web")
+    if not complete:
+        # Shown now: the viewer runs until Ctrl-C, after which deferred warnings are dropped.
+        typer.echo(
+            f"moseg: warning: {recording}: cut short (no end of recording: a copy or a run that did not finish); "
+            "the viewer shows the part it holds",
+            err=True,
+        )
     if not web:
         sys.stdout.flush()
         os.execv(exe, [exe, str(recording)])

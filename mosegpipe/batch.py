@@ -82,7 +82,9 @@ def find_clips(root: str | Path, exclude: tuple[Path, ...] = ()) -> list[Path]:
 
     A frame folder's sub-folders are searched too; a video inside a frame folder is listed as well.
     Hidden entries (names starting with ".") and the folders in `exclude` (e.g. the batch output
-    folder, when it lies under root) are skipped.
+    folder, when it lies under root) are skipped. Symbolic links are followed, but each folder is
+    searched once (by its real path): a link back to a folder above it (a loop) or to one searched
+    already is skipped with a warning, as is a link that points nowhere.
 
     Args:
         root: the folder to search.
@@ -98,6 +100,7 @@ def find_clips(root: str | Path, exclude: tuple[Path, ...] = ()) -> list[Path]:
     if not root.is_dir():
         raise InputError(f"{root}: not a folder")
     skip = {p.resolve() for p in exclude}
+    searched: dict[Path, Path] = {root.resolve(): root}  # real path -> the path it was searched under
 
     def walk(folder: Path) -> Iterator[Path]:
         entries = sorted(folder.iterdir())
@@ -106,9 +109,18 @@ def find_clips(root: str | Path, exclude: tuple[Path, ...] = ()) -> list[Path]:
         for e in entries:
             if e.name.startswith("."):
                 continue
-            if e.is_file() and e.suffix.lower() in VIDEO_EXTENSIONS:
+            if e.is_symlink() and not e.exists():
+                log.warning("%s: a broken symbolic link (to %s); skipped", e, os.readlink(e))
+            elif e.is_file() and e.suffix.lower() in VIDEO_EXTENSIONS:
                 yield e
-            elif e.is_dir() and e.resolve() not in skip:
+            elif e.is_dir():
+                real = e.resolve()
+                if real in skip:
+                    continue
+                if real in searched:
+                    log.warning("%s: the same folder as %s (a symbolic link); searched once", e, searched[real])
+                    continue
+                searched[real] = e
                 yield from walk(e)
 
     return list(walk(root))
@@ -351,13 +363,12 @@ def _watch_parent(lifeline: Any) -> None:
 
 def _init_worker(model: SubspaceNet, job: _Job, ready: Any, lifeline: Any) -> None:
     """Pool initializer: one thread, quiet decoders, Ctrl-C left to the parent, the model kept."""
-    from mosegpipe.runtime import set_threads
+    from mosegpipe.runtime import quiet_native_logs, set_threads
 
     threading.Thread(target=_watch_parent, args=(lifeline,), name="moseg-lifeline", daemon=True).start()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the pool on Ctrl-C
     _keep_worker_logs()
-    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    quiet_native_logs()
     set_threads(1)
     model.eval()
     _WORKER.update(model=model, job=job)
@@ -596,11 +607,10 @@ def _ray_task(shared: list[Any], item: BatchItem) -> Iterator[Any]:
 
     key = shared[0]
     if key not in _RAY_CACHE:
-        from mosegpipe.runtime import set_threads
+        from mosegpipe.runtime import quiet_native_logs, set_threads
 
         _keep_worker_logs()
-        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
-        os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+        quiet_native_logs()
         set_threads(1)
         model, job = ray.get(shared[1])
         _RAY_CACHE.clear()

@@ -24,6 +24,7 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.provenance import IMAGE_SUFFIXES  # defined there: the CLI lists frame folders without OpenCV
+from mosegpipe.runtime import native_stderr_muted
 from mosegpipe.types import Frames
 
 _VIDEO_FOURCC: dict[str, str] = {
@@ -162,7 +163,8 @@ def read_image(path: str | os.PathLike[str]) -> npt.NDArray[np.uint8]:
         buf = np.fromfile(p, dtype=np.uint8)
     except OSError as exc:
         raise InputError(f"{p}: cannot read file ({exc})") from exc
-    bgr = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+    with native_stderr_muted():  # libpng prints its errors itself ("libpng error: Not enough image data")
+        bgr = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
     if bgr is None:
         raise InputError(f"{p}: not a readable image (corrupt or unsupported format)")
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)

@@ -6,10 +6,12 @@ The frames go through the whole-video machinery unchanged (`segment_video` reads
 `write_video_outputs` writes it as `moseg run --whole` does. What is live is around it:
 
 - `open_source` opens the source (`parse_source` tells a camera index, a URL, a file and `-` apart);
-  `SourceReader` reads it on a thread of its own into a `FrameBuffer` of a few frames. When the
-  pipeline falls behind a live source, the buffer drops its oldest frame for each new one (whole
-  frames, counted): latency stays bounded and memory flat; it never grows a queue. A file read
-  as fast as possible (no real-time pacing) waits instead, so that no frame is lost.
+  `SourceReader` reads it, the first frame too, on a thread of its own into a `FrameBuffer` of a
+  few frames. When the pipeline falls behind a live source (a camera, a stream, a file played in
+  real time), the buffer drops its oldest frame for each new one (whole frames, counted): latency
+  stays bounded and memory flat; it never grows a queue. Stdin and a file read as fast as
+  possible wait instead (a pipe's writer can wait), so that no frame is lost; and nothing is
+  dropped before the pipeline has shown its first mask (model loading, the first window).
 - `LiveFrames` hands the frames to the pipeline and ends the stream when the source ends, stalls
   (no frame for `stall_timeout_s`) or is told to stop (Ctrl-C): the pipeline then finishes the
   window in hand, so the outputs are complete.
@@ -17,7 +19,8 @@ The frames go through the whole-video machinery unchanged (`segment_video` reads
   (a spawned viewer, a running viewer over gRPC, a web viewer), with the layout and colours of a
   whole-video recording (mosegpipe.viz).
 - `LiveStats` measures frames/s, the latency from a frame's arrival to its mask leaving for the
-  viewer, and the dropped frames, in constant memory.
+  viewer, and the dropped frames, in constant memory; with an output folder they go into its
+  summary.json (`live`), and a run that dropped most of its frames says so in a warning.
 
 Stdin takes raw frames, 8-bit BGR (what `ffmpeg ... -f rawvideo -pix_fmt bgr24 -` writes), of a
 size given beside it (`parse_source(stdin_size=...)`).
@@ -38,7 +41,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import InputError
+from mosegpipe.errors import InputError, MosegError
 from mosegpipe.pipeline import PipelineConfig, VideoFrame, WindowResult, frame_mask, segment_video
 from mosegpipe.pipeline.video import MIN_VIDEO_SIDE_PX
 from mosegpipe.runtime import run_ahead
@@ -67,6 +70,12 @@ _WINDOWS_AHEAD = 1
 _POLL_S = 0.1
 """How often a waiting reader or pipeline looks at the stop signal."""
 
+_JOIN_S = 5.0
+"""How long the end of a run waits for the reader of an OpenCV source to finish its read."""
+
+_JOIN_RAW_S = 0.5
+"""The same for raw frames on stdin (a read blocked on a silent pipe holds nothing native)."""
+
 
 # ---------------------------------------------------------------------------------------------
 # Sources
@@ -85,7 +94,8 @@ class LiveSource:
         stdin_size: (width, height) of the raw BGR frames on stdin.
         fps: frame rate to assume (None: what the source says, else DEFAULT_FPS).
         drop: drop frames (True) or wait for the pipeline (False) when it falls behind; None: drop
-            for every source but a file read as fast as possible.
+            for a camera, a stream and a file played in real time; wait for stdin (a pipe's writer
+            can wait: nothing is lost unless asked) and a file read as fast as possible.
     """
 
     name: str
@@ -98,19 +108,43 @@ class LiveSource:
     @property
     def drops(self) -> bool:
         """Whether frames are dropped (not waited for) when the pipeline falls behind."""
-        return self.drop if self.drop is not None else self.kind != "file" or self.realtime
+        return self.drop if self.drop is not None else self.kind in ("camera", "url") or self.realtime
+
+
+MAX_STDIN_SIDE_PX = 16_384
+"""The widest or tallest raw frame taken on stdin (a size is checked before a frame is allocated)."""
+
+MAX_STDIN_PIXELS = 64 * 2**20
+"""The most pixels of a raw frame on stdin (64 Mi: 192 MiB a frame; 8K UHD is 33 M)."""
+
+MAX_CAMERA_INDEX = 2**31 - 1
+"""The largest camera index OpenCV takes (a C int)."""
 
 
 def parse_size(text: str) -> tuple[int, int]:
     """`640x480` -> (640, 480).
 
     Raises:
-        InputError: not WIDTHxHEIGHT with positive integers.
+        InputError: not WIDTHxHEIGHT with positive integers, or beyond MAX_STDIN_SIDE_PX a side or
+            MAX_STDIN_PIXELS in all.
     """
     parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts) or min(int(p) for p in parts) < 1:
+    if len(parts) != 2 or not all(p.strip().isascii() and p.strip().isdigit() for p in parts):
         raise InputError(f"--stdin-size {text!r}: expected WIDTHxHEIGHT in pixels, e.g. 640x480")
-    return int(parts[0]), int(parts[1])
+    size = int(parts[0]), int(parts[1])
+    _check_stdin_size(size, text)
+    return size
+
+
+def _check_stdin_size(size: tuple[int, int], text: str) -> None:
+    width, height = size
+    if min(width, height) < 1:
+        raise InputError(f"--stdin-size {text!r}: width and height must be at least 1 pixel")
+    if max(width, height) > MAX_STDIN_SIDE_PX or width * height > MAX_STDIN_PIXELS:
+        raise InputError(
+            f"--stdin-size {text!r}: too large (at most {MAX_STDIN_SIDE_PX} px a side and "
+            f"{MAX_STDIN_PIXELS // 2**20} Mi pixels a frame)"
+        )
 
 
 def parse_source(
@@ -123,8 +157,9 @@ def parse_source(
     """Tells a camera index, a URL, stdin ("-") and a file apart, and checks the options that go with each.
 
     Raises:
-        InputError: a missing file, stdin without a frame size, a frame size or --realtime that does
-            not apply, a frame rate that is not positive.
+        InputError: a missing file or a folder, a camera index beyond MAX_CAMERA_INDEX, stdin
+            without a frame size, a frame size or --realtime that does not apply, a frame rate that
+            is not positive.
     """
     if fps is not None and not (np.isfinite(fps) and fps > 0):
         raise InputError(f"--fps {fps}: must be a positive number")
@@ -133,16 +168,25 @@ def parse_source(
         kind = "stdin"
         if stdin_size is None:
             raise InputError("SOURCE '-' (raw frames on stdin) needs --stdin-size WIDTHxHEIGHT")
-    elif text.isdigit():
+    elif text.isascii() and text.isdigit():
         kind = "camera"
+        if int(text) > MAX_CAMERA_INDEX:
+            raise InputError(f"camera index {text}: too large (OpenCV takes 0..{MAX_CAMERA_INDEX})")
     elif "://" in text:
         kind = "url"
     else:
+        if Path(text).is_dir():
+            raise InputError(
+                f"{text}: is a folder; SOURCE is a camera index, a URL, a video file or '-' "
+                "(a folder of frames: `moseg run FOLDER --whole`)"
+            )
         if not Path(text).is_file():
             raise InputError(f"{text}: no such file (SOURCE is a camera index, a URL, a video file or '-')")
         kind = "file"
     if stdin_size is not None and kind != "stdin":
         raise InputError("--stdin-size only applies to SOURCE '-' (raw frames on stdin)")
+    if stdin_size is not None:
+        _check_stdin_size(stdin_size, "x".join(str(n) for n in stdin_size))
     if realtime and kind != "file":
         raise InputError(f"--realtime only applies to a video file (a {kind} delivers frames in real time itself)")
     return LiveSource(text, kind, realtime, stdin_size, fps, drop)
@@ -239,6 +283,53 @@ def _stdin_bytes() -> tuple[IO[bytes], bool]:
     return open(fd, "rb", buffering=0), True  # noqa: SIM115 - closed with the reader's capture
 
 
+_SHEAR_MAX_PX = 1024
+"""The widest shear between rows that `stdin_size_suspect` looks for (a width wrong by up to this)."""
+
+
+def _row_costs(gray: npt.NDArray[np.float32], lag: int, max_shift: int) -> npt.NDArray[np.float32]:
+    """Mean |row r+lag at x+s - row r at x| for s in -max_shift..max_shift, on a sample of rows and columns."""
+    h, w = gray.shape
+    rows = np.unique(np.linspace(0, h - 1 - lag, min(h - lag, 32)).astype(np.int64))
+    above, below = gray[rows], gray[rows + lag]
+    costs = np.empty(2 * max_shift + 1, np.float32)
+    for i, shift in enumerate(range(-max_shift, max_shift + 1)):
+        lo, hi = max(0, -shift), w - max(0, shift)
+        cols = np.unique(np.linspace(lo, hi - 1, min(hi - lo, 256)).astype(np.int64))
+        costs[i] = np.abs(below[:, cols + shift] - above[:, cols]).mean()
+    return costs
+
+
+def stdin_size_suspect(image: npt.NDArray[np.uint8]) -> str:
+    """Why a raw frame read with a declared size looks read with the wrong width ("" when it does not).
+
+    Raw frames of W' px read as W px wide shear: each row continues W' - W px further along in the
+    next one, so rows line up best at that shift and not straight below each other (in a camera's
+    image they line up straight below: measured 1.0 against 0.13-0.65 for widths wrong by 2..128 px
+    on three videos, and no false alarm on 60 benchmark frames); read as half as wide, every other
+    row lines up. A slanted grating can look sheared too, so this only warns.
+
+    Args:
+        image: (H, W, 3) uint8, one frame as read.
+    """
+    gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    h, w = gray.shape
+    if h < 4 or w < 8:
+        return ""
+    max_shift = min(w // 2, _SHEAR_MAX_PX)
+    costs = _row_costs(gray, 1, max_shift)
+    straight = float(costs[max_shift])
+    if straight < 2.0:  # flat: nothing to tell by
+        return ""
+    best = int(np.argmin(costs))
+    shift = best - max_shift
+    if abs(shift) >= 2 and costs[best] < 0.7 * straight:
+        return f"each row lines up with the next {abs(shift)} px to the {'right' if shift > 0 else 'left'} (frames {w + shift} px wide?)"
+    if float(_row_costs(gray, 2, 0)[0]) < 0.5 * straight:
+        return f"every other row lines up (frames {2 * w} px wide?)"
+    return ""
+
+
 def open_source(source: LiveSource, timeout_s: float = 10.0, stdin: IO[bytes] | None = None) -> Capture:
     """Opens a source for reading.
 
@@ -272,14 +363,18 @@ class FrameBuffer:
 
     When it is full, `put` drops the oldest frame held (`drop`, a live source: the newest frames
     are the ones worth showing; `dropped` counts them) or waits for room (a file read as fast as
-    possible). `close` ends it: `get` gives the frames still held, then None for good.
+    possible). A buffer made with `hold` waits instead of dropping until `release` (the pipeline has
+    started: its model loaded, its first window segmented): a source read faster than real time
+    loses nothing to the start-up. `close` ends it: `get` gives the frames still held, then None
+    for good.
     """
 
-    def __init__(self, capacity: int = BUFFER_FRAMES, drop: bool = True) -> None:
+    def __init__(self, capacity: int = BUFFER_FRAMES, drop: bool = True, hold: bool = False) -> None:
         if capacity < 1:
             raise InputError(f"buffer of {capacity} frames: must hold at least 1")
         self.capacity = capacity
         self.drop = drop
+        self.holding = hold
         self.dropped = 0
         self.last_put = time.monotonic()
         self._items: collections.deque[_Item] = collections.deque()
@@ -293,7 +388,7 @@ class FrameBuffer:
     def put(self, item: _Item, stop: threading.Event | None = None) -> bool:
         """Hands over one frame; False when the buffer was closed (or `stop` set) while waiting for room."""
         with self._cond:
-            while not self.drop and len(self._items) >= self.capacity and not self._closed:
+            while (not self.drop or self.holding) and len(self._items) >= self.capacity and not self._closed:
                 if stop is not None and stop.is_set():
                     return False
                 self._cond.wait(_POLL_S)
@@ -306,6 +401,21 @@ class FrameBuffer:
             self.last_put = time.monotonic()
             self._cond.notify_all()
             return True
+
+    def release(self) -> None:
+        """From now on a full buffer drops (when made with `drop`) rather than waits."""
+        with self._cond:
+            self.holding = False
+            self._cond.notify_all()
+
+    def peek(self, timeout: float) -> _Item | None | Literal[False]:
+        """As `get`, but the frame stays held."""
+        with self._cond:
+            if not self._items and not self._closed:
+                self._cond.wait(timeout)
+            if self._items:
+                return self._items[0]
+            return False if self._closed else None
 
     def close(self) -> None:
         """No more frames will come (those held are still given out)."""
@@ -328,11 +438,16 @@ class FrameBuffer:
 class SourceReader(threading.Thread):
     """Reads a source into a FrameBuffer until it ends, `max_frames` were read or `stop` is set.
 
-    A realtime source hands frame i over at first + i / fps (a file played at its frame rate);
-    otherwise each frame as soon as it is read. Frame indices count every frame read, dropped or
-    not. The reader closes the source itself when it ends (OpenCV captures are not to be released
-    from another thread while one reads); a read that blocks for good (a dead stream) leaves the
-    thread blocked, which as a daemon does not keep the process alive.
+    A realtime source hands frame i over at first + i / fps (a file played at its frame rate; time
+    spent waiting for room in the buffer shifts the schedule, so that a held start does not end in
+    a burst); otherwise each frame as soon as it is read. Frame indices count every frame read,
+    dropped or not. The first frame too is read here, not by the thread that waits for it (a source
+    that never delivers must not keep a signal or the stall timeout from ending the wait). The reader
+    closes the source itself when it ends (OpenCV captures are not to be released from another
+    thread while one reads); `finish` stops it and waits for it, so that no thread is inside OpenCV
+    when the process exits (a daemon thread there at exit aborts the process). A read that blocks
+    for good (a pipe with no writer data) leaves the thread blocked, which as a daemon does not keep
+    the process alive.
     """
 
     def __init__(
@@ -340,7 +455,6 @@ class SourceReader(threading.Thread):
         capture: Capture,
         buffer: FrameBuffer,
         stop: threading.Event,
-        first: npt.NDArray[np.uint8],
         pace_fps: float | None = None,
         max_frames: int | None = None,
         name: str = "source",
@@ -350,7 +464,6 @@ class SourceReader(threading.Thread):
         self.capture = capture
         self.buffer = buffer
         self.stop = stop
-        self.first = first
         self.pace_fps = pace_fps
         self.max_frames = max_frames
         self.frames_read = 0
@@ -366,27 +479,33 @@ class SourceReader(threading.Thread):
             self.buffer.close()
             self.capture.close()
 
+    def finish(self) -> None:
+        """Stops the reader and waits for it: at most a read's time (a blocked raw pipe: a moment)."""
+        self.stop.set()
+        if self.is_alive():
+            self.join(_JOIN_RAW_S if isinstance(self.capture, RawCapture) else _JOIN_S)
+
     def _read(self) -> None:
         started = time.monotonic()
-        frame: npt.NDArray[np.uint8] | None = self.first
-        self.first = np.zeros((0, 0, 3), np.uint8)  # not held for the whole run
-        while frame is not None:
+        while not self.stop.is_set():
+            frame = self.capture.read()
+            if frame is None:
+                return
             if self.pace_fps:
                 wait = started + self.frames_read / self.pace_fps - time.monotonic()
                 if wait > 0 and self.stop.wait(wait):
-                    self.end = "stopped"
-                    return
+                    break
             if self.stop.is_set():
-                self.end = "stopped"
-                return
-            if not self.buffer.put((self.frames_read, frame, time.monotonic()), self.stop):
-                self.end = "stopped"
-                return
+                break
+            before = time.monotonic()
+            if not self.buffer.put((self.frames_read, frame, before), self.stop):
+                break
+            started += time.monotonic() - before  # a wait for room delays the schedule
             self.frames_read += 1
             if self.max_frames is not None and self.frames_read >= self.max_frames:
                 self.end = "max-frames"
                 return
-            frame = self.capture.read()
+        self.end = "stopped"
 
 
 class LiveFrames:
@@ -662,26 +781,80 @@ def run_live(
         TooFewTracksError: no window had enough tracks.
         OutputExistsError: out_dir holds results and overwrite is False.
     """
-    from mosegpipe.outputs import check_output_dir, write_video_outputs
+    from mosegpipe.outputs import check_output_dir
 
     if out_dir is not None:
         check_output_dir(out_dir, overwrite)
     stop = stop or threading.Event()
     capture = open_source(source, timeout_s=stall_timeout_s, stdin=stdin)
-    first = capture.read()
-    if first is None:
-        capture.close()
-        raise InputError(f"{source.name}: no frame could be read")
+    fps = source.fps or capture.fps or DEFAULT_FPS
+    # Held until the first mask is out: what comes before the pipeline started is waited for, not dropped.
+    buffer = FrameBuffer(buffer_frames, drop=source.drops, hold=True)
+    reader = SourceReader(capture, buffer, stop, fps if source.realtime else None, max_frames, source.name)
+    reader.start()
+    try:
+        return _run_live(
+            source, cfg, model, reader, fps, view, out_dir, overwrite, rrd, stall_timeout_s, on_status, status_every_s
+        )
+    finally:
+        reader.finish()
+
+
+def _first_frame(reader: SourceReader, stall_timeout_s: float) -> npt.NDArray[np.uint8]:
+    """Waits for the reader's first frame (left in the buffer), looking at the stop signal as it waits.
+
+    Raises:
+        InputError: the source gave no frame, none came for `stall_timeout_s`, or `stop` was set.
+    """
+    name = reader.source_name
+    waited_from = time.monotonic()
+    log.info("%s: waiting for the first frame (at most %g s)", name, stall_timeout_s)
+    while True:
+        if reader.stop.is_set():
+            raise InputError(f"{name}: stopped before the first frame came")
+        item = reader.buffer.peek(_POLL_S)
+        if item is False:
+            if reader.error is not None:
+                raise InputError(f"{name}: reading failed ({reader.error})") from reader.error
+            raise InputError(f"{name}: no frame could be read")
+        if item is not None:
+            return item[1]
+        if time.monotonic() - waited_from > stall_timeout_s:
+            raise InputError(f"{name}: no frame came in {stall_timeout_s:g} s (--stall-timeout); stopped")
+
+
+MOST_DROPPED = 0.5
+"""A run that dropped more than this share of the frames it read says so in a warning."""
+
+
+def _run_live(
+    source: LiveSource,
+    cfg: PipelineConfig,
+    model: Embedder,
+    reader: SourceReader,
+    fps: float,
+    view: LiveView | None,
+    out_dir: str | Path | None,
+    overwrite: bool,
+    rrd: bool,
+    stall_timeout_s: float,
+    on_status: Callable[[LiveStats], None] | None,
+    status_every_s: float,
+) -> LiveResult:
+    from mosegpipe.outputs import write_video_outputs
+
+    buffer, capture = reader.buffer, reader.capture
+    first = _first_frame(reader, stall_timeout_s)
     height, width = first.shape[:2]
     if min(height, width) < MIN_VIDEO_SIDE_PX:
-        capture.close()
         raise InputError(
             f"{source.name}: frames of {width}x{height} px are too small to track "
             f"(at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
-    fps = source.fps or capture.fps or DEFAULT_FPS
-    buffer = FrameBuffer(buffer_frames, drop=source.drops)
-    reader = SourceReader(capture, buffer, stop, first, fps if source.realtime else None, max_frames, source.name)
+    suspect = stdin_size_suspect(first) if source.kind == "stdin" else ""
+    if suspect:
+        suspect = f"the frames do not look {width}x{height}: {suspect}; is --stdin-size right?"
+    del first
     frames = LiveFrames(reader, stall_timeout_s)
     stats = LiveStats()
     last_status = [0.0]
@@ -693,6 +866,8 @@ def run_live(
             view.log_window(window.start, window.k, window.k_scores)
 
     def on_frame(frame: VideoFrame, mask: npt.NDArray[np.uint8]) -> None:
+        if buffer.holding:
+            buffer.release()  # the pipeline runs: from now on a live source drops what it cannot take
         if view is not None:
             view.log_frame(frame, mask)
         now = time.monotonic()
@@ -703,7 +878,12 @@ def run_live(
             last_status[0] = now
             on_status(stats)
 
-    reader.start()
+    def counts() -> dict[str, Any]:
+        """The run's numbers for summary.json, once the frames ended (the reader stopped first)."""
+        reader.finish()
+        stats.frames_read, stats.frames_dropped = reader.frames_read, buffer.dropped
+        return {"live": {"source_kind": source.kind, "end": frames.end or reader.end, **stats.record()}}
+
     stats.started = time.monotonic()
     summary = None
     try:
@@ -720,6 +900,7 @@ def run_live(
                 info=info,
                 on_window=on_window,
                 on_frame=on_frame,
+                summary_extra=counts,
             )
         else:
             segmented = segment_video(source.name, cfg, model, masks=False, frames=frames)
@@ -728,8 +909,23 @@ def run_live(
                     on_frame(fr, frame_mask(fr, cfg.mask))
                 on_window(window)  # after its frames, as write_video_outputs reports it
                 del window
+    except MosegError as exc:
+        if suspect:  # the likely cause of a failure on such frames (no tracks, too few frames)
+            raise type(exc)(f"{exc} ({suspect})") from exc
+        raise
     finally:
-        stop.set()  # the reader stops at its next frame
+        reader.finish()  # the reader stops at its next frame
+    if suspect:
+        log.warning("%s: %s", source.name, suspect)
     stats.frames_read, stats.frames_dropped = reader.frames_read, buffer.dropped
+    if stats.dropped_share > MOST_DROPPED:
+        log.warning(
+            "%s: %d of %d frames dropped (%.0f %%): the segmenter fell far behind the source "
+            "(--no-drop waits for it where the source can wait; --max-corners, --mask-method nearest make it faster)",
+            source.name,
+            stats.frames_dropped,
+            stats.frames_read,
+            100 * stats.dropped_share,
+        )
     partial = capture.partial_bytes if isinstance(capture, RawCapture) else 0
     return LiveResult(frames.end or reader.end, stats, summary, windows[0], partial)

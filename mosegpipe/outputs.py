@@ -358,6 +358,7 @@ def write_video_outputs(
     frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
     info: dict[str, Any] | None = None,
     on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None = None,
+    summary_extra: Callable[[], dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
 
@@ -383,6 +384,8 @@ def write_video_outputs(
             `path`; given with `frames`).
         on_frame: called in this thread with each frame and its mask once they were written (a live
             view).
+        summary_extra: called once the frames ended; its keys are added to summary.json (a live run's
+            counts).
 
     Returns:
         The summary dict written to summary.json.
@@ -451,6 +454,8 @@ def write_video_outputs(
             ),
         )
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
+        if summary_extra is not None:
+            summary.update(summary_extra())
         write_json(tmp / "summary.json", summary)
     return summary
 

@@ -1,7 +1,9 @@
-"""Thread control in one place.
+"""Thread control in one place, and the native libraries' own messages.
 
 On small problems (hundreds of points, 5-d embeddings) one BLAS/OpenMP thread is much faster than
 two on the 2-core machines we target: sklearn K-means was measured 30-50x slower with 2 threads.
+OpenCV, FFmpeg and libpng print their complaints about a bad input straight to stderr;
+`quiet_native_logs` keeps them off it (the failure they lead to is reported once, in our words).
 Nothing here runs at import; callers (the CLI, benchmarks, tests) opt in.
 """
 
@@ -103,6 +105,70 @@ def collector_paused(marker: str) -> Iterator[None]:
         gc.freeze()
         gc.enable()
         atexit.register(gc.freeze)  # at exit: before the interpreter's last collection
+
+
+QUIET_OPENCV_LOG_LEVEL = "SILENT"
+"""OpenCV's log level in quiet mode: its [ERROR] lines too say what our own error line says (a corrupt
+PNG's "IHDR chunk shall be first", a camera index that does not open)."""
+
+_quiet_native: list[bool] = [False]
+_muted_lock = threading.Lock()
+_muted: list[int] = [0, -1]  # blocks inside native_stderr_muted, the saved descriptor of stderr
+
+
+def quiet_native_logs() -> None:
+    """Keeps FFmpeg's, OpenCV's and libpng's own messages off stderr in this process (the CLI's default;
+    `-v` keeps them). A level the user set in the environment wins.
+
+    FFmpeg reads OPENCV_FFMPEG_LOGLEVEL when it first opens a video; OpenCV reads OPENCV_LOG_LEVEL once,
+    so an OpenCV imported before this call is told again through its API. libpng has no level: its
+    errors go straight to file descriptor 2 (see native_stderr_muted).
+    """
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+    os.environ.setdefault("OPENCV_LOG_LEVEL", QUIET_OPENCV_LOG_LEVEL)
+    level_name = os.environ["OPENCV_LOG_LEVEL"].strip().upper()
+    _quiet_native[0] = level_name == QUIET_OPENCV_LOG_LEVEL
+    cv2 = sys.modules.get("cv2")
+    logging_api = getattr(getattr(cv2, "utils", None), "logging", None)
+    level = getattr(logging_api, f"LOG_LEVEL_{level_name}", None)
+    if logging_api is not None and isinstance(level, int):
+        logging_api.setLogLevel(level)
+
+
+@contextlib.contextmanager
+def native_stderr_muted() -> Iterator[None]:
+    """File descriptor 2 points at /dev/null inside the block, after quiet_native_logs (else nothing
+    changes): for a native call that prints to it with no level to turn it off (libpng's "libpng
+    error: Not enough image data" from OpenCV's PNG decoder). Blocks may overlap across threads; the
+    last one out restores stderr. Python's own writes to stderr inside the block are lost too, so
+    keep the block to the one call.
+    """
+    if not _quiet_native[0]:
+        yield
+        return
+    with _muted_lock:
+        if _muted[0] == 0:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.flush()
+            try:
+                saved = os.dup(2)
+                devnull = os.open(os.devnull, os.O_WRONLY)
+            except OSError:  # no descriptor 2 (a daemon): nothing to mute
+                saved = -1
+            else:
+                os.dup2(devnull, 2)
+                os.close(devnull)
+            _muted[1] = saved
+        _muted[0] += 1
+    try:
+        yield
+    finally:
+        with _muted_lock:
+            _muted[0] -= 1
+            if _muted[0] == 0 and _muted[1] >= 0:
+                os.dup2(_muted[1], 2)
+                os.close(_muted[1])
+                _muted[1] = -1
 
 
 _T = TypeVar("_T")

@@ -411,6 +411,8 @@ def test_segment_tracks_of_another_tracker() -> None:
     with pytest.raises(InputError, match="visible must be an \\(200, 8\\) bool array"):
         segment_tracks(xy, visible[:, :3])
     with pytest.raises(InputError, match="the window must hold 2 or more"):
+        segment_tracks(xy, visible, start=5, frames=4)
+    with pytest.raises(InputError, match=r"start=7: must lie in 0..6 \(the tracks span 8 frames\)"):
         segment_tracks(xy, visible, start=7)
 
 

@@ -93,9 +93,9 @@ def test_a_slow_consumer_makes_frames_drop_not_the_queue_grow() -> None:
     # The consumer takes nothing until the reader has read all 500 frames: the slowest consumer there is.
     buffer = FrameBuffer(capacity=4, drop=True)
     box = [buffer]
-    capture = _CountingCapture(499, box)
+    capture = _CountingCapture(500, box)
     stop = threading.Event()
-    reader = SourceReader(capture, buffer, stop, np.zeros((4, 4, 3), np.uint8), name="fake")
+    reader = SourceReader(capture, buffer, stop, name="fake")
     reader.start()
     reader.join(timeout=30)
     assert not reader.is_alive() and reader.end == "ended"
@@ -107,8 +107,8 @@ def test_a_slow_consumer_makes_frames_drop_not_the_queue_grow() -> None:
 
 def test_a_file_read_as_fast_as_possible_loses_no_frame() -> None:
     buffer = FrameBuffer(capacity=2, drop=False)
-    capture = _CountingCapture(49, [buffer])
-    reader = SourceReader(capture, buffer, threading.Event(), np.zeros((4, 4, 3), np.uint8), name="fake")
+    capture = _CountingCapture(50, [buffer])
+    reader = SourceReader(capture, buffer, threading.Event(), name="fake")
     reader.start()
     got = [index for index, _ in LiveFrames(reader, stall_timeout_s=5.0)]
     assert got == list(range(50)) and buffer.dropped == 0 and max(capture.held) <= 2
@@ -130,6 +130,8 @@ def test_sources_are_told_apart(tmp_path: Path, video: Path) -> None:
     assert parse_source(str(video), realtime=True).drops
     assert not parse_source(str(video)).drops  # read as fast as possible: waited for, not dropped
     assert parse_source("-", stdin_size=(W, H)).kind == "stdin"
+    assert not parse_source("-", stdin_size=(W, H)).drops  # a pipe's writer waits: nothing lost unless asked
+    assert parse_source("-", stdin_size=(W, H), drop=True).drops and parse_source("0").drops
     with pytest.raises(InputError, match="--stdin-size"):
         parse_source("-")
     with pytest.raises(InputError, match="--realtime"):
@@ -158,12 +160,10 @@ def test_segment_video_takes_the_frames_themselves(video: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "expected"),
     [
-        (["-", "--out", "o"], "--stdin-size"),
         (["missing.avi", "--out", "o"], "no such file"),
         (["SQUARE"], "nothing to show or write"),
         (["SQUARE", "--connect", "http://127.0.0.1:1/"], "rerun+http://HOST:PORT/proxy"),
         (["SQUARE", "--connect", "rerun+http://127.0.0.1:1/proxy"], "no Rerun viewer listens there"),
-        (["-", "--stdin-size", "160by120", "--out", "o"], "WIDTHxHEIGHT"),
     ],
 )
 def test_bad_live_input_is_one_error_line(

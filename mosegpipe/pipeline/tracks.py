@@ -102,7 +102,9 @@ def segment_tracks(
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
             raise InputError(f"{name}={value!r} must be an integer")
     window = num_frames - start if frames is None else frames
-    if start < 0 or window < 2 or start + window > num_frames:
+    if start < 0 or start > num_frames - 2:
+        raise InputError(f"start={start}: must lie in 0..{num_frames - 2} (the tracks span {num_frames} frames)")
+    if window < 2 or start + window > num_frames:
         raise InputError(f"start={start}, frames={window}: the window must hold 2 or more of the {num_frames} frames")
     finite = np.where(vis[..., None], arr, 0.0).astype(np.float32)
     span = finite[vis].max(axis=0) if vis.any() else np.zeros(2)
