@@ -106,6 +106,7 @@ def main() -> None:
             str(args.fps),
             "--connect",
             f"rerun+http://127.0.0.1:{port}/proxy",
+            "--drop",  # frames piped in real time: a live source, dropped when the machine falls behind
             *args.moseg_args,
         ],
         stdin=subprocess.PIPE,
