@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.colours import mask_palette
 from mosegpipe.errors import InputError
 from mosegpipe.provenance import IMAGE_SUFFIXES  # defined there: the CLI lists frame folders without OpenCV
 from mosegpipe.runtime import native_stderr_muted
@@ -406,21 +407,12 @@ def atomic_write(path: str | os.PathLike[str]) -> Iterator[Path]:
 
 
 def default_palette() -> npt.NDArray[np.uint8]:
-    """The 256-colour palette of PASCAL VOC / DAVIS masks: index 0 black, then distinct colours.
-
-    Colour i spreads the bits of i over the high bits of R, G and B (bit 0 -> R, 1 -> G, 2 -> B,
-    3 -> R one level lower, ...), so small indices get saturated, well separated colours.
+    """The palette of the mask PNGs: colours.mask_palette() (the PASCAL VOC / DAVIS colours, 255 grey).
 
     Returns:
-        (256, 3) uint8 RGB.
+        (256, 3) uint8 RGB, one colour per mask value, as the overlays and recordings draw them.
     """
-    index = np.arange(256)
-    palette = np.zeros((256, 3), dtype=np.int64)
-    for level in range(8):
-        for channel in range(3):
-            bit = (index >> (3 * level + channel)) & 1
-            palette[:, channel] |= bit << (7 - level)
-    return palette.astype(np.uint8)
+    return mask_palette()
 
 
 def write_palette_png(

@@ -38,9 +38,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.colours import UNKNOWN_RGB, WORLD, mask_palette, point_palette
 from mosegpipe.errors import InputError
 from mosegpipe.flow import FrameMotion
-from mosegpipe.io import default_palette
 from mosegpipe.motion import MotionMaskConfig, moving_masks, stack_motion
 from mosegpipe.types import MASK_METHODS, Tracks
 
@@ -356,19 +356,20 @@ def labels_to_masks(
 def overlay_mask(
     image: npt.NDArray[np.uint8],
     mask: npt.NDArray[np.uint8],
-    palette: npt.NDArray[np.uint8],
+    palette: npt.NDArray[np.uint8] | None = None,
     alpha: float = 0.5,
 ) -> npt.NDArray[np.uint8]:
     """Blend mask colours over an image, for people.
 
-    Motion 0 (the dominant motion, usually the background) keeps the image as it is, the other
-    motions are tinted with their palette colour, and unknown pixels (255) are shown in grey, so
-    that "no evidence" reads differently from "background".
+    The world (0) keeps the image as it is; every other value, unknown (255) included, is blended
+    with its colour in `palette` (by default colours.mask_palette(): the colours of the mask PNGs
+    and the recordings, unknown a neutral grey that washes the frame out), so that at alpha 1 each
+    pixel is its value's palette colour.
 
     Args:
         image: (H, W, 3) uint8 RGB.
         mask: (H, W) uint8 mask values.
-        palette: (256, 3) uint8 RGB colour per mask value (e.g. io.default_palette()).
+        palette: (256, 3) uint8 RGB colour per mask value (None: colours.mask_palette()).
         alpha: weight of the mask colour, 0..1.
 
     Returns:
@@ -376,14 +377,10 @@ def overlay_mask(
     """
     if image.shape[:2] != mask.shape:
         raise InputError(f"image {image.shape[:2]} and mask {mask.shape} sizes differ")
-    pal = np.ascontiguousarray(palette[:256], dtype=np.uint8)
+    pal = np.ascontiguousarray((mask_palette() if palette is None else palette)[:256], dtype=np.uint8)
     colours = cv2.merge([cv2.LUT(mask, pal[:, c].copy()) for c in range(3)])
     out = cv2.addWeighted(image, 1.0 - alpha, colours, alpha, 0.0)
-    cv2.copyTo(image, cv2.compare(mask, 0, cv2.CMP_EQ), out)
-    unknown = cv2.compare(mask, UNKNOWN, cv2.CMP_EQ)
-    if cv2.countNonZero(unknown):
-        grey = cv2.convertScaleAbs(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), alpha=0.6, beta=60.0)
-        cv2.copyTo(cv2.cvtColor(grey, cv2.COLOR_GRAY2RGB), unknown, out)
+    cv2.copyTo(image, cv2.compare(mask, WORLD, cv2.CMP_EQ), out)
     return out
 
 
@@ -420,27 +417,27 @@ def overlay_image(
         image: (H, W, 3) uint8 RGB.
         mask: (H, W) uint8 mask values (see overlay_mask) or None.
         xy: (N, 2) float32 pixel positions of the tracks in this image.
-        labels: (N,) int64 labels (-1 = outlier, drawn as a small grey cross); colour = palette[label],
-            the colour of mask value `label` (motion 0 is drawn white, as its palette colour is black).
+        labels: (N,) int64 labels (-1 = unlabelled / outlier, drawn as a small cross in the unknown
+            grey); colour = colours.point_palette()[label]: the colour of mask value `label`, the
+            world's tracks white (as the viewer draws them).
         alpha: weight of the mask colour, 0..1.
 
     Returns:
         (H, W, 3) uint8 RGB.
     """
-    palette = default_palette()
-    out = overlay_mask(image, mask, palette, alpha) if mask is not None else image.copy()
+    out = overlay_mask(image, mask, mask_palette(), alpha) if mask is not None else image.copy()
+    points = point_palette()
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)  # type: ignore[assignment]
     finite = np.isfinite(xy).all(axis=1)
     xy_int = np.round(xy[finite]).astype(np.int64)
     labels = labels[finite]
     for x, y in xy_int[labels < 0]:
-        cv2.drawMarker(out, (int(x), int(y)), (160, 160, 160), cv2.MARKER_TILTED_CROSS, 5, 1)
+        cv2.drawMarker(out, (int(x), int(y)), UNKNOWN_RGB, cv2.MARKER_TILTED_CROSS, 5, 1)
     # Each track a dot of radius ~2.5 px in its colour with a black rim, stamped with NumPy
     # (one cv2.circle call per dot cost ~3 ms per frame for 1000 tracks).
     inl = labels >= 0
-    colours = palette[np.clip(labels[inl], 0, 255)].copy()
-    colours[labels[inl] == 0] = 255
+    colours = points[np.clip(labels[inl], 0, 255)]
     _stamp(out, xy_int[inl], _DOT_RING, np.zeros_like(colours))
     _stamp(out, xy_int[inl], _DOT_FILL, colours)
     return out

@@ -21,9 +21,10 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe import __version__
+from mosegpipe.colours import mask_palette
 from mosegpipe.errors import InputError, OutputExistsError
 from mosegpipe.inference import load_embedder
-from mosegpipe.io import default_palette, video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
+from mosegpipe.io import video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
 from mosegpipe.masks import overlay_image
 from mosegpipe.pipeline import (
     ClipResult,
@@ -40,6 +41,7 @@ from mosegpipe.pipeline import (
 )
 from mosegpipe.provenance import source_identity
 from mosegpipe.runtime import run_ahead
+from mosegpipe.viz import k_statement
 
 if TYPE_CHECKING:
     from mosegpipe.inference import Embedder
@@ -108,6 +110,12 @@ class _OutputDir:
             self.tmp.rename(self.final)
 
 
+def write_mask_png(path: Path, mask: npt.NDArray[np.uint8]) -> None:
+    """One mask PNG of an output folder (every kind): the values as palette indices, coloured as the
+    overlays and the recordings colour them (colours.mask_palette())."""
+    write_palette_png(path, mask, mask_palette())
+
+
 def _write_masks_and_overlays(
     folder: Path,
     indices: list[int],
@@ -119,13 +127,12 @@ def _write_masks_and_overlays(
 ) -> None:
     """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source;
     with `fps` (0.0 = unknown), the overlays also as overlay.mp4 (H.264, as whole videos write it)."""
-    palette = default_palette()
     (folder / "masks").mkdir()
     (folder / "overlay").mkdir()
 
     def overlays() -> Iterator[npt.NDArray[np.uint8]]:
         for index, image, mask, xy in zip(indices, images, masks, xys):
-            write_palette_png(folder / "masks" / f"{index:06d}.png", mask, palette)
+            write_mask_png(folder / "masks" / f"{index:06d}.png", mask)
             overlay = overlay_image(image, mask, xy, labels)
             write_jpeg(folder / "overlay" / f"{index:06d}.jpg", overlay, quality=90)
             yield overlay
@@ -155,13 +162,14 @@ def _write_clip_views(folder: Path, result: ClipResult, summary: dict[str, Any],
 
         c = result.clustering
         clip_args = (result.frames, result.tracks, traj.track_ids, c.labels, result.embeddings, result.masks)
-        _timed_recording(summary, write_recording, folder / "recording.rrd", *clip_args, c.scores, c.k)
+        k_why = {"k_note": c.note, "k_method": c.method}
+        _timed_recording(summary, write_recording, folder / "recording.rrd", *clip_args, c.scores, c.k, **k_why)
 
 
-def _timed_recording(summary: dict[str, Any], write: Callable[..., Any], *args: Any) -> None:
-    """Calls `write(*args)` (a viz writer) and records its seconds as summary["timings_s"]["rrd"]."""
+def _timed_recording(summary: dict[str, Any], write: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
+    """Calls `write(*args, **kwargs)` (a viz writer) and records its seconds as summary["timings_s"]["rrd"]."""
     t0 = time.perf_counter()
-    write(*args)
+    write(*args, **kwargs)
     summary["timings_s"]["rrd"] = round(time.perf_counter() - t0, 4)
 
 
@@ -181,6 +189,7 @@ def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
         "k_method": c.method,
         "k_scores": {str(k): float(v) for k, v in c.scores.items()},
         "k_note": c.note,
+        "k_reason": k_statement(c.k, c.scores, c.note, c.method),
         "num_tracks_detected": result.tracks.num_tracks,
         "num_tracks_segmented": result.trajectories.num_points,
         "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
@@ -252,6 +261,7 @@ def pair_summary(result: PairResult, cfg: PipelineConfig, sources: tuple[str, st
         "k_method": c.method,
         "k_scores": {str(k): float(v) for k, v in c.scores.items()},
         "k_note": c.note,
+        "k_reason": k_statement(c.k, c.scores, c.note, c.method),
         "num_matches": result.matches.num_matches,
         "matches_per_motion": np.bincount(motions, minlength=num_motions).tolist(),
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
@@ -301,7 +311,8 @@ def write_pair_outputs(
 
             c = result.clustering
             pair_args = (result.images, m, result.labels, result.embeddings, result.masks)
-            _timed_recording(summary, write_pair_recording, tmp / "recording.rrd", *pair_args, c.scores, c.k)
+            k_why = {"k_note": c.note, "k_method": c.method}
+            _timed_recording(summary, write_pair_recording, tmp / "recording.rrd", *pair_args, c.scores, c.k, **k_why)
         write_json(tmp / "summary.json", summary)
     return summary
 
@@ -402,7 +413,6 @@ def write_video_outputs(
         with decode_errors(path):
             info = video_info(path)
     fps = float(info.get("fps") or 0.0) or _FALLBACK_FPS
-    palette = default_palette()
     windows: list[WindowResult] = []
     t_start = time.perf_counter()
     with _OutputDir(Path(out_dir), overwrite) as tmp:
@@ -431,7 +441,7 @@ def write_video_outputs(
                     for fr in window.frames:
                         keep = fr.labels >= 0
                         mask = frame_mask(fr, cfg.mask)
-                        write_palette_png(tmp / "masks" / f"{fr.index:06d}.png", mask, palette)
+                        write_mask_png(tmp / "masks" / f"{fr.index:06d}.png", mask)
                         if recorder is not None:
                             recorder.log_frame(
                                 fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask
@@ -477,6 +487,7 @@ def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> di
         "k_method": c.method,
         "k_scores": {str(k): float(v) for k, v in c.scores.items()},
         "k_note": c.note,
+        "k_reason": k_statement(c.k, c.scores, c.note, c.method),
         "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
         "model": result.model_info,

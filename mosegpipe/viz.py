@@ -6,13 +6,13 @@ without mixing, and each is written atomically (temporary file, closed, then ren
 
 Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`VideoRecorder`):
 
-- ``/``: AnnotationContext (static): class i "motion i" (motion label i; 0 = the dominant motion,
-  usually the background) and class 255 "unknown", in the colours of the overlays' track dots
-  (:func:`point_colors`): the palette of the mask PNGs (io.default_palette()), motion 0 white.
+- ``/``: AnnotationContext (static): a class per mask value, "the world (motion 0)", "motion i",
+  254 "moving, no clustered motion" and 255 "unknown", in the colours of the overlays' track dots
+  (:func:`point_colors`): the one colour table of mosegpipe.colours, the world's tracks white.
   Tracks, trails and embedding points take their colour from it.
 - ``video/mask`` (``image1/mask``, ``image2/mask``): AnnotationContext (static), the same classes in
-  the colours of the mask PNGs (:func:`mask_colors`), motion 0 transparent: the frame shows through
-  untinted, as in the overlays.
+  the colours of the mask PNGs and the overlays (:func:`mask_colors`), the world transparent: the
+  frame shows through untinted, as in the overlays; unknown the same grey as everywhere.
 - ``video/frame``: the frame. Clips: an EncodedImage (JPEG; a raw Image when jpeg_quality is 0).
   Videos: a VideoFrameReference into ``video/asset``, the frames as one H.264 MP4 (AssetVideo,
   static); or JPEG images as for clips with VizConfig(video_frames="jpeg").
@@ -21,10 +21,12 @@ Entity paths of a clip recording (:func:`write_recording`) and a video (:class:`
 - ``video/points``: Points2D, the labelled tracks visible in the frame.
 - ``embedding``: Points3D of the embedding (static; PCA to 3-D when E > 3, zero-padded when E < 3),
   centred and scaled into the cube [-1, 1]^3, drawn as ``embedding/box``.
-- ``k_scores``: the score per candidate K as a labelled stem chart (static, 2-D): ``k_scores/k``
-  the K values ("K=2", ...), ``k_scores/scores`` one point per K labelled with its score (the
-  chosen K in a colour of its own), ``k_scores/stems`` the stems and the zero line.
-- ``summary``: TextDocument (static): K, its margin over the runner-up, the counts.
+- ``k_scores``: the score per candidate K as a stem chart (static, 2-D; geometry :func:`k_chart`):
+  ``k_scores/k`` the K values ("K=2", ...) under the chart, ``k_scores/scores`` one point per K
+  (the chosen K in a colour of its own), ``k_scores/values`` each score ("0.46") just beyond its
+  point, away from its stem, ``k_scores/stems`` the stems and the zero line.
+- ``summary``: TextDocument (static): the K written and why (:func:`k_statement`; summary.json's
+  ``k_reason``), any other note on K, the counts.
 - ``windows/k``, ``windows/k_margin`` (videos): Scalars at each window's first frame, the K chosen
   in the window (0 = left unlabelled) and how clearly its scores chose (`score_lead`: the best score
   minus the next best, >= 0; when the scores are given).
@@ -42,6 +44,7 @@ from __future__ import annotations
 import io
 import logging
 import os
+import re
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -53,8 +56,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.colours import UNKNOWN_RGB, mask_rgba, point_palette, value_names
 from mosegpipe.errors import InputError
-from mosegpipe.io import H264Encoder, atomic_write, default_palette
+from mosegpipe.io import H264Encoder, atomic_write
 from mosegpipe.types import Frames, Matches, Tracks
 
 if TYPE_CHECKING:
@@ -88,8 +92,8 @@ _SIDE_SHARES = {"summary": 1.0, "k_scores": 1.0, "embedding": 1.6}
 _CHOSEN_COLOR = (255, 190, 0)
 _OTHER_COLOR = (150, 150, 150)
 
-UNLABELLED_POINT_COLOR = (160, 160, 160)
-"""Colour of unlabelled / outlier points (class 255), as the overlays draw their crosses."""
+UNLABELLED_POINT_COLOR = UNKNOWN_RGB
+"""Colour of unlabelled / outlier points (class 255): the unknown grey of every output (colours.UNKNOWN_RGB)."""
 
 
 def class_ids_of(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.uint16]:
@@ -149,35 +153,28 @@ def mask_colors() -> npt.NDArray[np.uint8]:
     """RGBA colour per mask value as the viewer draws the masks: the colours of the mask PNGs.
 
     Returns:
-        (256, 4) uint8: io.default_palette(), opaque, except motion 0 (the dominant motion, usually
-        the background, black in the palette): fully transparent, so that the frame shows through
-        untinted, as overlay_mask leaves it.
+        (256, 4) uint8: colours.mask_rgba(), the palette of the mask PNGs and the overlays' tint,
+        opaque, except the world (0): fully transparent, so that the frame shows through untinted,
+        as overlay_mask leaves it.
     """
-    rgba = np.concatenate([default_palette(), np.full((256, 1), 255, np.uint8)], axis=1)
-    rgba[0] = 0
-    return rgba
+    return mask_rgba()
 
 
 def point_colors() -> npt.NDArray[np.uint8]:
     """RGBA colour per class id as the viewer draws track points, trails and embedding points.
 
     Returns:
-        (256, 4) uint8, opaque: the colour of the track dots in the overlays (masks.overlay_image):
-        io.default_palette() of the label, motion 0 white (its palette colour is black), class 255
-        (unlabelled / outlier) UNLABELLED_POINT_COLOR.
+        (256, 4) uint8, opaque: colours.point_palette(), the colour of the track dots in the overlays
+        (masks.overlay_image): the mask colour of the label, the world's tracks white, class 255
+        (unlabelled / outlier) the unknown grey.
     """
-    rgba = np.concatenate([default_palette(), np.full((256, 1), 255, np.uint8)], axis=1)
-    rgba[0, :3] = 255
-    rgba[UNKNOWN_CLASS, :3] = UNLABELLED_POINT_COLOR
-    return rgba
+    return np.concatenate([point_palette(), np.full((256, 1), 255, np.uint8)], axis=1)
 
 
 def class_names(k: int, unknown: str = "unknown") -> dict[int, str]:
-    """Class id -> display name: i "motion i" for i = 0..k-1 (0 "motion 0 (dominant)"), 255 `unknown`."""
-    names = {i: f"motion {i}" for i in range(k)}
-    if k:
-        names[0] = "motion 0 (dominant)"
-    return {**names, UNKNOWN_CLASS: unknown}
+    """Class id -> display name (colours.value_names): motions 0..k-1 (0 "the world (motion 0)"),
+    254 "moving, no clustered motion", 255 `unknown`."""
+    return value_names(k, unknown)
 
 
 def embedding_to_3d(embeddings: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
@@ -255,6 +252,49 @@ def score_lead(k_scores: Mapping[int, float]) -> float | None:
     return finite[0] - finite[1] if len(finite) >= 2 else None
 
 
+CHART_PX_PER_UNIT = 40.0
+"""Screen pixels per unit of the K chart that its layout is made for: in a 1600x900 window the side
+panel is about 400 x 225 px, so 8 candidates (10 units wide, about 5.5 tall) get 40-45 px a unit.
+More pixels a unit only shrink the text against the chart; fewer can make neighbouring labels touch."""
+
+# The viewer draws a point's label centred under the point: text 5 px below it, in a background
+# box 2 + 4 px wider on each side and 4 px taller above and below (Rerun's 2-D label painter).
+# Its body font is 13-14 px: at most 8 px a digit or letter (a point 4, a minus 6), 17 px a line.
+_LABEL_CHAR_PX = {".": 4.0, "-": 6.0}
+_LABEL_WIDE_PX = 8.0
+_LABEL_LINE_PX = 17.0
+_LABEL_TOP_PX = 1.0  # 5 px offset - 4 px of box above the text
+_LABEL_PAD_X_PX = 6.0
+_LABEL_BOTTOM_PX = 5.0 + _LABEL_LINE_PX + 4.0
+_LABEL_GAP_PX = 8.0  # between a label's box and its point (radius up to 6 px) or the stems
+
+
+def label_box(
+    anchor: tuple[float, float], text: str, px_per_unit: float = CHART_PX_PER_UNIT
+) -> tuple[float, float, float, float]:
+    """Where the viewer draws the label of a 2-D point at `anchor`: (x0, y0, x1, y1) in the view's units
+    (y down), background box included, at `px_per_unit` screen pixels a unit."""
+    width = sum(_LABEL_CHAR_PX.get(c, _LABEL_WIDE_PX) for c in text)
+    half = (width / 2 + _LABEL_PAD_X_PX) / px_per_unit
+    x, y = anchor
+    return (x - half, y + _LABEL_TOP_PX / px_per_unit, x + half, y + _LABEL_BOTTOM_PX / px_per_unit)
+
+
+def short_score(value: float) -> str:
+    """A score as the K chart writes it: two decimals, no leading zero (".46", "-.23", "1.00", "0").
+
+    Scores lie in [-1, 1]; 4 characters at most keep neighbouring labels apart. Larger values keep 3
+    significant digits."""
+    if not np.isfinite(value):
+        return "n/a"
+    if abs(value) >= 9.995:
+        return f"{value:.3g}"
+    text = f"{value:.2f}"
+    if text in ("0.00", "-0.00"):
+        return "0"
+    return text.replace("0.", ".", 1) if text.lstrip("-").startswith("0.") else text
+
+
 @dataclass(frozen=True)
 class KChart:
     """Geometry of the K-score stem chart, in the 2-D view's coordinates (x right = K, y down).
@@ -263,23 +303,42 @@ class KChart:
         ks: (C,) the candidate K values, increasing.
         scores: (C,) their scores (NaN shown as 0).
         tips: (C, 2) the end of each stem (K, -score scaled): larger scores sit higher.
-        label_y: y of the K labels, under the lowest stem.
+        value_labels: (C,) each score as written on the chart (:func:`short_score`).
+        value_xy: (C, 2) where each score's label hangs from (the viewer draws it under that point):
+            above the tip for scores >= 0, below it for negative ones, so that no label lies on a
+            stem or the zero line.
+        label_y: y of the K labels, under every stem and score label.
         x_range, y_range: the bounds that frame the whole chart, labels included.
     """
 
     ks: npt.NDArray[np.int64]
     scores: npt.NDArray[np.float64]
     tips: npt.NDArray[np.float32]
+    value_labels: list[str]
+    value_xy: npt.NDArray[np.float32]
     label_y: float
     x_range: tuple[float, float]
     y_range: tuple[float, float]
+
+    def label_boxes(
+        self, px_per_unit: float = CHART_PX_PER_UNIT
+    ) -> tuple[list[tuple[float, float, float, float]], list[tuple[float, float, float, float]]]:
+        """The boxes of the score labels and of the K labels (:func:`label_box`) at `px_per_unit`."""
+        values = [
+            label_box((float(x), float(y)), text, px_per_unit) for (x, y), text in zip(self.value_xy, self.value_labels)
+        ]
+        k_labels = [label_box((float(c), self.label_y), f"K={c}", px_per_unit) for c in self.ks]
+        return values, k_labels
 
 
 def k_chart(k_scores: Mapping[int, float]) -> KChart:
     """Lay out the score per K as stems from a zero line, one per candidate (see KChart).
 
     The tallest stem is 0.45 x (candidates + 1) long, so the chart is about twice as wide as tall
-    whatever the range of the scores.
+    whatever the range of the scores. Each score is written beyond the end of its stem (above a
+    positive one, below a negative one) with a gap, in the short form of :func:`short_score`,
+    further out where it would touch its left neighbour's label, so that at CHART_PX_PER_UNIT or
+    more no label touches another, a stem, the zero line or the K labels.
     """
     ks = np.array(sorted(k_scores), dtype=np.int64)
     scores = np.nan_to_num(np.array([k_scores[int(c)] for c in ks], dtype=np.float64), nan=0.0)
@@ -287,11 +346,30 @@ def k_chart(k_scores: Mapping[int, float]) -> KChart:
     height = 0.45 * (len(ks) + 1)
     y = -scores / top * height if top > 0 else np.zeros_like(scores)
     tips = np.stack([ks.astype(np.float64), y], axis=1).astype(np.float32)
-    label_y = float(max(0.0, float(y.max()) if len(y) else 0.0)) + 0.45
+    unit = 1.0 / CHART_PX_PER_UNIT
+    gap, box = _LABEL_GAP_PX * unit, _LABEL_BOTTOM_PX * unit
+    labels = [short_score(float(v)) for v in scores]
+    # Hanging above the tip, a label's box ends `gap` over it; under a negative tip it starts `gap` below.
+    value_y = np.where(scores >= 0, y - gap - box, y + gap)
+    # A label as wide as a neighbour's half-way mark at about the same height moves on, away from its tip.
+    placed: list[tuple[float, float, float, float]] = []
+    for i, (c, text) in enumerate(zip(ks, labels)):
+        away = -1.0 if scores[i] >= 0 else 1.0
+        while True:
+            mine = label_box((float(c), float(value_y[i])), text)
+            hit = [b for b in placed if mine[0] < b[2] and b[0] < mine[2] and mine[1] < b[3] and b[1] < mine[3]]
+            if not hit:
+                break
+            edge = min(b[1] for b in hit) - mine[3] if away < 0 else max(b[3] for b in hit) - mine[1]
+            value_y[i] += edge + away * _LABEL_TOP_PX * unit
+        placed.append(mine)
+    value_xy = np.stack([ks.astype(np.float64), value_y], axis=1).astype(np.float32)
+    bottoms = np.concatenate([[0.0], y, value_y[scores < 0] + box])
+    label_y = float(bottoms.max()) + gap
     x_lo, x_hi = (float(ks.min()) - 1.0, float(ks.max()) + 1.0) if len(ks) else (-1.0, 1.0)
-    # Room for the text drawn under each point: the score under the highest tip, the K labels at the bottom.
-    y_lo = min(0.0, float(y.min()) if len(y) else 0.0) - 0.6
-    return KChart(ks, scores, tips, label_y, (x_lo, x_hi), (y_lo, label_y + 1.0))
+    y_lo = float(min(0.0, float(value_y.min()) if len(ks) else 0.0)) - gap
+    y_hi = label_y + box + gap
+    return KChart(ks, scores, tips, labels, value_xy, label_y, (x_lo, x_hi), (y_lo, y_hi))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -438,7 +516,7 @@ def log_trails(
 
 
 def _log_k_chart(rec: rr.RecordingStream, k_scores: Mapping[int, float], k: int) -> None:
-    """The stem chart of k_chart(): stems and zero line, a labelled point per K, the K labels."""
+    """The stem chart of k_chart(): stems and zero line, a point per K, the score labels, the K labels."""
     import rerun as rr
 
     chart = k_chart(k_scores)
@@ -446,41 +524,69 @@ def _log_k_chart(rec: rr.RecordingStream, k_scores: Mapping[int, float], k: int)
     strips = [[(x_lo, 0.0), (x_hi, 0.0)]] + [[(float(x), 0.0), (float(x), float(y))] for x, y in chart.tips]
     rec.log("k_scores/stems", rr.LineStrips2D(strips, colors=_OTHER_COLOR, radii=rr.Radius.ui_points(1.0)), static=True)
     colors = [_CHOSEN_COLOR if c == k else _OTHER_COLOR for c in chart.ks]
-    rec.log(
-        "k_scores/scores",
-        rr.Points2D(
-            chart.tips,
-            colors=colors,
-            radii=rr.Radius.ui_points([6.0 if c == k else 4.0 for c in chart.ks]),
-            labels=[f"{v:.2g}" for v in chart.scores],  # short: neighbouring labels do not run together
-            show_labels=True,
-        ),
-        static=True,
-    )
-    label_xy = np.stack([chart.ks.astype(np.float32), np.full(len(chart.ks), chart.label_y, np.float32)], axis=1)
-    rec.log(
-        "k_scores/k",
-        rr.Points2D(
-            label_xy,
-            colors=colors,
-            radii=rr.Radius.ui_points(1.0),
-            labels=[f"K={c}" for c in chart.ks],
-            show_labels=True,
-        ),
-        static=True,
-    )
+    radii = rr.Radius.ui_points([6.0 if c == k else 4.0 for c in chart.ks])
+    rec.log("k_scores/scores", rr.Points2D(chart.tips, colors=colors, radii=radii), static=True)
+    # The labels hang from points of their own (a tip's own label would lie on its stem); their
+    # 0.5-point dots hide under the labels' boxes.
+    k_xy = np.stack([chart.ks, np.full(len(chart.ks), chart.label_y)], axis=1).astype(np.float32)
+    for entity, xy, texts in (
+        ("k_scores/values", chart.value_xy, chart.value_labels),
+        ("k_scores/k", k_xy, [f"K={c}" for c in chart.ks]),
+    ):
+        points = rr.Points2D(xy, colors=colors, radii=rr.Radius.ui_points(0.5), labels=texts, show_labels=True)
+        rec.log(entity, points, static=True)
 
 
-def _summary_head(k: int, k_scores: Mapping[int, float]) -> str:
-    """First line of a summary: K, and how far its score stands above the runner-up's."""
-    margin = k_margin(k_scores, k)
-    if margin is None:
-        return f"**K = {k}**\n\n"
-    runner_up = margin[1]
-    return (
-        f"**K = {k}**: score {k_scores[k]:.3g}, runner-up K = {runner_up}: {k_scores[runner_up]:.3g} "
-        f"(margin {margin[0]:+.3g})\n\n"
-    )
+_RIGID_SPLIT = re.compile(r"the rigid-motion check split off (\d+) groups? \(K = (\d+) -> (\d+)\)")
+
+
+def _split_note(note: str) -> tuple[int, str]:
+    """(groups the rigid-motion check split off, the rest of the note) from a Clustering.note, whose
+    rigid part pipeline.check_rigid writes as "the rigid-motion check split off S group(s) (K = a -> b)"."""
+    found = _RIGID_SPLIT.search(note)
+    if found is None:
+        return 0, note
+    rest = (note[: found.start()] + note[found.end() :]).strip("; ")
+    return int(found.group(1)), rest
+
+
+def k_statement(k: int, k_scores: Mapping[int, float], note: str = "", method: str = "") -> str:
+    """One line on the K that was written and why: summary.json's `k_reason` and the recording's summary.
+
+    E.g. "K = 3 written: automatic K chose 2 (score 0.459, runner-up K = 3: 0.436), the rigid-motion
+    check split off 1 group"; "K = 2 written: automatic K chose it (score 0.6, runner-up K = 1:
+    0.05)"; "K = 4 written: given (--k)"; "K = 1 written, without a score per K (<the note>)".
+
+    Args:
+        k: the K written (Clustering.k).
+        k_scores: automatic K's score per candidate (Clustering.scores).
+        note: Clustering.note: how many groups the rigid-motion check split off is read from it.
+        method: Clustering.method ("fixed": K was given).
+    """
+    head = f"K = {k} written"
+    if method == "fixed":
+        return f"{head}: given (--k)"
+    split, rest = _split_note(note)
+    chosen = k - split
+    finite = {c: float(v) for c, v in k_scores.items() if np.isfinite(v)}
+    if not finite:
+        text = f"{head}, without a score per K" + (f" ({rest})" if rest else "")
+    else:
+        text = f"{head}: automatic K chose {chosen if split else 'it'}"
+        if chosen in finite:
+            margin = k_margin(finite, chosen)
+            rival = f", runner-up K = {margin[1]}: {finite[margin[1]]:.3g}" if margin is not None else ""
+            text += f" (score {finite[chosen]:.3g}{rival})"
+    if split:
+        text += f", the rigid-motion check split off {split} group{'s' if split > 1 else ''}"
+    return text
+
+
+def _summary_head(k: int, k_scores: Mapping[int, float], note: str, method: str) -> str:
+    """First lines of a summary: the K written and why (k_statement), then any other note on K."""
+    statement = k_statement(k, k_scores, note, method)
+    rest = _split_note(note)[1]
+    return f"**{statement}**\n\n" + (f"note: {rest}\n\n" if rest and rest not in statement else "")
 
 
 def _log_embedding_and_scores(
@@ -491,8 +597,11 @@ def _log_embedding_and_scores(
     k: int,
     summary: str,
     cfg: VizConfig,
+    k_note: str = "",
+    k_method: str = "",
 ) -> None:
-    """Embedding (in its cube), K chart and a markdown summary: static rows."""
+    """Embedding (in its cube), K chart and a markdown summary: static rows. The chart marks the K
+    that automatic K chose (k less the groups the rigid-motion check split off, read from k_note)."""
     import rerun as rr
 
     points = rr.Points3D(fit_in_box(embedding_to_3d(embeddings)), class_ids=class_ids, radii=cfg.embedding_radius)
@@ -500,9 +609,10 @@ def _log_embedding_and_scores(
     box = rr.Boxes3D(half_sizes=[(EMBEDDING_BOX,) * 3], colors=_OTHER_COLOR, radii=rr.Radius.ui_points(0.5))
     rec.log("embedding/box", box, static=True)
     if k_scores:
-        _log_k_chart(rec, k_scores, k)
+        _log_k_chart(rec, k_scores, k - _split_note(k_note)[0])
         summary += "\nscore per K: " + ", ".join(f"{c}: {k_scores[c]:.3g}" for c in sorted(k_scores)) + "\n"
-    rec.log("summary", rr.TextDocument(_summary_head(k, k_scores) + summary, media_type="text/markdown"), static=True)
+    head = _summary_head(k, k_scores, k_note, k_method)
+    rec.log("summary", rr.TextDocument(head + summary, media_type="text/markdown"), static=True)
 
 
 class _Sink:
@@ -604,6 +714,8 @@ def write_recording(
     k: int,
     app_id: str = "mosegpipe",
     cfg: VizConfig = VizConfig(),
+    k_note: str = "",
+    k_method: str = "",
 ) -> Path:
     """Write a Rerun .rrd recording of one segmented clip, with a default blueprint, atomically.
 
@@ -623,6 +735,8 @@ def write_recording(
         app_id: Rerun application id (the viewer groups recordings and blueprints by it).
         cfg: display settings (max_side_px and video_frames are ignored: clips are logged at full
             size, as images).
+        k_note, k_method: Clustering.note and .method; the summary says the K written and why
+            (:func:`k_statement`, as summary.json's k_reason).
 
     Returns:
         The path written.
@@ -655,7 +769,7 @@ def write_recording(
         rec, written = sink.rec, False
         try:
             log_annotation_contexts(rec, ["video"] if masks is not None else [], class_names(k))
-            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
+            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
             for t in range(frames.num_frames):
                 rec.set_time(TIMELINE, sequence=frames.start + t)
                 seen = visible[:, t]
@@ -687,6 +801,8 @@ def write_pair_recording(
     k: int,
     app_id: str = "mosegpipe",
     cfg: VizConfig = VizConfig(),
+    k_note: str = "",
+    k_method: str = "",
 ) -> Path:
     """Write a Rerun .rrd recording of a segmented image pair (static, no timeline), atomically.
 
@@ -701,6 +817,7 @@ def write_pair_recording(
         k: number of clusters; classes up to max(k, labels.max() + 1) are named.
         app_id: Rerun application id.
         cfg: display settings.
+        k_note, k_method: Clustering.note and .method (see write_recording).
 
     Returns:
         The path written.
@@ -750,7 +867,7 @@ def write_pair_recording(
         try:
             names = class_names(num_classes, unknown="unknown / outlier")
             log_annotation_contexts(rec, ["image1", "image2"] if masks is not None else [], names)
-            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg)
+            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
             for i, xy in enumerate((matches.xy1, matches.xy2)):
                 mask = None if masks is None else masks[i]
                 log_image_layers(rec, f"image{i + 1}", images[i], mask, xy, class_ids, cfg, static=True)

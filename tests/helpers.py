@@ -107,6 +107,26 @@ def read_rrd(path: Path) -> Counter[str]:
     return rows
 
 
+def annotation_contexts(path: Path) -> dict[str, dict[int, tuple[str, tuple[int, int, int, int]]]]:
+    """Entity -> class id -> (name, RGBA) of each annotation context in a recording (each logged once)."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, dict[int, tuple[str, tuple[int, int, int, int]]]] = {}
+    for chunk in RrdReader(path).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        if "AnnotationContext:context" not in batch.schema.names:
+            continue
+        rows = batch.column("AnnotationContext:context").to_pylist()
+        assert len(rows) == 1 and chunk.entity_path not in out, f"{chunk.entity_path}: the context is logged once"
+        classes = {}
+        for c in rows[0][0]:  # the one row's one instance: the classes
+            info = c["class_description"]["info"]
+            r, g, b, a = ((info["color"] >> s) & 0xFF for s in (24, 16, 8, 0))
+            classes[c["class_id"]] = (info["label"], (r, g, b, a))
+        out[chunk.entity_path] = classes
+    return out
+
+
 _BLUEPRINT_ENTITIES = ("/view/", "/container/", "/viewport", "/blueprint_panel", "/selection_panel", "/time_panel")
 
 

@@ -43,6 +43,7 @@ INFERENCE = (
     "mosegpipe.motion",
     "mosegpipe.outputs",
     "mosegpipe.viz",
+    "mosegpipe.colours",
     "mosegpipe.batch",
 )
 """The inference stages (a package stands for all its modules; one not written yet is skipped)."""

@@ -19,6 +19,7 @@ INFERENCE_MODULES = [
     "mosegpipe.rigid",
     "mosegpipe.masks",
     "mosegpipe.viz",
+    "mosegpipe.colours",
 ]
 FORBIDDEN = ("mosegpipe.training", "mosegpipe.evaluation", "mosegpipe.synth")
 

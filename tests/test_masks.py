@@ -150,7 +150,7 @@ def test_overlay_mask_tints_moving_motions_and_greys_unknown() -> None:
     np.testing.assert_array_equal(out[mask == 0], image[mask == 0])  # motion 0 (background) as it is
     np.testing.assert_array_equal(out[0, 1], [114, 50, 50])  # (100 + 128) / 2, (100 + 0) / 2
     np.testing.assert_array_equal(out[0, 2], [50, 114, 50])
-    np.testing.assert_array_equal(out[1, 1], [120, 120, 120])  # grey: 0.6 * 100 + 60
+    np.testing.assert_array_equal(out[1, 1], [130, 130, 130])  # the unknown grey blended as any value: (100 + 160) / 2
 
 
 def test_carry_unclustered_gives_an_anonymous_mover_the_label_it_had_in_the_frame_before() -> None:

@@ -23,7 +23,7 @@ from mosegpipe.viz import (
     write_recording,
 )
 
-from helpers import assert_layout_first
+from helpers import annotation_contexts, assert_layout_first
 
 T, H, W = 3, 24, 32
 
@@ -184,57 +184,19 @@ def test_annotation_context_matches_rerun_class_descriptions() -> None:
     assert got.context.pa_array.to_pylist() == expected.context.pa_array.to_pylist()
 
 
-def _contexts(path: Path) -> dict[str, dict[int, tuple[str, tuple[int, ...]]]]:
-    """Entity -> class id -> (name, RGBA) of each annotation context in a recording."""
-    got = _read(path)["batches"]
-    out = {}
-    for entity, batches in got.items():
-        rows = _column(batches, "AnnotationContext:context")
-        if rows:
-            assert len(rows) == 1, f"{entity}: the context is logged once"
-            out[entity] = {
-                c["class_id"]: (
-                    c["class_description"]["info"]["label"],
-                    tuple((c["class_description"]["info"]["color"] >> s) & 0xFF for s in (24, 16, 8, 0)),
-                )
-                for c in rows[0][0]  # the one row's one instance: the classes
-            }
-    return out
-
-
-def _assert_png_colours(path: Path, mask_entities: list[str], num_classes: int) -> None:
-    """Masks in the PNG palette (motion 0 transparent: untinted, as in the overlays); points as the
-    overlays' dots (palette, motion 0 white, unlabelled grey)."""
-    from mosegpipe.io import default_palette
-
-    palette = [tuple(int(c) for c in rgb) for rgb in default_palette()]
-    contexts = _contexts(path)
-    assert set(contexts) == {"/", *mask_entities}
-    for entity in mask_entities:
-        colours = {i: rgba for i, (_, rgba) in contexts[entity].items()}
-        assert set(colours) == {*range(num_classes), 255}
-        assert colours[0][3] == 0  # transparent: the frame shows through untinted
-        for i in [*range(1, num_classes), 255]:
-            assert colours[i] == (*palette[i], 255), (entity, i)
-    dots = {i: rgba for i, (_, rgba) in contexts["/"].items()}
-    assert dots[0] == (255, 255, 255, 255) and dots[255] == (*viz.UNLABELLED_POINT_COLOR, 255)
-    assert all(dots[i] == (*palette[i], 255) for i in range(1, num_classes))
-    assert dots[1] == (128, 0, 0, 255)  # motion 1 red, as in the mask PNGs and overlays
-
-
-def test_clip_colours_are_the_png_palette(tmp_path: Path) -> None:
-    _assert_png_colours(write_recording(tmp_path / "clip.rrd", **_inputs()), ["/video/mask"], 2)
-
-
-def test_pair_colours_are_the_png_palette(tmp_path: Path) -> None:
-    _assert_png_colours(_write_pair(tmp_path / "pair.rrd"), ["/image1/mask", "/image2/mask"], 3)
-
-
-def test_video_colours_are_the_png_palette(tmp_path: Path) -> None:
-    path = tmp_path / "video.rrd"
+def test_every_class_is_named_once_in_both_contexts(tmp_path: Path) -> None:
+    # Colours per value across the PNGs, overlays and recordings: test_colours.py. Here: which classes.
+    clip = annotation_contexts(write_recording(tmp_path / "clip.rrd", **_inputs()))
+    assert set(clip) == {"/", "/video/mask"} and set(clip["/video/mask"]) == {0, 1, 254, 255}
+    pair = annotation_contexts(_write_pair(tmp_path / "pair.rrd"))
+    assert set(pair) == {"/", "/image1/mask", "/image2/mask"} and pair["/"][255][0] == "unknown / outlier"
+    (tmp_path / "video").mkdir()
+    path = tmp_path / "video" / "video.rrd"
     _record_video(path, VizConfig())  # motions 0, 1, then 2 from the fourth frame
-    _assert_png_colours(path, ["/video/mask"], 255)  # every class named up front, logged once
-    assert _contexts(path)["/"][254][0] == "motion 254"
+    video = annotation_contexts(path)  # every class named up front, logged once
+    assert set(video) == {"/", "/video/mask"} and set(video["/"]) == set(range(256))
+    assert video["/"][254][0] == "moving, no clustered motion" and video["/"][253][0] == "motion 253"
+    assert video["/"][1][1] == (128, 0, 0, 255)  # motion 1 red, as in the mask PNGs and overlays
 
 
 def test_overlay_and_viewer_draw_motion_0_alike() -> None:
@@ -295,21 +257,57 @@ def test_k_chart_labels_every_k_and_marks_the_chosen_one(tmp_path: Path) -> None
     path = write_recording(tmp_path / "clip.rrd", **inputs)
     got = _read(path)["batches"]
     assert _column(got["/k_scores/k"], "Points2D:labels")[0] == ["K=1", "K=2", "K=3", "K=4"]
-    assert _column(got["/k_scores/scores"], "Points2D:labels")[0] == ["0.05", "0.6", "-0.2", "0"]
+    assert _column(got["/k_scores/values"], "Points2D:labels")[0] == [".05", ".60", "-.20", "0"]
+    assert "Points2D:labels" not in got["/k_scores/scores"][0]  # a tip's own label would lie on its stem
     tips = np.array(_column(got["/k_scores/scores"], "Points2D:positions")[0])
     np.testing.assert_allclose(tips[:, 0], [1, 2, 3, 4])  # x is K
     assert tips[1, 1] < tips[0, 1] < tips[3, 1] == 0 < tips[2, 1]  # y down: higher scores sit higher
     colors = _column(got["/k_scores/scores"], "Points2D:colors")[0]
     assert colors[1] != colors[0] and colors[0] == colors[2] == colors[3]  # K = 2 was chosen
+    values_xy = np.array(_column(got["/k_scores/values"], "Points2D:positions")[0])
+    assert (values_xy[[0, 1, 3], 1] < tips[[0, 1, 3], 1]).all() and values_xy[2, 1] > tips[2, 1]  # beyond the tips
     labels_xy = np.array(_column(got["/k_scores/k"], "Points2D:positions")[0])
-    assert (labels_xy[:, 1] > tips[:, 1].max()).all()  # K labels under every stem
+    assert (labels_xy[:, 1] > values_xy[:, 1].max()).all()  # K labels under every stem and score
     # The 2-D view's bounds frame every point of the chart.
     bounds = _layout(path)["views"]["score per K"]["props"]["VisualBounds2D"]["range"][0]
-    for x, y in np.vstack([tips, labels_xy]):
+    for x, y in np.vstack([tips, values_xy, labels_xy]):
         assert bounds["x_range"][0] < x < bounds["x_range"][1] and bounds["y_range"][0] < y < bounds["y_range"][1]
     summary = _column(got["/summary"], "TextDocument:text")[0][0]
-    assert summary.startswith("**K = 2**: score 0.6, runner-up K = 1: 0.05 (margin +0.55)")
+    assert summary.startswith("**K = 2 written: automatic K chose it (score 0.6, runner-up K = 1: 0.05)**")
     assert len(summary.strip().splitlines()) <= 5
+
+
+def _overlaps(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+@pytest.mark.parametrize(
+    "k_scores",
+    [
+        {k: s for k, s in zip(range(2, 9), [0.436, 0.459, 0.451, 0.447, 0.449, 0.44, 0.452])},  # 7 close scores
+        {k: s for k, s in zip(range(1, 9), [0.2, -0.31, 0.05, -0.02, 0.0, 0.61, -0.6, 0.33])},  # 8, both signs
+        {2: 0.5, 3: 0.5},
+        {2: -0.3, 3: -0.01, 4: -0.3},
+        {k: -0.2 - 0.01 * (k % 2) for k in range(2, 9)},  # wide labels ("-.21") side by side: staggered
+        {k: 1.0 - 0.001 * k for k in range(2, 9)},  # "1.00" x 7
+    ],
+)
+def test_k_chart_labels_touch_nothing(k_scores: dict[int, float]) -> None:
+    chart = k_chart(k_scores)
+    (x_lo, x_hi), (y_lo, y_hi) = chart.x_range, chart.y_range
+    for scale in (viz.CHART_PX_PER_UNIT, 2 * viz.CHART_PX_PER_UNIT):  # more pixels a unit: smaller text
+        values, k_labels = chart.label_boxes(scale)
+        boxes = values + k_labels
+        for i, a in enumerate(boxes):
+            assert x_lo <= a[0] and a[2] <= x_hi and y_lo <= a[1] and a[3] <= y_hi, "inside the view"
+            assert not any(_overlaps(a, b) for b in boxes[i + 1 :]), "labels apart"
+            # Neither a stem (x = K, from 0 to its tip), nor the zero line, nor a point (radius <= 6 px) under it.
+            for x, y in chart.tips:
+                stem = (x - 1e-3, min(0.0, y), x + 1e-3, max(0.0, y))
+                dot = 6.0 / scale
+                assert not _overlaps(a, stem) and not _overlaps(a, (x - dot, y - dot, x + dot, y + dot))
+            assert not _overlaps(a, (x_lo, -1e-3, x_hi, 1e-3)), "off the zero line"
+    assert all(len(t) <= 4 for t in chart.value_labels)  # two decimals, no leading zero
 
 
 def test_k_chart_and_margin_helpers() -> None:
@@ -327,10 +325,15 @@ def test_k_chart_and_margin_helpers() -> None:
     assert score_lead({1: 0.1, 2: 0.7, 3: 0.2}) == pytest.approx(0.5)
     assert k_margin({1: 0.1, 2: 0.7, 3: 0.2}, 3) == pytest.approx((-0.5, 2))
     assert score_lead({2: 0.5, 3: 0.5}) == 0.0 and score_lead({2: 0.5, 3: float("nan")}) is None
-    # Room in the view for the text drawn under the points: the K labels and the top score are not cut.
-    chart = k_chart({1: 0.3, 2: 0.9, 3: -0.4})
-    assert chart.y_range[1] - chart.label_y >= 0.9 and chart.tips[:, 1].min() - chart.y_range[0] >= 0.5
-    assert chart.x_range == (0.0, 4.0)
+    assert k_chart({1: 0.3, 2: 0.9, 3: -0.4}).x_range == (0.0, 4.0)
+    assert [viz.short_score(v) for v in (0.459, -0.0226, 1.0, 0.0, -0.001, 12.345)] == [
+        ".46",
+        "-.02",
+        "1.00",
+        "0",
+        "0",
+        "12.3",
+    ]
 
 
 def test_embedding_is_framed_in_the_cube(tmp_path: Path) -> None:
@@ -396,7 +399,12 @@ def test_embedding_to_3d() -> None:
 
 
 def test_class_names_match_mask_values() -> None:
-    assert class_names(2) == {0: "motion 0 (dominant)", 1: "motion 1", 255: "unknown"}
+    assert class_names(2) == {
+        0: "the world (motion 0)",
+        1: "motion 1",
+        254: "moving, no clustered motion",
+        255: "unknown",
+    }
 
 
 def _pair_inputs() -> tuple:
