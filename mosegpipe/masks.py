@@ -1,8 +1,9 @@
 """From sparse track labels to dense per-frame masks.
 
-Mask values (DAVIS convention, readable by the DAVIS tools): 0 = motion 0, the dominant motion
-(the largest cluster, usually the background), 1..254 = the other motions, 255 = unknown (no
-labelled track near enough: no evidence). The value is the label itself.
+Mask values (DAVIS convention, readable by the DAVIS tools): 0 = the world (WORLD: the camera's motion,
+the static scene of any depth, told from the other motions by where its tracks lie, `mosegpipe.world`),
+1..254 = the moving motions, 255 = unknown (no labelled track near enough: no evidence). The value is the
+label itself, in clips, pairs, whole videos, live and batch alike.
 
 Methods (`MaskConfig.method`):
 
@@ -16,7 +17,7 @@ Methods (`MaskConfig.method`):
 - "vote": majority label of the `vote_k` nearest tracks.
 - "motion" (default): each pixel is moving or not by whether the camera's motion explains its dense optical
   flow (`mosegpipe.motion`: flow residual, flow consistency, a colour model, superpixels); static
-  pixels take the background's label (the one most tracks carry), moving pixels the label of the
+  pixels take the world's label (0), moving pixels the label of the
   nearest track of a moving motion, or MOVING_UNCLUSTERED (254) when no track of a moving motion is
   in the frame (the flow found a mover the clustering did not); in a clip also a moving region of a
   rigid motion of its own that no moving motion's tracks explain (`split_unexplained`: an object the
@@ -49,6 +50,9 @@ MAX_LABEL = 254
 
 UNKNOWN = 255
 """Mask value of pixels without evidence (DAVIS' "void")."""
+
+WORLD = 0
+"""Mask value and label of the world: the camera's motion, the static scene of any depth (`mosegpipe.world`)."""
 
 MOVING_UNCLUSTERED = MAX_LABEL
 """"motion" masks: moving pixels with no track of a moving motion in their frame."""
@@ -443,12 +447,6 @@ def overlay_image(
     return out
 
 
-def background_label(labels: npt.NDArray[np.int64]) -> int:
-    """The label most tracks carry (the camera's motion); -1 when there are no labelled tracks."""
-    labels = labels[labels >= 0]
-    return int(np.bincount(labels).argmax()) if labels.size else -1
-
-
 def label_moving_pixels(
     moving: npt.NDArray[np.bool_],
     xy: npt.NDArray[np.float32],
@@ -501,7 +499,7 @@ def carry_unclustered(
     lost) takes the moving label that covers most of it in the frame before, when that label covers at
     least `min_share` of it: an object keeps its identity through the windows where the clustering
     misses it, instead of turning into an anonymous mover. A label counts when it is neither this
-    frame's background (its most common value) nor MOVING_UNCLUSTERED or UNKNOWN.
+    world (WORLD) nor MOVING_UNCLUSTERED or UNKNOWN.
 
     Args:
         mask: (H, W) uint8 label image of this frame (`moving_to_labels`).
@@ -514,7 +512,7 @@ def carry_unclustered(
     unclustered = mask == MOVING_UNCLUSTERED
     if previous is None or previous.shape != mask.shape or not unclustered.any():
         return mask
-    background = int(np.bincount(mask.ravel(), minlength=256).argmax())
+    background = WORLD
     num, regions = cv2.connectedComponents(unclustered.astype(np.uint8), connectivity=8)
     before = previous.astype(np.int64)
     usable = (before != background) & (before != MOVING_UNCLUSTERED) & (before != UNKNOWN) & unclustered
@@ -539,7 +537,7 @@ def moving_to_labels(
     moving: npt.NDArray[np.bool_],
     xy: npt.NDArray[np.float32],
     labels: npt.NDArray[np.int64],
-    background: int | None = None,
+    background: int = WORLD,
     image: npt.NDArray[np.uint8] | None = None,
     cfg: MaskConfig = MaskConfig(),
 ) -> npt.NDArray[np.uint8]:
@@ -553,7 +551,7 @@ def moving_to_labels(
         moving: (H, W) bool moving pixels (`motion.moving_masks`).
         xy: (N, 2) float32 positions of the frame's points, pixels.
         labels: (N,) int64 their labels (-1 = unlabelled, ignored).
-        background: the background's label (None = the label most of these points carry; 0 when none).
+        background: the world's label (static pixels take it).
         image: (H, W, 3) uint8 RGB frame for the watershed (None = nearest points only).
         cfg: the watershed's settings (max_distance_px, scale, ...).
 
@@ -562,8 +560,6 @@ def moving_to_labels(
     """
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     xy = np.asarray(xy, np.float32).reshape(-1, 2)
-    if background is None:
-        background = max(background_label(labels), 0)
     out = label_moving_pixels(moving, xy, labels, background, MOVING_UNCLUSTERED)
     keep = labels >= 0
     # The flood only decides between two or more moving motions: with one, every moving pixel has its
@@ -593,7 +589,7 @@ def motion_masks(
         images: (T, H, W, 3) uint8 RGB, T >= 2.
         tracks: the clip's tracks.
         track_ids: (M,) int64 rows of `tracks` that carry labels.
-        labels: (M,) int64 their labels; the one most of them carry is the background.
+        labels: (M,) int64 their labels; 0 is the world (WORLD, `mosegpipe.world`).
         cfg: mask settings (cfg.motion; the watershed's for the borders between moving motions).
         before, after: the source's frames next to the clip, as evidence (`motion.moving_masks`).
         motion: `motion.stack_motion` of the clip, if already computed (None = computed here).
@@ -605,7 +601,7 @@ def motion_masks(
         motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
     moving = moving_masks(images, cfg.motion, before=before, after=after, motion=motion)
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
-    background = max(background_label(labels), 0)
+    background = WORLD
     out = np.empty(moving.shape, dtype=np.uint8)
     num = len(moving)
     for t in range(num):

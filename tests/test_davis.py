@@ -26,9 +26,11 @@ from mosegpipe.evaluation.davis import (
     flow_homography_labels,
     foreground_from_labels,
     format_table,
+    majority_foreground,
     per_frame_scores,
     run_davis,
     score_clip,
+    world_off_share,
 )
 
 H, W, T = 48, 64, 6
@@ -140,18 +142,31 @@ def test_per_frame_scores_j_and_f() -> None:
     assert (j[0], f[0]) == (1.0, 1.0)  # both empty
 
 
-def test_foreground_from_labels_background_is_the_largest_label() -> None:
+def test_foreground_is_the_masks_as_written_and_the_majority_reading_is_kept_beside() -> None:
     labels = np.full((2, 3, 3), 255, np.uint8)  # 255 covers the most pixels but is never background
-    labels[0, 0, :] = 0  # label 0: 3 + 2 pixels over the clip
-    labels[1, 0, :2] = 0
-    labels[0, 1, :2] = 1  # label 1: 2 + 2 pixels
+    labels[0, 0, :] = 3  # label 3 covers the most known pixels: the after-the-fact reading's background
+    labels[1, 0, :] = 3
+    labels[0, 1, :2] = 0  # label 0: the world as written
     labels[1, 1, :2] = 1
-    labels[1, 2, 2] = 4  # label 4: 1 pixel
-    assert background_label(labels) == 0
-    fg = foreground_from_labels(labels)
-    assert np.array_equal(fg, (labels == 1) | (labels == 4))
-    assert not foreground_from_labels(np.full((1, 2, 2), 255, np.uint8)).any()
+    labels[1, 2, 2] = 4
+    assert np.array_equal(foreground_from_labels(labels), (labels != 0) & (labels != 255))
+    assert background_label(labels) == 3
+    assert np.array_equal(majority_foreground(labels), (labels == 0) | (labels == 1) | (labels == 4))
+    assert not majority_foreground(np.full((1, 2, 2), 255, np.uint8)).any()
     assert background_label(np.full((1, 2, 2), 255, np.uint8)) is None
+
+
+def test_world_off_counts_frames_whose_true_background_is_mostly_not_0() -> None:
+    gt = np.zeros((4, 4, 4), bool)
+    gt[:, :2, :2] = True  # the object; the other 12 pixels of each frame are the true background
+    labels = np.zeros((4, 4, 4), np.uint8)
+    labels[:, :2, :2] = 1
+    labels[1, 2:, :] = 1  # frame 1: 8 of the 12 background pixels painted with the mover's label
+    labels[2, 2:, :] = 255  # frame 2: 8 unknown, the other 4 are 0: not off
+    labels[3] = 255  # frame 3: nothing known: not off
+    assert world_off_share(labels, gt) == pytest.approx(1 / 4)
+    scores = score_clip(labels, gt)
+    assert scores["world_off"] == pytest.approx(1 / 4)
 
 
 def test_best_single_label_oracle() -> None:
@@ -201,7 +216,7 @@ def test_run_davis_scores_rows_and_isolates_failures(fake_davis: Path) -> None:
     assert row.frames == T and row.j_mean == 0.0 and row.f_mean == 0.0 and row.k == 0
     assert row.error.endswith("only 2 tracks") and report.means["all"]["failed"] == 1
     table = format_table(report)
-    assert "beta" in table and "mean all (1)" in table and "failed: beta" in table
+    assert "beta" in table and "mean all (1; world off 0)" in table and "failed: beta" in table
     assert report.to_dict()["rows"][0]["error"] == row.error
     with pytest.raises(ConfigError):
         run_davis(fake_davis, mode="clip7", method=_oracle)

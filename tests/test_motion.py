@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.flow import FlowConfig, camera_residual, fit_camera, frame_motion
-from mosegpipe.masks import background_label, label_moving_pixels
+from mosegpipe.masks import WORLD, label_moving_pixels
 from mosegpipe.motion import MotionMaskConfig, moving_masks
 
 
@@ -171,11 +171,6 @@ def test_motion_mask_config_refuses_bad_values() -> None:
         FlowConfig(preset="slow")
 
 
-def test_background_label_is_the_most_common() -> None:
-    assert background_label(np.array([2, 2, 1, -1, -1, -1])) == 2
-    assert background_label(np.array([-1, -1])) == -1
-
-
 def test_label_moving_pixels_takes_the_nearest_moving_track() -> None:
     moving = np.zeros((10, 20), bool)
     moving[2:8, 1:6] = True
@@ -201,8 +196,7 @@ def test_segment_frames_with_motion_masks_marks_the_square_as_moving() -> None:
     images, gt = _scene()
     cfg = PipelineConfig(mask=MaskConfig(method="motion", motion=MotionMaskConfig(superpixels=0, work_scale=1.0)))
     result = segment_frames(Frames(images=images), cfg)
-    background = background_label(result.clustering.labels)
-    moving = result.masks != background
+    moving = result.masks != WORLD
     assert result.masks.shape == gt.shape and not (result.masks == 255).any()
     assert np.mean([_iou(m, g) for m, g in zip(moving, gt)]) > 0.7
 

@@ -88,7 +88,7 @@ def test_segment_clip_separates_the_moving_objects(clip_result: pipeline.ClipRes
     assert best_permutation_accuracy(r.clustering.labels, gt) >= 0.9
     assert r.masks.shape == (5, 240, 320) and r.masks.dtype == np.uint8
     assert set(np.unique(r.masks)) == {0, 1, 2}  # the labels; every pixel has a track within 40 px
-    assert set(r.timings) == {"read", "track", "embed", "cluster", "masks"}  # model given: no load_model
+    assert set(r.timings) == {"read", "flow", "track", "embed", "cluster", "masks"}  # model given: no load_model
 
 
 def test_segment_frames_forced_k_and_too_large_k(scene: RenderedClip, model5: SubspaceNet) -> None:
@@ -190,7 +190,7 @@ def test_clip_outputs(tmp_path: Path, clip_result: pipeline.ClipResult) -> None:
     assert on_disk["num_tracks_segmented"] == n <= on_disk["num_tracks_detected"]
     assert sum(on_disk["tracks_per_motion"]) == n and len(on_disk["tracks_per_motion"]) == 3
     assert {str(k) for k in range(2, 9)} <= set(on_disk["k_scores"])  # the candidates of --k-max 8
-    assert set(on_disk["timings_s"]) == {"read", "track", "embed", "cluster", "masks", "rrd"}
+    assert set(on_disk["timings_s"]) == {"read", "flow", "track", "embed", "cluster", "masks", "rrd"}
     assert on_disk["model"]["recipe"] == "test-displacement-f5" and on_disk["model"]["model_frames"] == 5
     assert on_disk["config"]["frames"] == 5 and on_disk["config"]["cluster"]["method"] == "silhouette"
 

@@ -20,10 +20,15 @@ clip each is summarised by its mean, recall (fraction of frames scoring above 0.
 DAVIS code's four overlapping bins over the frames, bin 0 minus bin 3: `clip_statistics`).
 
 A method returns labels, not a foreground: (T, H, W) uint8, label k = motion k, 255 = unknown. The
-headline foreground uses no oracle: every pixel not in the background motion, the background being
-the label that covers most pixels over the clip's frames (255 pixels are not candidates and count as
-background; `foreground_from_labels`). Beside it, "best single label" picks per clip the one label
-whose mask scores the best mean J against the truth (an oracle, for reference only).
+headline scores what a user gets: the masks as written, with their documented meaning, 0 = the world
+(background), every other known value a mover (foreground), 255 = unknown (not foreground;
+`foreground_from_labels`). The pipeline's masks are read back from the files `moseg` writes
+(`pipeline_method`). Beside it: "world off", the share of a clip's frames in which the label covering
+most of the true background is not 0 (the world painted as a mover); "majority J", the score of the
+earlier reading that took as background the label covering most pixels over the clip, a choice made
+after the fact that the written masks never make (kept for comparison while the world's label is
+being fixed); and "best single label", the one label whose mask scores the best mean J against the
+truth (an oracle, for reference only).
 
 Methods (`MaskMethod`): "pipeline" (segment_clip for clip5, segment_video for whole, with the given
 or default PipelineConfig) and "flow-homography", the classical reference (`flow_homography_labels`):
@@ -36,6 +41,7 @@ from __future__ import annotations
 
 import logging
 import math
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -45,13 +51,15 @@ from typing import Any
 import cv2
 import numpy as np
 import numpy.typing as npt
+from PIL import Image
 
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
 from mosegpipe.evaluation.e2e import BOUNDARY_TOLERANCE, boundary_f, jaccard
 from mosegpipe.flow import DenseFlow, FlowConfig, camera_residual, fit_camera, to_gray
-from mosegpipe.masks import UNKNOWN
-from mosegpipe.pipeline import PipelineConfig, frame_mask, segment_clip, segment_video
+from mosegpipe.masks import UNKNOWN, WORLD
+from mosegpipe.outputs import write_clip_outputs, write_video_outputs
+from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.runtime import set_threads
 
 log = logging.getLogger(__name__)
@@ -110,10 +118,24 @@ def background_label(labels: npt.ArrayLike) -> int | None:
 
 
 def foreground_from_labels(labels: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-    """The no-oracle foreground of a label mask: every known pixel outside the background motion.
+    """The foreground of label masks as written: every pixel that is neither the world (0) nor unknown (255).
 
     Args:
-        labels: (T, H, W) uint8 labels of one clip, 255 = unknown (counted as background).
+        labels: (T, H, W) or (H, W) uint8 labels.
+
+    Returns:
+        bool array of the same shape.
+    """
+    lab = np.asarray(labels, dtype=np.uint8)
+    return (lab != WORLD) & (lab != UNKNOWN)
+
+
+def majority_foreground(labels: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """The earlier reading, chosen after the fact: every known pixel outside the label covering most pixels
+    of the clip (255 pixels are not candidates). For comparison only.
+
+    Args:
+        labels: (T, H, W) uint8 labels of one clip, 255 = unknown.
 
     Returns:
         (T, H, W) bool.
@@ -123,6 +145,25 @@ def foreground_from_labels(labels: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     if bg is None:
         return np.zeros(lab.shape, dtype=bool)
     return (lab != bg) & (lab != UNKNOWN)
+
+
+def world_off_share(labels: npt.ArrayLike, gt: npt.ArrayLike) -> float:
+    """The share of frames in which the label covering most of the true background (255 excluded) is not 0.
+
+    Args:
+        labels: (T, H, W) uint8 labels.
+        gt: (T, H, W) bool ground-truth foreground.
+
+    Returns:
+        In [0, 1]; a frame whose true background is all unknown does not count as off.
+    """
+    lab = np.asarray(labels, dtype=np.uint8)
+    truth = np.asarray(gt, dtype=bool)
+    off = 0
+    for t in range(lab.shape[0]):
+        counts = np.bincount(lab[t][~truth[t]], minlength=256)[:UNKNOWN]
+        off += int(counts.any() and counts.argmax() != WORLD)
+    return off / max(lab.shape[0], 1)
 
 
 def per_frame_scores(
@@ -253,7 +294,9 @@ def flow_homography_labels(
 
 def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | None = None) -> MaskMethod:
     """The pipeline as a mask method: segment_clip on the frames folder for "clip5", segment_video
-    for "whole" (window length cfg.frames), both from clip.start over clip.num_frames frames.
+    for "whole" (window length cfg.frames), both from clip.start over clip.num_frames frames, each
+    written as `moseg run` writes it (no recording) and its mask files read back: what is scored is
+    what a user gets.
 
     The model is loaded once per method (as the CLI does: `inference.load_embedder`), so a row's
     seconds are the segmentation's, not the model loading's.
@@ -274,17 +317,41 @@ def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | 
         return models[frames]
 
     def run(clip: DavisClip, mode: str) -> npt.NDArray[np.uint8]:
-        if mode == "clip5":
-            clip_cfg = replace(base, frames=clip.num_frames, start=clip.start)
-            return segment_clip(clip.frames_dir, clip_cfg, model_for(clip.num_frames)).masks
-        out = np.full(clip.gt.shape, UNKNOWN, dtype=np.uint8)
-        video_cfg = replace(base, start=clip.start)
-        for window in segment_video(clip.frames_dir, video_cfg, model_for(base.frames), max_frames=clip.num_frames):
-            for frame in window.frames:
-                out[frame.index - clip.start] = frame_mask(frame, base.mask)
-        return out
+        with tempfile.TemporaryDirectory(prefix="moseg-davis-") as tmp:
+            out = Path(tmp) / "out"
+            if mode == "clip5":
+                clip_cfg = replace(base, frames=clip.num_frames, start=clip.start)
+                result = segment_clip(clip.frames_dir, clip_cfg, model_for(clip.num_frames))
+                write_clip_outputs(result, out, clip_cfg, rrd=False)
+            else:
+                video_cfg = replace(base, start=clip.start)
+                write_video_outputs(
+                    clip.frames_dir, out, video_cfg, model_for(base.frames), rrd=False, max_frames=clip.num_frames
+                )
+            return read_written_masks(out, clip.start, clip.num_frames, clip.gt.shape[1:])
 
     return run
+
+
+def read_written_masks(folder: Path, start: int, num_frames: int, size_hw: tuple[int, ...]) -> npt.NDArray[np.uint8]:
+    """The masks an output folder holds (masks/NNNNNN.png, named by source frame index), as written.
+
+    Args:
+        folder: a `moseg run` output folder.
+        start: source index of the first frame.
+        num_frames: frames to read.
+        size_hw: (H, W) of the frames: a frame without a mask file is all UNKNOWN.
+
+    Returns:
+        (num_frames, H, W) uint8 mask values (the palette PNGs' indices).
+    """
+    out = np.full((num_frames, *size_hw), UNKNOWN, dtype=np.uint8)
+    for t in range(num_frames):
+        path = folder / "masks" / f"{start + t:06d}.png"
+        if path.exists():
+            with Image.open(path) as image:
+                out[t] = np.asarray(image, dtype=np.uint8)
+    return out
 
 
 def _flow_homography_method(clip: DavisClip, mode: str) -> npt.NDArray[np.uint8]:
@@ -319,9 +386,12 @@ class DavisRow:
         clip: clip name.
         part: "dev" or "val" (data.davis split).
         frames: frames scored.
-        j_mean, j_recall, j_decay: region similarity statistics (no-oracle foreground).
-        f_mean, f_recall, f_decay: boundary F statistics (no-oracle foreground).
+        j_mean, j_recall, j_decay: region similarity statistics (the masks as written: 0 = background).
+        f_mean, f_recall, f_decay: boundary F statistics (the masks as written).
         best_label_j: mean J of the best single label (oracle).
+        world_off: share of frames in which the label covering most of the true background is not 0.
+        majority_j: mean J with the clip's most common label as background (the earlier, after-the-fact
+            reading; for comparison).
         k: labels found over the clip (255 excluded); 0 on failure.
         seconds: wall time of the method on the clip (reading and scoring excluded).
         error: the MosegError's message when the method failed ("" otherwise).
@@ -340,9 +410,23 @@ class DavisRow:
     k: int
     seconds: float
     error: str = ""
+    world_off: float = 0.0
+    majority_j: float = 0.0
 
 
-SCORE_FIELDS = ("j_mean", "j_recall", "j_decay", "f_mean", "f_recall", "f_decay", "best_label_j", "k", "seconds")
+SCORE_FIELDS = (
+    "j_mean",
+    "j_recall",
+    "j_decay",
+    "f_mean",
+    "f_recall",
+    "f_decay",
+    "best_label_j",
+    "world_off",
+    "majority_j",
+    "k",
+    "seconds",
+)
 """The DavisRow fields averaged in a report's means."""
 
 
@@ -376,10 +460,11 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
         gt: (T, H, W) bool ground truth.
 
     Returns:
-        dict with the j_*, f_*, best_label_j and k fields of DavisRow.
+        dict with the j_*, f_*, best_label_j, world_off, majority_j and k fields of DavisRow.
     """
     lab = np.asarray(labels, dtype=np.uint8)
     j, f = per_frame_scores(foreground_from_labels(lab), gt)
+    j_majority, _ = per_frame_scores(majority_foreground(lab), gt)
     jm, jr, jd = clip_statistics(j)
     fm, fr, fd = clip_statistics(f)
     present = np.unique(lab)
@@ -391,18 +476,29 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
         "f_recall": fr,
         "f_decay": fd,
         "best_label_j": best_single_label(lab, gt)[1],
+        "world_off": world_off_share(lab, gt),
+        "majority_j": float(np.mean(j_majority)),
         "k": int(np.count_nonzero(present != UNKNOWN)),
     }
 
 
+WORLD_OFF_LIMIT = 0.1
+"""A clip counts as "world off" in a report's means when more than this share of its frames is."""
+
+
 def summarize_rows(rows: Sequence[DavisRow]) -> dict[str, dict[str, float]]:
-    """Means of SCORE_FIELDS per part ("dev", "val") and over all rows, with clip and failure counts."""
+    """Means of SCORE_FIELDS per part ("dev", "val") and over all rows, with clip and failure counts and
+    the number of clips with the world off label 0 in more than WORLD_OFF_LIMIT of their frames."""
     means: dict[str, dict[str, float]] = {}
     for part in ("dev", "val", "all"):
         chosen = [r for r in rows if part == "all" or r.part == part]
         if chosen:
             means[part] = {name: float(np.mean([getattr(r, name) for r in chosen])) for name in SCORE_FIELDS}
-            means[part].update(clips=len(chosen), failed=sum(bool(r.error) for r in chosen))
+            means[part].update(
+                clips=len(chosen),
+                failed=sum(bool(r.error) for r in chosen),
+                world_off_clips=sum(r.world_off > WORLD_OFF_LIMIT for r in chosen),
+            )
     return means
 
 
@@ -472,6 +568,8 @@ def run_davis(
             k=int(scores["k"]),
             seconds=seconds,
             error=error,
+            world_off=scores["world_off"],
+            majority_j=scores["majority_j"],
         )
         log.info("%s: J %.3f F %.3f (%.1f s)", clip_name, row.j_mean, row.f_mean, seconds)
         rows.append(row)
@@ -486,10 +584,25 @@ def _fmt(value: float | int | str) -> str:
 
 def format_table(report: DavisReport) -> str:
     """A plain-text table: one line per clip, then the dev / val / all means; failures listed below."""
-    head = ["clip", "part", "T", "J", "J rec", "J dec", "F", "F rec", "F dec", "best-lbl J", "K", "s"]
+    head = [
+        "clip",
+        "part",
+        "T",
+        "J",
+        "J rec",
+        "J dec",
+        "F",
+        "F rec",
+        "F dec",
+        "best-lbl J",
+        "world off",
+        "majority J",
+        "K",
+        "s",
+    ]
     lines = [[r.clip, r.part, str(r.frames)] + [_fmt(getattr(r, n)) for n in SCORE_FIELDS] for r in report.rows]
     for part, m in report.means.items():
-        label = f"mean {part} ({int(m['clips'])})"
+        label = f"mean {part} ({int(m['clips'])}; world off {int(m['world_off_clips'])})"
         lines.append([label, "", ""] + [f"{m[n]:.3f}" if n != "k" else f"{m[n]:.1f}" for n in SCORE_FIELDS])
     widths = [max(len(h), *(len(row[i]) for row in lines)) for i, h in enumerate(head)]
     out = [f"DAVIS-2016 {report.mode}, method {report.method}"]

@@ -28,6 +28,7 @@ from mosegpipe.pipeline.common import (
     decode_errors,
     embed_at_model_frames,
     model_info,
+    world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import label_by_rigid_motion
@@ -63,12 +64,17 @@ class ClipResult:
 
 
 def group_tracks(
-    traj: Trajectories, size_hw: tuple[int, int], cfg: PipelineConfig, model: Embedder, timings: dict[str, float]
+    traj: Trajectories,
+    size_hw: tuple[int, int],
+    cfg: PipelineConfig,
+    model: Embedder,
+    timings: dict[str, float],
+    motion: FrameMotion | None = None,
 ) -> tuple[npt.NDArray[np.float32], Clustering]:
     """The motions of trajectories by cfg.method: embedding + automatic K + the rigid-motion check
     ("subspacenet"), or rigid models fitted one after another ("geometric"; it has no embedding, so
     each track's displacements from frame 0, (N, 2F - 2) pixels, stand in for the recording and for
-    the evaluation's K-means with the true K).
+    the evaluation's K-means with the true K). Either way the world's motion is 0 (`world_to_zero`).
 
     Args:
         traj: the trajectories (N, 2F), pixels.
@@ -76,6 +82,7 @@ def group_tracks(
         cfg: method, cluster, rigid, geometric and k.
         model: the embedding model (not used by "geometric").
         timings: gets "embed" (subspacenet) and "cluster" seconds.
+        motion: the frames' dense flow evidence, if computed (the world's camera evidence).
 
     Returns:
         ((N, E) float32 embeddings, the clustering).
@@ -83,6 +90,7 @@ def group_tracks(
     if cfg.method == "geometric":
         t0 = time.perf_counter()
         clustering = group_geometric(traj.data, size_hw, cfg.geometric, k=cfg.k)
+        clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
         timings["cluster"] = time.perf_counter() - t0
         data = traj.data
         return np.asarray(data[:, 2:] - np.tile(data[:, :2], traj.num_frames - 1), dtype=np.float32), clustering
@@ -92,12 +100,17 @@ def group_tracks(
     t0 = time.perf_counter()
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
     clustering = check_rigid(clustering, traj.data, size_hw, cfg)
+    clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
     timings["cluster"] = time.perf_counter() - t0
     return emb, clustering
 
 
 def _uses_flow_points(frames: Frames, cfg: PipelineConfig) -> bool:
     return cfg.tracker != "klt" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.mask.motion.flow)
+
+
+def _uses_motion_masks(frames: Frames, cfg: PipelineConfig) -> bool:
+    return cfg.mask.method == "motion" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.mask.motion.flow)
 
 
 def clip_tracks(frames: Frames, cfg: PipelineConfig, motion: FrameMotion | None = None) -> Tracks:
@@ -135,12 +148,15 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
     model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
-    # Flow points and motion masks share the clip's flows: computed once, here.
+    # Flow points, the world's camera evidence and the motion masks share the clip's flows: computed once, here.
     shared = (
         stack_motion(frames.images, cfg.mask.motion, frames.before, frames.after)
-        if _uses_flow_points(frames, cfg) and cfg.mask.method == "motion"
+        if _uses_motion_masks(frames, cfg)
         else None
     )
+    if shared is not None:
+        timings["flow"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
     tracks = clip_tracks(frames, cfg, shared)
     timings["track"] = time.perf_counter() - t0
     traj = build_trajectories(tracks, frames=frames.num_frames)
@@ -153,7 +169,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     if frames.num_frames == 1 and cfg.k is None:
         emb, clustering = _one_frame(traj, cfg, model, timings)
     else:
-        emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
+        emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings, shared)
     t0 = time.perf_counter()
     masks = clip_masks(
         frames.images, tracks, traj.track_ids, clustering.labels, cfg, frames.before, frames.after, shared

@@ -19,10 +19,12 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
+from mosegpipe.flow import FrameMotion
 from mosegpipe.inference import Embedder, load_embedder
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import split_by_rigid_motion
 from mosegpipe.types import Clustering, Trajectories
+from mosegpipe.world import static_share, world_cluster, world_first
 
 
 def model_info(model: Embedder) -> dict[str, Any]:
@@ -66,6 +68,35 @@ def check_rigid(
     what = f"the rigid-motion check split off {split} group{'s' if split > 1 else ''} (K = {clustering.k} -> {clustering.k + split})"
     note = f"{clustering.note}; {what}" if clustering.note else what
     return replace(clustering, labels=labels, k=clustering.k + split, note=note)
+
+
+def world_to_zero(
+    clustering: Clustering,
+    points: npt.NDArray[np.float32],
+    size_hw: tuple[int, int],
+    cfg: PipelineConfig,
+    was_world: npt.NDArray[np.bool_] | None = None,
+    known: npt.NDArray[np.bool_] | None = None,
+    motion: FrameMotion | None = None,
+) -> Clustering:
+    """`clustering` renumbered so that the world's motion is 0 (`mosegpipe.world`); the others keep their order.
+
+    Args:
+        clustering: labels (N,) in 0..k-1.
+        points: (N, 2F) float32 trajectories, pixels (x0, y0, x1, y1, ...).
+        size_hw: (H, W) of the frames.
+        cfg: cfg.world.
+        was_world, known: whole videos: (N,) the tracks that were the world / had a label in the window before.
+        motion: the dense flow's evidence of the window's frames (its camera residual), if computed.
+    """
+    xy = np.asarray(points, np.float32).reshape(len(clustering.labels), -1, 2)
+    if clustering.k <= 1 or not cfg.world.enabled:
+        return clustering
+    static = None if motion is None else static_share(xy, motion.residual, motion.scale, cfg.world.static_px)
+    world = world_cluster(xy, clustering.labels, clustering.k, size_hw, was_world, known, cfg.world, static)
+    if world == 0:
+        return clustering
+    return replace(clustering, labels=world_first(clustering.labels, world))
 
 
 def _model_or_default(model: Embedder | None, frames: int, timings: dict[str, float]) -> Embedder:

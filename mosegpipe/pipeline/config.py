@@ -26,6 +26,7 @@ from mosegpipe.rigid import RigidCheckConfig
 from mosegpipe.settings import SettingError, check_setting, check_settings
 from mosegpipe.track import TrackConfig
 from mosegpipe.types import SEGMENT_METHODS, TRACKERS, KMethodName
+from mosegpipe.world import WorldConfig
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,7 @@ class PipelineConfig:
             become clusters of their own (mosegpipe.rigid).
         geometric: the settings of method "geometric".
         mask: dense-mask settings.
+        world: how the world's motion (label 0) is told from the moving ones (mosegpipe.world).
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix RANSAC fit explains less
             than this fraction of its points is labelled as outliers.
         video_k_step: whole videos: a window tries K up to the previous window's K plus this (and at
@@ -79,6 +81,7 @@ class PipelineConfig:
     rigid: RigidCheckConfig = field(default_factory=RigidCheckConfig)
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
     mask: MaskConfig = field(default_factory=MaskConfig)
+    world: WorldConfig = field(default_factory=WorldConfig)
     outlier_inlier_ratio: float = 0.5
     video_k_step: int | None = 2
     video_cut_survival: float | None = 0.25
@@ -200,12 +203,12 @@ class PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
         A field left out takes its default (a summary written before the field existed), except
-        `rigid`, `video_cut_survival`, `mask.extra_tracks`, `mask.unexplained_px`, `mask.motion.spread_weight`,
+        `rigid`, `world`, `video_cut_survival`, `mask.extra_tracks`, `mask.unexplained_px`, `mask.motion.spread_weight`,
         `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight`, `mask.motion.smooth_lambda` and
         `mask.motion.flow.camera_fit`: a summary without them was made before the rigid-motion check (the
         shot-cut test, the extra mask tracks, the unexplained moving regions' own label, the motion masks'
         spread, guided filter and colour memory, their regions kept by tracks, their local colour contrast,
-        their global smoother) existed, so it stays off, or before the camera's fit by RANSAC, so it fits by
+        their global smoother) existed, or before the world was told by where its tracks are, so it stays off, or before the camera's fit by RANSAC, so it fits by
         MAGSAC; a replay segments as that run did (but for whole videos' motion masks, whose windows' first
         frames take the flow back to the frame before since `local_colour_weight` came in). An unknown
         field, a value of the wrong type or one the config classes refuse is an error.
@@ -222,6 +225,8 @@ class PipelineConfig:
         assert isinstance(config, cls)
         if isinstance(data, Mapping) and "rigid" not in data:
             config = replace(config, rigid=RigidCheckConfig(enabled=False))
+        if isinstance(data, Mapping) and "world" not in data:
+            config = replace(config, world=WorldConfig(enabled=False))
         if isinstance(data, Mapping) and "video_cut_survival" not in data:
             config = replace(config, video_cut_survival=None)
         if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:

@@ -59,6 +59,7 @@ def match_labels(
     k: int,
     book: LabelBook,
     window: int = 0,
+    world: bool = False,
 ) -> npt.NDArray[np.int64]:
     """Maps this window's clusters to global labels through the tracks shared with the previous window.
 
@@ -72,6 +73,11 @@ def match_labels(
        candidate. Only when a candidate splits off again in the next window (at least half of the
        cluster's shared tracks were one candidate's) does it get a new label: a motion that
        separates from another is labelled one window late, a split that comes and goes never.
+    With `world`, cluster 0 is the world's motion (`mosegpipe.world`): it takes label 0 whatever its
+    tracks carried, and no other cluster continues label 0 in step 1 (a cluster most of whose tracks
+    were the world is a piece of it, step 2: it stays 0 until it splits off twice). Without it, the
+    cluster that continues label 0 is the world, and after a shot cut cluster 0 takes 0.
+
     3. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
        unless the cluster is too small to trust (fewer than _MIN_NEW_TRACKS tracks and under
        _MIN_NEW_SHARE of the window's), which stays unlabelled (-1).
@@ -83,6 +89,7 @@ def match_labels(
         k: number of clusters in this window.
         book: the global label state (updated, its split candidates included).
         window: index of this window (for least-recently-used label reuse).
+        world: cluster 0 is the world's motion and takes label 0.
 
     Returns:
         (N,) int64 global labels.
@@ -105,22 +112,32 @@ def match_labels(
             mine = candidate[(clusters == r) & (candidate >= 0)]
             if known[r] and sizes[r] >= small and mine.size and np.bincount(mine).max() >= _MIN_SHARE * per_cluster[r]:
                 confirmed.add(r)
+        if world:
+            confirmed.discard(0)
         overlap[list(confirmed)] = 0  # a recurring split continues none of the labels
+        carried = overlap.copy()
+        if world:  # the world continues label 0, and only it
+            mapping[0] = 0
+            overlap[0] = 0
+            overlap[:, olds == 0] = 0
         rows, cols = linear_sum_assignment(-overlap)
         for r, c in zip(rows, cols):
+            if r in mapping:
+                continue
             if known[r] and overlap[r, c] > 0 and overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
                 mapping[int(r)] = int(olds[c])
         for r in range(k):
             if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
                 continue
-            mapping[r] = int(olds[int(overlap[r].argmax())])
+            mapping[r] = int(olds[int(carried[r].argmax())])
             if sizes[r] >= small:
                 splits[r] = mapping[r]
     book.pending = {int(i): int(c) for i, c in zip(ids, clusters) if int(c) in splits}
     # The dominant motion takes label 0 when no cluster carries 0 on, e.g. after a camera cut: the
     # clips' convention (mask value 0 = the dominant motion) holds for videos too.
-    if 0 not in mapping and 0 not in mapping.values() and book.next_label > 0:
+    if world or (0 not in mapping and 0 not in mapping.values() and book.next_label > 0):
         mapping[0] = 0
+        book.next_label = max(book.next_label, 1)
     busy = set(mapping.values()) | set(prev.values())
     for c in range(k):
         if c in mapping:

@@ -22,6 +22,7 @@ from mosegpipe.pipeline.common import _check_k, _model_or_default, decode_errors
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.trajectories import trajectories_from_matches
 from mosegpipe.types import Clustering, Matches
+from mosegpipe.world import world_cluster, world_first
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,8 @@ class PairResult:
         matches: SIFT correspondences (N).
         embeddings: (N, E) float32.
         clustering: labels (N,) in 0..k-1 as clustered.
-        labels: (N,) int64 final labels: motions 0..m-1, -1 for the outlier cluster (if one was found).
+        labels: (N,) int64 final labels: motions 0..m-1 (0 = the world, `mosegpipe.world`), -1 for the outlier
+            cluster (if one was found).
         outlier_cluster: which cluster was labelled outliers (None when none was).
         masks: two (H_i, W_i) uint8 masks, m = motion m, 255 = unknown / outlier.
         timings: seconds per stage.
@@ -120,6 +122,9 @@ def segment_pair(
     if outlier is not None:
         labels[clustering.labels == outlier] = -1
         labels[clustering.labels > outlier] -= 1
+    # the world's motion is 0, told by where its matches lie in the first image (mosegpipe.world)
+    motions = int(labels.max()) + 1 if (labels >= 0).any() else 0
+    labels = world_first(labels, world_cluster(matches.xy1, labels, motions, im1.shape[:2], cfg=cfg.world))
     timings["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     inl = labels >= 0

@@ -29,21 +29,21 @@ import numpy.typing as npt
 
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.flow import FlowStream, flow_fits
+from mosegpipe.flow import FlowStream, FrameMotion, flow_fits
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
 from mosegpipe.masks import (
     MOVING_UNCLUSTERED,
     UNKNOWN,
+    WORLD,
     MaskConfig,
-    background_label,
     carry_unclustered,
     labels_to_mask,
     moving_to_labels,
 )
 from mosegpipe.motion import ColourMemory, moving_from_motion
-from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames
+from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames, world_to_zero
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels
 from mosegpipe.runtime import run_ahead
@@ -427,9 +427,11 @@ def _window_sweep(cfg: PipelineConfig, prev_k: int) -> ClusterConfig:
 
 
 def _cluster_window(
-    window: list[_Frame], cfg: PipelineConfig, model: Embedder, run: _VideoRun
+    window: list[_Frame], cfg: PipelineConfig, model: Embedder, run: _VideoRun, motion: FrameMotion | None = None
 ) -> tuple[npt.NDArray[np.int64], _WindowLabels]:
-    """Clusters the tracks live through the whole window (by cfg.method) and maps the clusters to global labels.
+    """Clusters the tracks live through the whole window (by cfg.method) and maps the clusters to global labels,
+    the world's motion to 0 (told by where its tracks lie, the window's dense flow `motion` when given, and
+    which tracks were the world in the window before: `mosegpipe.world`).
 
     Returns:
         (tracker ids of the tracks live through the whole window, their global labels; k = 0 when
@@ -455,7 +457,11 @@ def _cluster_window(
             clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
         sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
         clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
-    glob = match_labels(run.prev, common, clustering.labels, clustering.k, run.book, run.num_windows)
+    before = np.array([run.prev.get(int(i), -1) for i in common], np.int64)
+    clustering = world_to_zero(clustering, traj.data, tracks.size_hw, cfg, before == WORLD, before >= 0, motion)
+    glob = match_labels(
+        run.prev, common, clustering.labels, clustering.k, run.book, run.num_windows, world=cfg.world.enabled
+    )
     found = _WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[glob >= 0], glob[glob >= 0])
     run.prev, run.prev_k = found.by_id(), sweep_k
     run.num_labelled += 1
@@ -478,7 +484,16 @@ def _label_window(
     and those between its last frame and the frame `after` it (when not None).
     """
     before = run.prev  # the last labelled window's labels: tracks that end inside this window keep theirs
-    common, found = _cluster_window(window, cfg, model, run)
+    if not first_labelled:  # a shot starts here: no mask to carry over, and its colours are new
+        run.last_mask = None
+        if run.colour is not None:
+            run.colour.reset()
+        run.frame_before = None
+    motion = None
+    if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
+        # a window that starts on the one before's last frame gives that frame the flow back to the frame before it too
+        motion = stream.motion([t for t, _, _, _ in window], after=after, before=run.frame_before)
+    common, found = _cluster_window(window, cfg, model, run, motion)
     note = found.note
     log.info(
         "frames %d-%d: %d tracks, K = %d%s", window[0][0], window[-1][0], common.size, found.k, note and f"; {note}"
@@ -490,18 +505,11 @@ def _label_window(
         np.array([by_id.get(int(i), before.get(int(i), -1)) for i in ids], np.int64) for _, _, ids, _ in window[skip:]
     ]
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
-    if not first_labelled:  # a shot starts here: no mask to carry over, and its colours are new
-        run.last_mask = None
-        if run.colour is not None:
-            run.colour.reset()
-        run.frame_before = None
-    if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
+    if stream is not None and motion is not None:
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
-        # a window that starts on the one before's last frame gives that frame the flow back to the frame before it too
-        motion = stream.motion(indices, after=after, before=run.frame_before)
         shown = _shown_motions(run.last_mask)
-        anchors = [(item[3], lab, background_label(lab), shown) for item, lab in zip(window[skip:], labs)]
+        anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
         moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
         stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
         run.frame_before = indices[-2]
@@ -536,11 +544,11 @@ def _label_window(
 
 
 def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
-    """The moving motions a frame's mask shows: its labels but the background (the most common) and unknown."""
+    """The moving motions a frame's mask shows: its labels but the world, the unclustered and unknown."""
     if mask is None:
         return np.zeros(0, np.int64)
     counts = np.bincount(mask.ravel(), minlength=256)
-    counts[np.array([counts.argmax(), MOVING_UNCLUSTERED, UNKNOWN])] = 0
+    counts[np.array([WORLD, MOVING_UNCLUSTERED, UNKNOWN])] = 0
     return np.flatnonzero(counts).astype(np.int64)
 
 

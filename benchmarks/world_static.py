@@ -1,0 +1,86 @@
+"""Static 3D structure under a moving camera: how much of the world the masks write as moving.
+
+Renders clips with depth (a wall and a ground plane) seen by a moving camera with moving objects
+(`mosegpipe.synth.render`), segments each as a whole video exactly as `moseg run --whole` writes it (mask
+PNGs read back), and prints per clip: the share of static pixels (ground truth 0) written as moving (any
+value but 0 and 255), the objects' foreground J (masks as written: every value but 0 and 255), and the
+share of frames in which the label covering most of the static pixels is not 0.
+
+Seeds 0-9 are for development, 100-109 for validation (score those once, after choosing).
+
+    python benchmarks/world_static.py --seeds 0-9
+    python benchmarks/world_static.py --seeds 0-9 --set world.enabled=false
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from mosegpipe.evaluation.davis import read_written_masks, world_off_share
+from mosegpipe.inference import load_embedder
+from mosegpipe.outputs import write_video_outputs
+from mosegpipe.pipeline import PipelineConfig
+from mosegpipe.runtime import set_threads
+from mosegpipe.synth.render import RenderConfig, render_clip
+
+MOTIONS = ("forward", "handheld", "pan")
+
+
+def _seeds(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out += list(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", default="0-9", help="render seeds, e.g. 0-9 or 100-109 (validation)")
+    parser.add_argument("--frames", type=int, default=25, help="frames per clip")
+    parser.add_argument("--set", action="append", default=[], help="a pipeline setting, dotted.path=value")
+    args = parser.parse_args()
+    set_threads(1)
+    cfg = PipelineConfig().with_settings(args.set)
+    model = load_embedder(cfg.frames)
+    rows = []
+    print(f"{'seed':>5} {'camera':>9} {'static written moving':>22} {'object J':>9} {'world off':>10} {'s':>6}")
+    for seed in _seeds(args.seeds):
+        motion = MOTIONS[seed % len(MOTIONS)]
+        clip = render_clip(
+            RenderConfig(
+                size_hw=(240, 320), frames=args.frames, seed=seed, camera_motion=motion, ground=True, num_objects=2
+            )
+        )
+        with tempfile.TemporaryDirectory(prefix="moseg-world-") as tmp:
+            folder = Path(tmp) / "frames"
+            folder.mkdir()
+            from PIL import Image
+
+            for t, image in enumerate(clip.frames):
+                Image.fromarray(image).save(folder / f"{t:06d}.png")
+            t0 = time.perf_counter()
+            write_video_outputs(folder, Path(tmp) / "out", cfg, model, rrd=False)
+            seconds = time.perf_counter() - t0
+            masks = read_written_masks(Path(tmp) / "out", 0, clip.num_frames, clip.size_hw)
+        static = clip.masks == 0
+        written = (masks != 0) & (masks != 255)
+        moving_share = float(written[static].mean())
+        truth = ~static
+        inter = np.logical_and(written, truth).sum(axis=(1, 2))
+        union = np.logical_or(written, truth).sum(axis=(1, 2))
+        j = float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
+        off = world_off_share(masks, truth)
+        rows.append((moving_share, j, off))
+        print(f"{seed:>5} {motion:>9} {100 * moving_share:>21.2f}% {j:>9.3f} {off:>10.2f} {seconds:>6.1f}", flush=True)
+    mean = np.mean(rows, axis=0)
+    print(f"{'mean':>5} {'':>9} {100 * mean[0]:>21.2f}% {mean[1]:>9.3f} {mean[2]:>10.2f}")
+
+
+if __name__ == "__main__":
+    main()

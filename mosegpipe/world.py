@@ -1,0 +1,181 @@
+"""Which motion is the world: the camera's motion, the static scene of any depth, written as label 0.
+
+A clustering numbers its motions by size (0 = most tracks), but tracks crowd on textured objects: a
+close-up rider can carry more corners than the whole street behind him. Counting tracks then hands the
+world a moving label and the rider the world's, and the masks paint the background. The world is told
+here by where its tracks are, not how many there are:
+
+- **area**: the frame is cut into a grid of cells; in each of the window's frames each cell goes to the
+  motion of the track nearest its centre, and a motion scores the cells it holds. The world spans the
+  frame, its weakly textured parts included (they go to the world's tracks around them); an object,
+  however textured, holds about the cells it covers.
+- **border**: a cell on the frame's border counts `WorldConfig.border_weight` more: the world meets the
+  image border all round, an object at most on a side or two.
+- **the camera** (where the dense flow is known): the share of a motion's tracks, over the window's
+  frames, that lie where the camera's motion (the homography fitted to the whole flow field,
+  `flow.fit_camera`) explains the flow: near 1 for the world, near 0 for a mover. A motion's area
+  is weighted by `static_floor` + that share.
+- **continuity** (whole videos): a motion whose tracks were the world in the window before keeps that
+  role unless the area says clearly otherwise (its score is multiplied by `1 + continuity` times the
+  share of its shared tracks that were the world), so an object that fills the frame for a while does
+  not take the world's label.
+
+`world_first` then renumbers the motions so that the world is 0, the others keeping their order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from mosegpipe.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """How the world's motion is told from the others (`world_cluster`).
+
+    Attributes:
+        enabled: tell the world by this evidence (False: the motion with the most tracks is the world,
+            as summaries written before this step segmented).
+        grid: cells per side of the area vote (grid x grid cells over the frame).
+        border_weight: extra weight of a border cell (a border cell counts 1 + border_weight).
+        continuity: whole videos: weight of the window before's world (0 = each window alone).
+        static_px: a track lies where the camera's motion explains the flow when the camera residual
+            there is at most this, pixels of the frame.
+        static_floor: a motion's area is weighted by this plus its tracks' share on such pixels.
+    """
+
+    enabled: bool = True
+    grid: int = 16
+    border_weight: float = 1.0
+    continuity: float = 2.0
+    static_px: float = 1.0
+    static_floor: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not 2 <= self.grid <= 64:
+            raise ConfigError(f"world.grid={self.grid} must be in 2..64")
+        for name in ("border_weight", "continuity", "static_px", "static_floor"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"world.{name}={value} must be a finite number >= 0")
+
+
+def world_scores(
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    k: int,
+    size_hw: tuple[int, int],
+    was_world: npt.NDArray[np.bool_] | None = None,
+    known: npt.NDArray[np.bool_] | None = None,
+    cfg: WorldConfig = WorldConfig(),
+    static: npt.NDArray[np.float64] | None = None,
+) -> npt.NDArray[np.float64]:
+    """Each motion's evidence of being the world (see the module's docstring).
+
+    Args:
+        xy: (N, T, 2) float32 positions of the labelled tracks over the window's frames, pixels
+            (or (N, 2) for one frame).
+        labels: (N,) int64 their motions in 0..k-1 (-1 = none, ignored).
+        k: number of motions.
+        size_hw: (H, W) of the frames, pixels.
+        was_world: (N,) bool, whole videos: the tracks that were the world in the window before.
+        known: (N,) bool, whole videos: the tracks that had any label in the window before
+            (None = as `was_world` is not None, every track).
+        cfg: grid, border weight, continuity, static floor.
+        static: (N,) float in [0, 1], each track's share of the window's frames on pixels whose flow the
+            camera's motion explains (`static_share`; None = no flow evidence).
+
+    Returns:
+        (k,) float64 scores, larger = more likely the world.
+    """
+    labels = np.asarray(labels, np.int64).reshape(-1)
+    pts = np.asarray(xy, np.float32).reshape(labels.size, -1, 2)
+    height, width = size_hw
+    g = cfg.grid
+    # cell centres, and the weight of each: border cells count more
+    cy, cx = np.mgrid[0:g, 0:g]
+    centres = np.stack([(cx.ravel() + 0.5) * width / g, (cy.ravel() + 0.5) * height / g], axis=1)
+    border = (cy == 0) | (cy == g - 1) | (cx == 0) | (cx == g - 1)
+    weight = np.where(border.ravel(), 1.0 + cfg.border_weight, 1.0)
+    use = labels >= 0
+    scores = np.zeros(k, np.float64)
+    if use.any() and k > 0:
+        for t in range(pts.shape[1]):  # each frame's cells go to the motion of their nearest track
+            _, nearest = cKDTree(pts[use, t]).query(centres)
+            scores += np.bincount(labels[use][nearest], weights=weight, minlength=k)[:k]
+    if static is not None and use.any():
+        sizes = np.bincount(labels[use], minlength=k)[:k]
+        on = np.bincount(labels[use], weights=np.asarray(static, np.float64).reshape(-1)[use], minlength=k)[:k]
+        scores = scores * (cfg.static_floor + np.divide(on, sizes, out=np.zeros(k), where=sizes > 0))
+    if was_world is not None and cfg.continuity > 0:
+        was = np.asarray(was_world, bool).reshape(-1)
+        had = np.ones_like(was) if known is None else np.asarray(known, bool).reshape(-1)
+        shared = np.bincount(labels[use & had], minlength=k)[:k]
+        world = np.bincount(labels[use & had & was], minlength=k)[:k]
+        if shared.sum() > 0:
+            share = np.divide(world, shared, out=np.zeros(k), where=shared > 0)
+            scores = scores * (1.0 + cfg.continuity * share)
+    return scores
+
+
+def world_cluster(
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    k: int,
+    size_hw: tuple[int, int],
+    was_world: npt.NDArray[np.bool_] | None = None,
+    known: npt.NDArray[np.bool_] | None = None,
+    cfg: WorldConfig = WorldConfig(),
+    static: npt.NDArray[np.float64] | None = None,
+) -> int:
+    """The motion that is the world (`world_scores`' best; ties go to the lower id, the larger motion;
+    0 when cfg.enabled is False)."""
+    if k <= 1 or not cfg.enabled:
+        return 0
+    return int(np.argmax(world_scores(xy, labels, k, size_hw, was_world, known, cfg, static)))
+
+
+def static_share(
+    xy: npt.NDArray[np.float32], residual: npt.NDArray[np.float32], scale: float, static_px: float
+) -> npt.NDArray[np.float64]:
+    """Each track's share of frames in which it lies where the camera's motion explains the flow.
+
+    Args:
+        xy: (N, T, 2) float32 track positions, pixels of the frame.
+        residual: (T, h, w) float32 camera residual at the flow's scale (`flow.FrameMotion.residual`).
+        scale: the flow's scale (h / H).
+        static_px: the largest residual that counts as explained, pixels of the frame.
+
+    Returns:
+        (N,) float64 in [0, 1].
+    """
+    pts = np.asarray(xy, np.float32)
+    num_frames, h, w = residual.shape
+    x = np.clip(np.round(pts[:, :num_frames, 0] * scale).astype(np.int64), 0, w - 1)
+    y = np.clip(np.round(pts[:, :num_frames, 1] * scale).astype(np.int64), 0, h - 1)
+    miss = residual[np.arange(x.shape[1])[None, :], y, x]  # (N, T)
+    return np.mean(miss <= static_px * scale, axis=1).astype(np.float64)
+
+
+def world_first(labels: npt.NDArray[np.int64], world: int) -> npt.NDArray[np.int64]:
+    """`labels` renumbered so that motion `world` is 0 and the motions before it move up one (-1 stays).
+
+    Args:
+        labels: (N,) int64 motions (-1 = none).
+        world: the world's motion.
+
+    Returns:
+        (N,) int64: a new array (the input itself when `world` is already 0).
+    """
+    labels = np.asarray(labels, np.int64)
+    if world == 0:
+        return labels
+    out = labels.copy()
+    out[(labels >= 0) & (labels < world)] += 1
+    out[labels == world] = 0
+    return out
