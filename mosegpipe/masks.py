@@ -51,8 +51,6 @@ MAX_LABEL = 254
 UNKNOWN = 255
 """Mask value of pixels without evidence (DAVIS' "void")."""
 
-WORLD = 0
-"""Mask value and label of the world: the camera's motion, the static scene of any depth (`mosegpipe.world`)."""
 
 MOVING_UNCLUSTERED = MAX_LABEL
 """"motion" masks: moving pixels with no track of a moving motion in their frame."""

@@ -48,7 +48,7 @@ if TYPE_CHECKING:
     from mosegpipe.viz import VizConfig
 
 SUMMARY_SCHEMA = "mosegpipe.summary/2"
-"""Version 2: mask value = motion label (0 = the dominant motion), 255 = unknown (version 1: label + 1, 0 unknown)."""
+"""Version 2: mask value = motion label (0 = the world), 255 = unknown (version 1: label + 1, 0 unknown)."""
 _FALLBACK_FPS = 10.0  # frame folders carry no rate; the overlay video needs one
 
 

@@ -133,8 +133,8 @@ def match_labels(
             if sizes[r] >= small:
                 splits[r] = mapping[r]
     book.pending = {int(i): int(c) for i, c in zip(ids, clusters) if int(c) in splits}
-    # The dominant motion takes label 0 when no cluster carries 0 on, e.g. after a camera cut: the
-    # clips' convention (mask value 0 = the dominant motion) holds for videos too.
+    # The world takes label 0 (with `world`: cluster 0, always); without it, the dominant motion takes 0
+    # when no cluster carries 0 on, e.g. after a camera cut.
     if world or (0 not in mapping and 0 not in mapping.values() and book.next_label > 0):
         mapping[0] = 0
         book.next_label = max(book.next_label, 1)
