@@ -187,9 +187,9 @@ def test_protocol_registry() -> None:
     for p in PROTOCOLS.values():
         assert callable(p.run) and p.description and p.default_frames >= 1
         assert (p.load_clips is not None) == (p.kind == "benchmark")
-        # an end-to-end protocol scores rows of its end_to_end function, or has a runner of its own (davis)
+        # an end-to-end protocol scores rows of its end_to_end function, or has a runner of its own (davis, composite)
         assert p.end_to_end is None or p.kind == "end-to-end"
-        assert p.end_to_end is not None or p.kind == "benchmark" or p.name.startswith("davis")
+        assert p.end_to_end is not None or p.kind == "benchmark" or p.name.startswith(("davis", "composite"))
     assert {"kt3d-loo", "adelaide-loo", "lce"} <= {p.name for p in PROTOCOLS.values() if not p.is_test_only}
     with pytest.raises(ConfigError, match="unknown protocol 'kitti'; choose from kt3d-test, kt3d-loo"):
         get_protocol("kitti")

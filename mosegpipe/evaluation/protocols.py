@@ -172,6 +172,14 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     return EvalResult(rows, summary, table)
 
 
+def run_composite_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
+    """Composites of the DAVIS clips (evaluation.composite): J per object, correct K, track error, labels per
+    object; `req.folds` picks a part (dev, the default; val; all) or composites by name."""
+    from mosegpipe.evaluation.composite import run_composite
+
+    return run_composite(protocol.name, req, _pipeline_config(req, req.frames or protocol.default_frames))
+
+
 def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """End to end, leave one out: per held-out sequence, train the protocol's recipe without it, then run
     the whole pipeline on it.
@@ -504,6 +512,22 @@ _PROTOCOLS = (
         data="davis2016-train",
         run=run_davis_protocol,
         kind="end-to-end",
+    ),
+)
+
+_PROTOCOLS = (
+    *_PROTOCOLS,
+    *(
+        Protocol(
+            name,
+            f"composites of the DAVIS clips (2-4 objects moved over other clips), {what}: J per object, correct K, "
+            "track error, labels per object; --folds dev (default) / val / names",
+            default_frames=5,
+            data="davis2016-train",
+            run=run_composite_protocol,
+            kind="end-to-end",
+        )
+        for name, what in (("composite", "whole-video mode"), ("composite-clip5", "the first 5 frames"))
     ),
 )
 
