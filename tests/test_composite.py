@@ -183,3 +183,15 @@ def test_protocol_on_the_davis_clips(tmp_path: Path) -> None:
     result = proto.run(proto, EvalRequest(out_dir=tmp_path, data_root=root, folds=("dev-00",)))
     assert [r["name"] for r in result.rows] == ["dev-00"] and (tmp_path / "results.md").is_file()
     assert result.summary["dev"]["clips"] == 1
+
+
+def test_validation_composites_use_validation_clips_only() -> None:
+    from mosegpipe.data.davis import DAVIS_VAL
+    from mosegpipe.synth.composite import composite_set
+
+    root = Path("../shared/data")
+    if not (root / "davis2016-train" / "boat").is_dir():
+        pytest.skip("the DAVIS clips are not here (../shared/data/davis2016-train)")
+    (clip,) = composite_set(root, "val", names=["val-00"])
+    assert clip.plate in DAVIS_VAL and set(clip.sources) <= set(DAVIS_VAL)
+    assert clip.frames.shape == (25, 240, 427, 3) and set(np.unique(clip.masks)) <= {0, *clip.object_ids}
