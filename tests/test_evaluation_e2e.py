@@ -8,25 +8,11 @@ import pytest
 
 from mosegpipe.errors import ConfigError
 from mosegpipe.evaluation import e2e, report
-from mosegpipe.evaluation.e2e import (
-    boundary_f,
-    boundary_map,
-    jaccard,
-    mask_scores,
-    match_masks,
-)
 from mosegpipe.evaluation.label_transfer import nearest_within, transfer_labels
 from mosegpipe.evaluation.protocols import PROTOCOLS, get_protocol
 from mosegpipe.pipeline import PipelineConfig
 
 from helpers import tiny_checkpoint, tiny_model
-
-
-def _square(size_hw: tuple[int, int], x0: int, y0: int, side: int) -> np.ndarray:
-    m = np.zeros(size_hw, dtype=bool)
-    m[y0 : y0 + side, x0 : x0 + side] = True
-    return m
-
 
 # ---------------------------------------------------------------- label transfer
 
@@ -60,94 +46,6 @@ def test_transfer_labels_empty_and_bad_inputs() -> None:
         transfer_labels(np.zeros((1, 3)), np.zeros((1, 2)), np.array([0]))
     with pytest.raises(ValueError, match=r"gt_labels has shape \(2,\)"):
         transfer_labels(np.zeros((1, 2)), np.zeros((1, 2)), np.array([0, 1]))
-
-
-# ---------------------------------------------------------------- J and boundary F
-
-
-def test_jaccard_of_shifted_square_is_hand_computed() -> None:
-    a = _square((40, 40), 10, 10, 10)
-    b = _square((40, 40), 13, 10, 10)  # shifted 3 px right: overlap 7 x 10, union 130
-    assert jaccard(b, a) == pytest.approx(70 / 130)
-    assert jaccard(a, a) == 1.0
-    assert jaccard(np.zeros((4, 4), bool), np.zeros((4, 4), bool)) == 1.0
-    assert jaccard(a, np.zeros_like(a)) == 0.0
-
-
-def test_boundary_map_is_inner_contour_without_image_border() -> None:
-    sq = boundary_map(_square((20, 20), 5, 5, 4))
-    assert sq.sum() == 12  # 4 x 4 square: 16 pixels, 2 x 2 interior
-    assert not sq[6:8, 6:8].any()
-    # A mask covering the whole image has no contour: the image border is not a boundary.
-    assert not boundary_map(np.ones((10, 10), bool)).any()
-
-
-def test_boundary_f_of_shifted_square_is_hand_computed() -> None:
-    gt = _square((100, 100), 10, 10, 10)
-    pred = _square((100, 100), 13, 10, 10)
-    # Each contour has 36 pixels. Within 2 px of the other contour: 9 of 10 on the top row, 9 on
-    # the bottom row, 4 of the 8 inner pixels of the near side column, none on the far column.
-    p, r, f = boundary_f(pred, gt, tolerance=2)
-    assert (p, r) == (pytest.approx(22 / 36), pytest.approx(22 / 36))
-    assert f == pytest.approx(22 / 36)
-    # 0.008 of the 100 x 100 diagonal (1.13 px) rounds up to the same 2 px.
-    assert boundary_f(pred, gt, tolerance=0.008) == (p, r, f)
-    # With 3 px the whole shifted contour is within reach.
-    assert boundary_f(pred, gt, tolerance=3)[2] == pytest.approx(1.0)
-    assert boundary_f(gt, gt) == (1.0, 1.0, 1.0)
-
-
-def test_boundary_f_empty_cases() -> None:
-    empty = np.zeros((30, 30), bool)
-    sq = _square((30, 30), 5, 5, 6)
-    assert boundary_f(empty, empty) == (1.0, 1.0, 1.0)
-    assert boundary_f(empty, sq) == (1.0, 0.0, 0.0)
-    assert boundary_f(sq, empty) == (0.0, 1.0, 0.0)
-    with pytest.raises(ValueError, match="shape"):
-        boundary_f(sq, sq[:-1])
-
-
-# ---------------------------------------------------------------- label permutation
-
-
-def _scene() -> np.ndarray:
-    """(2, 40, 60) ground truth: background 0, object 1 (left square), object 2 (right square)."""
-    g = np.zeros((2, 40, 60), dtype=np.uint8)
-    g[:, 5:15, 5:15] = 1
-    g[:, 20:30, 35:50] = 2
-    return g
-
-
-def test_permuted_labels_score_perfectly() -> None:
-    gt = _scene()
-    pred = np.choose(gt, [2, 3, 1]).astype(np.uint8)  # background -> 2, object 1 -> 3, object 2 -> 1
-    assert match_masks(pred, gt) == {0: 2, 1: 3, 2: 1}
-    s = mask_scores(pred, gt)
-    assert (s.j, s.f) == (1.0, 1.0)
-    assert set(s.j_per_group) == {1, 2}  # the background is matched but not averaged
-    assert mask_scores(pred, gt, background=None).j_per_group.keys() == {0, 1, 2}
-
-
-def test_hungarian_keeps_background_cluster_from_the_object() -> None:
-    gt = _scene()
-    pred = np.full(gt.shape, 1, dtype=np.uint8)  # one cluster covers everything ...
-    pred[:, 20:30, 35:42] = 2  # ... except half of object 2, with a second cluster
-    pred[:, 0:2, :] = 0  # a strip of unknown pixels never matches anything
-    # Object 2 overlaps cluster 1 more (80 px) than cluster 2 (70 px), but cluster 1 is worth
-    # more to the background; object 1 is left without a cluster.
-    assert match_masks(pred, gt) == {0: 1, 1: None, 2: 2}
-    s = mask_scores(pred, gt, tolerance=1)
-    assert s.j_per_group[1] == 0.0 and s.f_per_group[1] == 0.0
-    assert s.j_per_group[2] == pytest.approx(70 / 150)
-    assert s.j == pytest.approx((0 + 70 / 150) / 2)
-
-
-def test_object_absent_from_a_frame_counts_as_one_there() -> None:
-    gt = _scene()
-    gt[1][gt[1] == 2] = 0  # object 2 leaves in frame 2
-    pred = gt.copy() + 1  # exact, shifted ids (0 would be "unknown")
-    s = mask_scores(pred, gt)
-    assert s.j_per_group == {1: 1.0, 2: 1.0}
 
 
 def test_outliers_become_one_more_group() -> None:

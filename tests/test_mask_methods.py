@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
-from mosegpipe.evaluation.e2e import mask_scores
+from mosegpipe.evaluation.metrics import mask_scores
 from mosegpipe.masks import UNKNOWN, MaskConfig, labels_to_masks
 from mosegpipe.pipeline import PipelineConfig, clip_masks
 from mosegpipe.track import track_klt

@@ -48,8 +48,7 @@ import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
 from mosegpipe.errors import ConfigError, MosegError
-from mosegpipe.evaluation.e2e import jaccard
-from mosegpipe.evaluation.metrics import misclassification_error
+from mosegpipe.evaluation.metrics import jaccard, misclassification_error
 from mosegpipe.masks import UNKNOWN, WORLD
 
 if TYPE_CHECKING:

@@ -55,7 +55,7 @@ from PIL import Image
 
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
-from mosegpipe.evaluation.e2e import BOUNDARY_TOLERANCE, boundary_f, jaccard
+from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard
 from mosegpipe.flow import DenseFlow, FlowConfig, camera_residual, fit_camera, to_gray
 from mosegpipe.masks import UNKNOWN, WORLD
 from mosegpipe.outputs import write_clip_outputs, write_video_outputs
