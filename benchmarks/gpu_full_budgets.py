@@ -51,7 +51,7 @@ LCE_CHECKPOINTS = int(os.environ.get("GPU43_LCE_CHECKPOINTS", "2" if TINY else "
 DATA = Path(os.environ.get("GPU43_DATA", "gpudata/data"))
 INIT = Path(os.environ.get("GPU43_INIT", "gpudata/base-f5.pt"))
 LOSS_ROWS = ("L2 regression", "MaxInterMinIntra")
-"""The losses study's rows run here (the labels of study_training.LOSSES_STUDY)."""
+"""The losses study's rows run here (the labels of studies.training.LOSSES_STUDY)."""
 LOO_FOLDS_TINY = 3
 
 
@@ -97,9 +97,9 @@ def cmd_lce(args: argparse.Namespace) -> None:
     set_threads(1)
     import torch
 
-    from mosegpipe.evaluation import study_lce as sl
     from mosegpipe.evaluation.baselines import BASELINES
-    from mosegpipe.evaluation.studies import StudyRequest, get_study
+    from mosegpipe.studies import StudyRequest, get_study
+    from mosegpipe.studies import lce as sl
     from mosegpipe.training.loop import TrainConfig, resolve_device, train_model
 
     work = Path(args.work) / "lce"
@@ -195,7 +195,7 @@ def _claim(work: Path, key: str) -> bool:
 
 
 def _run_losses(task: dict[str, Any], work: Path, root: Path, device: str, deadline: float) -> dict[str, Any]:
-    from mosegpipe.evaluation.study_training import (
+    from mosegpipe.studies.training import (
         LOSSES_STUDY,
         TrainingBudget,
         _datasets,
@@ -320,7 +320,7 @@ def _collect_lce(work: Path) -> tuple[str, dict[str, Any]]:
     rows.sort(key=lambda r: int(r["step"]))
     if not rows:
         return "(the LCE stage scored no checkpoint)\n", {"plan": plan, "rows": []}
-    from mosegpipe.evaluation import study_lce as sl
+    from mosegpipe.studies import lce as sl
 
     kmeans_part = lce / "parts" / "kmeans-raw.json"
     kmeans = json.loads(kmeans_part.read_text())["payload"]["error_true_k"] if kmeans_part.is_file() else float("nan")
@@ -331,8 +331,8 @@ def _collect_lce(work: Path) -> tuple[str, dict[str, Any]]:
 
 
 def _collect_losses(work: Path, out: Path) -> tuple[str, dict[str, Any]]:
-    from mosegpipe.evaluation import study_common as st
-    from mosegpipe.evaluation.study_training import LOSSES_STUDY, _plot, _table, summarize_variants
+    from mosegpipe.studies import common as st
+    from mosegpipe.studies.training import LOSSES_STUDY, _plot, _table, summarize_variants
 
     parts = [json.loads(p.read_text()) for p in sorted((work / "losses" / "parts").glob("*.json"))]
     if not parts:

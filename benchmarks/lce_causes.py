@@ -78,8 +78,8 @@ def main() -> None:
 
     set_threads(1)
     logging.getLogger("mosegpipe.cluster").setLevel(logging.ERROR)
-    from mosegpipe.evaluation.study_lce import _train, _train_sampler, score_clips
     from mosegpipe.model import ModelConfig
+    from mosegpipe.studies.lce import _train, _train_sampler, score_clips
     from mosegpipe.synth.lce import LCEConfig, lce_splits
     from mosegpipe.training.loop import train_model
 

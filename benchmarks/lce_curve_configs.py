@@ -13,15 +13,15 @@ from pathlib import Path
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out", type=Path)
-    parser.add_argument("names", help="comma-separated configuration names (study_lce.CURVE_CONFIGS)")
+    parser.add_argument("names", help="comma-separated configuration names (studies.lce.CURVE_CONFIGS)")
     parser.add_argument("--budget", default="cpu", choices=("cpu", "full"))
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
-    from mosegpipe.evaluation.studies import get_study
-    from mosegpipe.evaluation.study_common import StudyRequest
-    from mosegpipe.evaluation.study_lce import CURVE_CONFIGS, run_lce_curve
     from mosegpipe.runtime import set_threads
+    from mosegpipe.studies import get_study
+    from mosegpipe.studies.common import StudyRequest
+    from mosegpipe.studies.lce import CURVE_CONFIGS, run_lce_curve
 
     set_threads(1)
     wanted = args.names.split(",")

@@ -25,9 +25,9 @@ def main() -> None:
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
-    from mosegpipe.evaluation.studies import get_study
-    from mosegpipe.evaluation.study_common import StudyRequest
-    from mosegpipe.evaluation.study_training import TRAINING_STUDIES, run_training_study
+    from mosegpipe.studies import get_study
+    from mosegpipe.studies.common import StudyRequest
+    from mosegpipe.studies.training import TRAINING_STUDIES, run_training_study
 
     spec = TRAINING_STUDIES[args.name][2]
     wanted = args.labels.split("|")

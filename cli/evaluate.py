@@ -31,7 +31,7 @@ from mosegpipe.cli.options import (
 )
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
-from mosegpipe.evaluation.studies import STUDIES, Budget
+from mosegpipe.studies import STUDIES, Budget
 from mosegpipe.types import K_METHODS
 
 
@@ -316,7 +316,7 @@ def study(
 ) -> None:
     """Run a study of the paper: prints and writes a table, results.json and a plot; a re-run skips finished parts."""
     _setup(threads, verbose)
-    from mosegpipe.evaluation.studies import StudyRequest, get_study
+    from mosegpipe.studies import StudyRequest, get_study
 
     chosen = get_study(_value(name))
     _check_model_path(model)

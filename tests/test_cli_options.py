@@ -462,8 +462,8 @@ def test_choices_come_from_the_library() -> None:
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
-    from mosegpipe.evaluation.studies import STUDIES, Budget
     from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.studies import STUDIES, Budget
     from mosegpipe.training.losses import LOSSES
     from mosegpipe.training.recipes import RECIPES
     from mosegpipe.types import ENGINES, K_METHODS, SEGMENT_METHODS, TRACKERS

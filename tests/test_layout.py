@@ -21,7 +21,7 @@ INFERENCE_MODULES = [
     "mosegpipe.viz",
     "mosegpipe.colours",
 ]
-FORBIDDEN = ("mosegpipe.training", "mosegpipe.evaluation", "mosegpipe.synth")
+FORBIDDEN = ("mosegpipe.training", "mosegpipe.evaluation", "mosegpipe.studies", "mosegpipe.synth")
 
 
 @pytest.mark.slow

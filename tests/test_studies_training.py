@@ -11,9 +11,9 @@ import pytest
 from PIL import Image
 
 from mosegpipe.errors import ConfigError
-from mosegpipe.evaluation import study_training as st
-from mosegpipe.evaluation.studies import STUDIES, StudyRequest, get_study
 from mosegpipe.model import ModelConfig
+from mosegpipe.studies import STUDIES, StudyRequest, get_study
+from mosegpipe.studies import training as st
 from mosegpipe.training import recipes
 from mosegpipe.types import LabeledClip
 

@@ -7,7 +7,7 @@ import pytest
 
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.evaluation.ransac_curves import (
+from mosegpipe.studies.ransac_curves import (
     CurveModel,
     RansacConfig,
     _circles_from_triples,

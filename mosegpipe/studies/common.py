@@ -2,8 +2,8 @@
 parts (`OUT/parts/`, keyed by a hash of what a part depends on), model identity, the test clips and
 the figure and results writers.
 
-studies.py (the registry) and the study modules it registers (study_imbalance, study_lce,
-study_training) all import from here, never from each other. Nothing heavy is imported at import time.
+registry.py and the study modules it registers (imbalance, lce, training) all import from here, never
+from each other. Nothing heavy is imported at import time.
 """
 
 from __future__ import annotations

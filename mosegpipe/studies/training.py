@@ -15,7 +15,7 @@ the settings of `DATASETS` and the budget's steps:
 
 The synthetic curves (lce) have their own train / test split: one fold. Each trained-and-scored
 model is one part under OUT/parts, keyed by a hash of everything it depends on, so a run resumes and
-a re-run skips it. Like studies.py, this module imports nothing heavy at import time.
+a re-run skips it. Like registry.py, this module imports nothing heavy at import time.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ import numpy as np
 from mosegpipe.errors import ConfigError
 
 if TYPE_CHECKING:
-    from mosegpipe.evaluation.study_common import Budget, Study, StudyRequest, StudyResult
     from mosegpipe.model import ModelConfig
+    from mosegpipe.studies.common import Budget, Study, StudyRequest, StudyResult
     from mosegpipe.training.loop import Sampler
     from mosegpipe.types import LabeledClip
 
@@ -332,8 +332,8 @@ class TrainingStudy:
 
 def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> StudyResult:
     """Trains and scores every (variant, dataset, fold, trial) of `spec`, then writes the table and plot."""
-    from mosegpipe.evaluation import study_common as st
     from mosegpipe.runtime import limited_threads
+    from mosegpipe.studies import common as st
     from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.losses import LOSS_REVISIONS
 
@@ -420,7 +420,7 @@ def _slug(label: str) -> str:
 
 
 def _table(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
-    from mosegpipe.evaluation.study_common import DATASET_TITLES
+    from mosegpipe.studies.common import DATASET_TITLES
 
     titles = {**DATASET_TITLES, "lce": "lines/circles/ellipses"}
     head = ["variant"]
@@ -445,7 +445,7 @@ def _table(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]],
 
 
 def _plot(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]]) -> Any:
-    from mosegpipe.evaluation.study_common import DATASET_TITLES, _pyplot
+    from mosegpipe.studies.common import DATASET_TITLES, _pyplot
 
     plt = _pyplot()
     datasets = list(summary)
@@ -593,7 +593,7 @@ TRAINING_STUDIES: dict[str, tuple[str, str, TrainingStudy]] = {
         DEPTH_STUDY,
     ),
 }
-"""name -> (paper reference, one-line description, the study); studies.py registers them."""
+"""name -> (paper reference, one-line description, the study); registry.py registers them."""
 
 
 def training_study_records() -> list[

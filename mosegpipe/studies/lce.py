@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mosegpipe.errors import ConfigError
-from mosegpipe.evaluation.study_common import (
+from mosegpipe.model import ModelConfig
+from mosegpipe.studies.common import (
     _PARTS_VERSION,
     Study,
     StudyRequest,
@@ -42,7 +43,6 @@ from mosegpipe.evaluation.study_common import (
     _save_part,
     _write_outputs,
 )
-from mosegpipe.model import ModelConfig
 from mosegpipe.training.loop import TrainConfig
 
 if TYPE_CHECKING:

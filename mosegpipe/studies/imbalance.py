@@ -3,7 +3,7 @@
 For each curve kind (lines, circles, ellipses) one SubspaceNet (F = 1, 2-D points, the `lce` recipe's
 architecture and training settings, from scratch) is trained on single-kind problems with K drawn from
 2..6 per sample, then tested per K on test problems with exactly K curves: SubspaceNet with the true K
-and with automatic K (cluster_auto_k), and sequential RANSAC (ransac_curves.py) with the true K and the
+and with automatic K (cluster_auto_k), and sequential RANSAC (studies/ransac_curves.py) with the true K and the
 generator's noise level, on the same points. A hypothesise-and-test method needs an all-inlier minimal
 sample, whose chance falls with K; the paper's claim is that the learned embedding does not degrade so.
 
@@ -11,8 +11,8 @@ Parts under OUT/parts: one checkpoint per kind (`model__<kind>.pt`, its recipe h
 training depends on) and one JSON per (kind, K) with the per-sample rows (keyed by that model's weights,
 the test settings and the RANSAC settings), so an interrupted run resumes and a re-run reuses both.
 
-Nothing heavy is imported at import time (studies.py reads `IMBALANCE_BUDGETS` when it is imported);
-the helpers it shares with the other studies are study_common's.
+Nothing heavy is imported at import time (registry.py reads `IMBALANCE_BUDGETS` when it is imported);
+the helpers it shares with the other studies are common.py's.
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from mosegpipe.evaluation.ransac_curves import RansacConfig
-    from mosegpipe.evaluation.study_common import Study, StudyRequest, StudyResult
     from mosegpipe.model import ModelConfig, SubspaceNet
+    from mosegpipe.studies.common import Study, StudyRequest, StudyResult
+    from mosegpipe.studies.ransac_curves import RansacConfig
     from mosegpipe.training.loop import TrainConfig
     from mosegpipe.types import LabeledClip
 
@@ -108,7 +108,7 @@ def _configs(budget: ImbalanceBudget) -> tuple[TrainConfig, ModelConfig]:
 
 
 def _ransac_config(noise_sigma: float) -> RansacConfig:
-    from mosegpipe.evaluation.ransac_curves import RansacConfig
+    from mosegpipe.studies.ransac_curves import RansacConfig
 
     return RansacConfig(noise_sigma=noise_sigma)
 
@@ -117,8 +117,8 @@ def _train_kind(
     req: StudyRequest, study: Study, kind: str, budget: ImbalanceBudget, say: Callable[[str], None]
 ) -> tuple[SubspaceNet, dict[str, Any]]:
     """The trained model of one kind: the stored part when its hash matches, else trained and stored."""
-    from mosegpipe.evaluation.study_common import _hash, _part_path
     from mosegpipe.model import SubspaceNet
+    from mosegpipe.studies.common import _hash, _part_path
     from mosegpipe.synth.lce import LCEConfig, single_kind_splits
     from mosegpipe.training.loop import recipe_of, train_model
 
@@ -190,7 +190,7 @@ def imbalance_rows(
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import evaluate_clips
     from mosegpipe.evaluation.metrics import misclassification_error
-    from mosegpipe.evaluation.ransac_curves import sequential_ransac
+    from mosegpipe.studies.ransac_curves import sequential_ransac
 
     base = _ransac_config(noise_sigma)
     scored = evaluate_clips(model, clips, ClusterConfig(k_max=k_max))
@@ -272,7 +272,7 @@ def _table(summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) ->
 
 
 def _plot(summary: dict[str, dict[str, dict[str, float]]]) -> Any:
-    from mosegpipe.evaluation.study_common import _pyplot
+    from mosegpipe.studies.common import _pyplot
 
     plt = _pyplot()
     kinds = list(summary)
@@ -304,7 +304,7 @@ def _plot(summary: dict[str, dict[str, dict[str, float]]]) -> Any:
 
 def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
     """Figure 4: error against the number of models for SubspaceNet and sequential RANSAC (see the module docstring)."""
-    from mosegpipe.evaluation.study_common import (
+    from mosegpipe.studies.common import (
         StudyResult,
         _check_budget,
         _hash,

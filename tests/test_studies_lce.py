@@ -10,10 +10,10 @@ import torch
 from PIL import Image
 
 from mosegpipe.errors import ConfigError
-from mosegpipe.evaluation import study_lce
-from mosegpipe.evaluation.studies import StudyRequest, get_study
-from mosegpipe.evaluation.study_lce import CurveBudget, CurveConfig, checkpoint_steps, run_lce_curve
 from mosegpipe.model import ModelConfig
+from mosegpipe.studies import StudyRequest, get_study
+from mosegpipe.studies import lce as study_lce
+from mosegpipe.studies.lce import CurveBudget, CurveConfig, checkpoint_steps, run_lce_curve
 from mosegpipe.synth.lce import lce_splits
 from mosegpipe.training.loop import TrainConfig, TrainState, clip_sampler, train_model
 

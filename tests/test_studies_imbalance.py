@@ -10,12 +10,12 @@ from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.evaluation import study_imbalance
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.evaluation.ransac_curves import RansacConfig, sequential_ransac
-from mosegpipe.evaluation.studies import STUDIES, StudyRequest, get_study
-from mosegpipe.evaluation.study_imbalance import IMBALANCE_BUDGETS, ImbalanceBudget, summarize_imbalance
 from mosegpipe.model import SubspaceNet
+from mosegpipe.studies import STUDIES, StudyRequest, get_study
+from mosegpipe.studies import imbalance as study_imbalance
+from mosegpipe.studies.imbalance import IMBALANCE_BUDGETS, ImbalanceBudget, summarize_imbalance
+from mosegpipe.studies.ransac_curves import RansacConfig, sequential_ransac
 from mosegpipe.synth.lce import SingleKindDataset
 
 runner = CliRunner(env={"COLUMNS": "200"})

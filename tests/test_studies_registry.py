@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
 from mosegpipe.errors import ConfigError
-from mosegpipe.evaluation import studies
-from mosegpipe.evaluation.studies import (
+from mosegpipe.studies import registry
+from mosegpipe.studies.registry import (
     STUDIES,
     StudyRequest,
     get_study,
@@ -87,8 +87,8 @@ def fake_data(monkeypatch: pytest.MonkeyPatch) -> dict[str, list[LabeledClip]]:
         "kt3dmoseg": [_clip("Seq001_Clip01/f1-5", [(0, 0, 0, 0), (10, 0, 10, 0)], seed=2)],
         "adelaidermf": [_clip("pairA", [(0, 0, 0, 0), (0, 9, 0, 9), (9, 9, 9, 9)], seed=3)],
     }
-    monkeypatch.setattr(studies, "_datasets", lambda root: data)
-    monkeypatch.setattr(studies, "_models", lambda req: (tiny_model(2, seed=0), tiny_model(2, seed=1)))
+    monkeypatch.setattr(registry, "_datasets", lambda root: data)
+    monkeypatch.setattr(registry, "_models", lambda req: (tiny_model(2, seed=0), tiny_model(2, seed=1)))
     return data
 
 
@@ -109,7 +109,7 @@ def test_model_selection_writes_outputs_and_resumes(
     def boom(*args: Any, **kwargs: Any) -> None:
         raise AssertionError("recomputed a finished part")
 
-    monkeypatch.setattr(studies, "model_selection_rows", boom)
+    monkeypatch.setattr(registry, "model_selection_rows", boom)
     assert study.run(study, req).table == first.table
     # Other settings make the stored parts stale: they are computed again.
     with pytest.raises(AssertionError, match="recomputed"):
@@ -127,7 +127,7 @@ def test_tsne_panels_resume_and_bad_clip(
     assert np.asarray(part["raw"]).shape == (36, 2) and np.asarray(part["embedding"]).shape == (36, 2)
     with Image.open(tmp_path / "ts" / "plot.png") as img:
         assert img.size == (560, 512)  # 80 dpi: two panels of 3.5 x 3.2 inches per clip, two clips
-    monkeypatch.setattr(studies, "tsne_2d", lambda *a, **k: (_ for _ in ()).throw(AssertionError("recomputed")))
+    monkeypatch.setattr(registry, "tsne_2d", lambda *a, **k: (_ for _ in ()).throw(AssertionError("recomputed")))
     study.run(study, req)  # both parts stored: no t-SNE runs
     with pytest.raises(ConfigError, match="--clips nope: no such"):
         study.run(study, StudyRequest(out_dir=tmp_path / "ts", data_root=tmp_path, clips=("nope",)))

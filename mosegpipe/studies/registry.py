@@ -23,10 +23,9 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import ConfigError, lookup
-from mosegpipe.evaluation.study_common import (
+from mosegpipe.studies.common import (
     _PARTS_VERSION,
     DATASET_TITLES,
-    Budget,  # noqa: F401  (re-exported: the --budget values, beside the registry)
     Study,
     StudyRequest,
     StudyResult,
@@ -341,19 +340,19 @@ _NO_TRAINING = "no training: one pass over the test clips"
 
 
 def _run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
-    from mosegpipe.evaluation.study_imbalance import run_sampling_imbalance
+    from mosegpipe.studies.imbalance import run_sampling_imbalance
 
     return run_sampling_imbalance(study, req)
 
 
 def _imbalance_budgets() -> dict[str, str]:
-    from mosegpipe.evaluation.study_imbalance import IMBALANCE_BUDGETS
+    from mosegpipe.studies.imbalance import IMBALANCE_BUDGETS
 
     return {name: b.describe() for name, b in IMBALANCE_BUDGETS.items()}
 
 
 def _run_lce_curve(study: Study, req: StudyRequest) -> StudyResult:
-    from mosegpipe.evaluation.study_lce import run_lce_curve
+    from mosegpipe.studies.lce import run_lce_curve
 
     return run_lce_curve(study, req)
 
@@ -403,7 +402,7 @@ _STUDIES: Sequence[Study] = (
 
 
 def _training_studies() -> tuple[Study, ...]:
-    from mosegpipe.evaluation.study_training import training_study_records
+    from mosegpipe.studies.training import training_study_records
 
     return tuple(
         Study(name, desc, paper=paper, run=run, budgets=budgets)
