@@ -23,6 +23,8 @@ from mosegpipe.cli.options import (
     NoRrd,
     Points,
     PointsChoice,
+    Preset,
+    PresetChoice,
     Quiet,
     RigidCheck,
     Start,
@@ -36,7 +38,7 @@ from mosegpipe.cli.options import (
 )
 from mosegpipe.errors import InputError
 from mosegpipe.settings import MAX_CLIP_TIMEOUT_S, MAX_FRAMES
-from mosegpipe.types import ENGINES, SEGMENT_METHODS, TRACKERS
+from mosegpipe.types import ENGINES, PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
 if TYPE_CHECKING:
     EngineChoice: TypeAlias = StrEnum
@@ -78,6 +80,7 @@ def batch(
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
     mask_extra_tracks: MaskExtraTracks = 1000,
+    preset: Preset = PresetChoice(PRESET_NAMES[0]),
     model: ModelOpt = None,
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")
@@ -152,6 +155,7 @@ def batch(
         tracker=tracker,
         masks=masks,
         mask_extra_tracks=mask_extra_tracks,
+        preset=preset,
     )
     engine = _value(engine)
     if address is not None and engine != "ray":

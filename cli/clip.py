@@ -31,6 +31,8 @@ from mosegpipe.cli.options import (
     Overwrite,
     Points,
     PointsChoice,
+    Preset,
+    PresetChoice,
     Quiet,
     RigidCheck,
     Start,
@@ -43,7 +45,7 @@ from mosegpipe.cli.options import (
 )
 from mosegpipe.errors import InputError
 from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES
-from mosegpipe.types import SEGMENT_METHODS, TRACKERS
+from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
 
 @_friendly
@@ -90,6 +92,7 @@ def run(
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
     mask_extra_tracks: MaskExtraTracks = 1000,
+    preset: Preset = PresetChoice(PRESET_NAMES[0]),
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     no_rrd: NoRrd = False,
@@ -131,6 +134,7 @@ def run(
         tracker=tracker,
         masks=masks,
         mask_extra_tracks=mask_extra_tracks,
+        preset=preset,
     )
     out = out or _default_out(clip, "_moseg")
     check_output_dir(out, overwrite)

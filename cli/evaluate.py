@@ -29,6 +29,7 @@ from mosegpipe.cli.options import (
     _data_root,
     _value,
 )
+from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
 from mosegpipe.studies import STUDIES, Budget
@@ -234,6 +235,14 @@ def eval_(
             "pipeline's).",
         ),
     ] = None,
+    pipeline_preset: Annotated[
+        PipelinePresetChoice | None,
+        typer.Option(
+            "--preset",
+            help="End-to-end protocols: a named preset of the pipeline, best, balanced or fast (default: the "
+            "pipeline's, best); --set applies after it.",
+        ),
+    ] = None,
     settings: Annotated[
         list[str] | None,
         typer.Option(
@@ -274,6 +283,7 @@ def eval_(
         mask_method=_value(mask_method) if mask_method is not None else None,
         method=_value(method) if method is not None else None,
         points=_value(points) if points is not None else None,
+        preset=_value(pipeline_preset),
         settings=tuple(settings or ()),
         device=device or "cpu",
         progress=typer.echo,

@@ -8,7 +8,6 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -18,13 +17,14 @@ from mosegpipe.cli.app import _STOP_SIGNALS, _click, _friendly, _setup, _stopped
 from mosegpipe.cli.common import _check_model_path, _print_total, _print_video_summary, stop_child
 from mosegpipe.cli.options import (
     ClusterOptions,
-    MaskMethodChoice,
     MaskOptions,
     Method,
     MethodChoice,
     ModelOpt,
     NoRrd,
     Overwrite,
+    Preset,
+    PresetChoice,
     Quiet,
     RigidCheck,
     Threads,
@@ -222,8 +222,8 @@ _END_LINES = {
 }
 
 
-LIVE_MASK_METHOD = "nearest"
-"""Live mode's mask method unless --mask-method is given: the cheapest per frame (README, "Live")."""
+LIVE_PRESET = "fast"
+"""Live mode's preset unless --preset is given: the fastest that keeps the motion masks (docs/RESULTS.md, "Speed")."""
 
 
 @_friendly
@@ -324,6 +324,7 @@ def live(
     rigid_check: RigidCheck = True,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
+    preset: Preset = PresetChoice(LIVE_PRESET),
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     no_rrd: NoRrd = False,
@@ -340,7 +341,7 @@ def live(
     summary is printed at the end. The run ends when the source ends or stalls (--stall-timeout),
     after --max-frames, or on Ctrl-C: the window in hand is finished and the outputs are complete
     (exit code 130 after Ctrl-C, 143 after SIGTERM, 129 after SIGHUP; a second one aborts at once). The masks are
-    `nearest` unless --mask-method says otherwise (`motion` costs about four times as much per frame).
+    the motion masks with --preset fast unless --preset or --mask-method say otherwise.
     """
     started = time.perf_counter()
     from mosegpipe.live import parse_size, parse_source
@@ -359,8 +360,6 @@ def live(
         raise InputError("--no-rrd only applies with --out (the recording is written into the output folder)")
     if connect is not None:
         _check_connect_url(connect)
-    if ctx.get_parameter_source("mask_method") in (None, _click.core.ParameterSource.DEFAULT):
-        masks = replace(masks, mask_method=MaskMethodChoice(LIVE_MASK_METHOD))
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.inference import load_embedder
@@ -375,6 +374,7 @@ def live(
         shot_cuts=shot_cuts,
         tracker=tracker,
         masks=masks,
+        preset=preset,
     )
     if out is not None:
         check_output_dir(out, overwrite)

@@ -41,7 +41,7 @@ from mosegpipe.settings import (
     MAX_THREADS,
     MAX_WIN_SIZE_PX,
 )
-from mosegpipe.types import K_METHODS, MASK_METHODS, SEGMENT_METHODS, TRACKERS
+from mosegpipe.types import K_METHODS, MASK_METHODS, PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
 # The upper bounds of the numeric options are the library's (mosegpipe.settings), checked before any work
 # (a usage error naming the option): past them OpenCV crashes, overflows or runs for minutes.
@@ -58,11 +58,13 @@ if TYPE_CHECKING:
     MaskMethodChoice: TypeAlias = StrEnum
     MethodChoice: TypeAlias = StrEnum
     PointsChoice: TypeAlias = StrEnum
+    PresetChoice: TypeAlias = StrEnum
 else:
     KMethodChoice = _choices("KMethodChoice", K_METHODS)  # --k-method
     MaskMethodChoice = _choices("MaskMethodChoice", MASK_METHODS)  # --mask-method
     MethodChoice = _choices("MethodChoice", SEGMENT_METHODS)  # --method
     PointsChoice = _choices("PointsChoice", TRACKERS)  # --points
+    PresetChoice = _choices("PresetChoice", PRESET_NAMES)  # --preset
 
 Threads = Annotated[
     int,
@@ -225,6 +227,18 @@ MaskMethod = Annotated[
     typer.Option(
         "--mask-method",
         help="Dense masks: motion (default: pixels whose optical flow the camera's motion does not explain, labelled by the tracks), watershed (track labels flooded along image edges), nearest (nearest track) or vote.",
+        rich_help_panel=_MASKS,
+    ),
+]
+
+
+Preset = Annotated[
+    PresetChoice,
+    typer.Option(
+        "--preset",
+        help="Speed against accuracy of the motion masks: best (the most accurate flow), balanced (a coarser flow, "
+        "the mask steps at half size) or fast (the flow on half-size frames: about half of best's CPU, DAVIS J 0.04 "
+        "lower); the other options apply after it. CPU and J of each: docs/RESULTS.md, 'Speed'.",
         rich_help_panel=_MASKS,
     ),
 ]
@@ -406,9 +420,10 @@ def _pipeline_cfg(
     tracker: TrackerOptions | None = None,
     masks: MaskOptions | None = None,
     mask_extra_tracks: int | None = None,
+    preset: StrEnum | str | None = None,
 ) -> Any:
     """The PipelineConfig of a command's options (`PipelineConfig.from_options`; tracker / masks None: the
-    library's defaults; mask_extra_tracks None: not an option of the command)."""
+    library's defaults; mask_extra_tracks None: not an option of the command; preset None: "best")."""
     from mosegpipe.masks import MaskConfig
     from mosegpipe.pipeline import PipelineConfig
 
@@ -429,6 +444,7 @@ def _pipeline_cfg(
         shot_cuts=shot_cuts,
         track=track,
         mask=mask,
+        preset=_value(preset),
     )
 
 

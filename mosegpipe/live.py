@@ -921,7 +921,7 @@ def _run_live(
     if stats.dropped_share > MOST_DROPPED:
         log.warning(
             "%s: %d of %d frames dropped (%.0f %%): the segmenter fell far behind the source "
-            "(--no-drop waits for it where the source can wait; --max-corners, --mask-method nearest make it faster)",
+            "(--no-drop waits for it where the source can wait; --preset fast, --max-corners, --mask-method nearest make it faster)",
             source.name,
             stats.frames_dropped,
             stats.frames_read,

@@ -34,6 +34,12 @@ MaskMethod = Literal["motion", "watershed", "nearest", "vote"]
 """How sparse labels become dense masks (MaskConfig.method, mosegpipe.masks)."""
 MASK_METHODS: tuple[MaskMethod, ...] = get_args(MaskMethod)
 
+PresetName = Literal["best", "balanced", "fast"]
+"""Named speed / accuracy trade-offs of the motion masks (`pipeline.config.PRESETS`, `--preset`): "best" is the
+library's defaults; "balanced" and "fast" set the dense flow and the mask steps' resolution together for
+more frames/s at a measured cost in DAVIS J (docs/RESULTS.md, "Speed")."""
+PRESET_NAMES: tuple[PresetName, ...] = get_args(PresetName)
+
 BatchEngine = Literal["process", "ray", "inline"]
 """Where `run_batch` runs its clips (mosegpipe.batch): a local process pool, Ray tasks, or this process."""
 ENGINES: tuple[BatchEngine, ...] = get_args(BatchEngine)

@@ -608,3 +608,36 @@ def test_ambiguous_k_warning_on_the_command_line(tmp_path: Path, long_avi: Path,
         "summary.json windows[].k_ambiguous); pass --k to decide"
     ]
     assert all(w["k_ambiguous"] for w in summary_of(tmp_path / "again")["windows"])
+
+
+def test_presets_are_settings_applied_through_from_options() -> None:
+    from mosegpipe.errors import ConfigError
+    from mosegpipe.pipeline import PRESETS
+    from mosegpipe.types import PRESET_NAMES
+
+    assert tuple(PRESETS) == PRESET_NAMES and PRESET_NAMES[0] == "best"
+    assert PipelineConfig.from_options(5, preset="best") == PipelineConfig.from_options(5) == PipelineConfig()
+    for name in PRESET_NAMES:
+        cfg = PipelineConfig.from_options(5, preset=name)
+        assert cfg == PipelineConfig().with_settings(PRESETS[name]), name
+        assert (cfg != PipelineConfig()) == bool(PRESETS[name]), name
+    # The options apply before the preset, --set after it.
+    fast = PipelineConfig.from_options(
+        5, preset="fast", mask={"method": "motion"}, settings=["mask.motion.work_scale=1"]
+    )
+    assert fast.mask.motion.flow.scale == 0.5 and fast.mask.motion.work_scale == 1.0
+    with pytest.raises(ConfigError, match="preset 'quick': choose 'best' or 'balanced' or 'fast'"):
+        PipelineConfig.from_options(5, preset="quick")
+
+
+def test_preset_option_reaches_the_pipeline(tmp_path: Path, long_avi: Path, models: dict[int, Path]) -> None:
+    base = ["run", long_avi, "-f", "3", "--k", "2", "--model", models[3], "--no-rrd"]
+    code, _, stderr = moseg(*base, "--preset", "fast", "-o", tmp_path / "fast")
+    assert code == 0, stderr
+    assert summary_of(tmp_path / "fast")["config"] == asdict(PipelineConfig.from_options(3, k=2, preset="fast"))
+    code, _, stderr = moseg(*base, "--preset", "quick", "-o", tmp_path / "bad")
+    assert code == 2 and "quick" in stderr and not (tmp_path / "bad").exists()
+    for command, default in [("run", "best"), ("batch", "best"), ("live", "fast")]:
+        code, out, _ = moseg(command, "--help")
+        line = " ".join(out.split())
+        assert code == 0 and "--preset" in out and f"[default: {default}]" in line.split("--preset", 1)[1], command

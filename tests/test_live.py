@@ -249,7 +249,10 @@ def test_a_viewer_gets_frames_masks_and_k_in_order(tmp_path: Path, video: Path) 
     # One K per window, at its first frame, in order.
     assert rows["/windows/k"] == [w["start"] for w in summary["windows"]]
     assert summary["num_windows"] >= 2 and summary["frames"] == len(written)
-    assert summary["config"]["mask"]["method"] == "nearest"  # live's default: the cheapest masks
+    # live's default: the motion masks with the fastest preset that keeps them
+    assert (
+        summary["config"]["mask"]["method"] == "motion" and summary["config"]["mask"]["motion"]["flow"]["scale"] == 0.5
+    )
 
 
 def _live_process(tmp_path: Path, *args: str) -> subprocess.Popen[bytes]:

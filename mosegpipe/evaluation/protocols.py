@@ -51,6 +51,10 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
         raise ConfigError(
             f"--set {req.settings[0]}: --set applies to end-to-end protocols only ({protocol.name} is not one)"
         )
+    if req.preset is not None:
+        raise ConfigError(
+            f"--preset {req.preset}: --preset applies to end-to-end protocols only ({protocol.name} is not one)"
+        )
     variant = cast(Variant, check_choice("--variant", req.variant, get_args(Variant)))
     device = resolve_device(req.device)
     k_method = cast(KMethodName, req.k_method)  # ClusterConfig checks it
@@ -93,6 +97,7 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
         points=req.points,
         rigid_check=req.rigid_check,
         mask={"method": req.mask_method} if req.mask_method is not None else None,
+        preset=req.preset,
         settings=req.settings,
     )
 
@@ -117,6 +122,7 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "method": cfg.method,
         "points": cfg.tracker,
         "model": str(req.model or "shipped default"),
+        **({"preset": req.preset} if req.preset is not None else {}),
         **({"settings": list(req.settings)} if req.settings else {}),
     }
     table = format_rows(rows)
@@ -165,6 +171,7 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
         "points": cfg.tracker,
         "model": str(req.model or "shipped default"),
         "clips": list(req.folds) if req.folds else "all",
+        **({"preset": req.preset} if req.preset is not None else {}),
         **({"settings": list(req.settings)} if req.settings else {}),
     }
     table = "\n\n".join(tables)

@@ -46,6 +46,8 @@ class EvalRequest:
             "geometric"; None = the default). With "geometric", k_max bounds its K too.
         points: end-to-end protocols: where a clip's points come from (PipelineConfig.tracker, "klt",
             "flow" or "klt+flow"; None = the default).
+        preset: end-to-end protocols: a named preset (`pipeline.config.PRESETS`; None = the defaults), applied
+            after the options above and before `settings`.
         settings: end-to-end protocols: pipeline settings changed by dotted path ("mask.motion.fb_weight=0.5",
             `PipelineConfig.with_settings`), after the options above.
         device: where protocols that train train their models ("cpu", "cuda", "cuda:N" or "auto"; see
@@ -73,6 +75,7 @@ class EvalRequest:
     mask_method: str | None = None
     method: str | None = None
     points: str | None = None
+    preset: str | None = None
     settings: tuple[str, ...] = ()
     device: str = "cpu"
     progress: Callable[[str], None] | None = field(default=None, compare=False)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from mosegpipe.inference import load_model
 from mosegpipe.pipeline.clip import ClipResult, clip_masks, segment_clip, segment_frames
 from mosegpipe.pipeline.common import check_rigid, decode_errors, embed_at_model_frames, model_info
-from mosegpipe.pipeline.config import PipelineConfig
+from mosegpipe.pipeline.config import PRESETS, PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels
 from mosegpipe.pipeline.pair import PairResult, segment_pair
 from mosegpipe.pipeline.tracks import TracksResult, segment_tracks, tracks_clip
@@ -31,6 +31,7 @@ from mosegpipe.pipeline.video import (
 
 __all__ = [
     "AMBIGUOUS_K_NOTE",
+    "PRESETS",
     "ClipResult",
     "LabelBook",
     "PairResult",

@@ -25,8 +25,31 @@ from mosegpipe.match import MatchConfig
 from mosegpipe.rigid import RigidCheckConfig
 from mosegpipe.settings import SettingError, check_setting, check_settings
 from mosegpipe.track import TrackConfig
-from mosegpipe.types import SEGMENT_METHODS, TRACKERS, KMethodName
+from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS, KMethodName
 from mosegpipe.world import WorldConfig
+
+PRESETS: dict[str, tuple[str, ...]] = {
+    "best": (),
+    "balanced": (
+        "mask.motion.flow.patch_stride=6",
+        "mask.motion.flow.refinement_iterations=1",
+        "mask.motion.work_scale=0.5",
+    ),
+    "fast": ("mask.motion.flow.scale=0.5", "mask.motion.work_scale=0.5"),
+}
+"""The settings each named preset (types.PRESET_NAMES, `--preset`) changes, as `with_settings` takes them; the
+options and --set of a command apply after them. Chosen from `benchmarks/profile_video.py` (the dense flow is
+half of a frame's CPU, the mask steps a fifth) and measured on the 20 DAVIS dev clips only (docs/RESULTS.md,
+"Speed": CPU per frame and J side by side):
+
+- best: the defaults, DIS medium (patch stride 4, 3 refinement iterations) at full resolution, the mask
+  steps at 0.75 of the frame size.
+- balanced: DIS with a patch stride of 6 and 1 refinement iteration (half of DIS's time), the mask steps at
+  half size.
+- fast: the flow (DIS, its forward-backward check, the camera fit) on half-size frames (a quarter of the
+  pixels) and the mask steps at half size: half of best's CPU, J 0.04 lower. DIS's "fast" preset at full
+  size cost as much J (its finest scale is half the image's) for less speed.
+"""
 
 
 @dataclass(frozen=True)
@@ -112,6 +135,7 @@ class PipelineConfig:
         shot_cuts: bool = True,
         track: Mapping[str, Any] | None = None,
         mask: Mapping[str, Any] | None = None,
+        preset: str | None = None,
         settings: Sequence[str] = (),
     ) -> PipelineConfig:
         """The settings of a command's options (`moseg run`, `pair`, `tracks`, `batch`, `live`, `eval`): the
@@ -129,6 +153,8 @@ class PipelineConfig:
             shot_cuts: whole videos: detect shot cuts (video_cut_survival; False = None).
             track: TrackConfig fields to change.
             mask: MaskConfig fields to change.
+            preset: a named preset (PRESETS): its settings apply after the options above, before `settings`
+                (None = "best", the defaults).
             settings: then settings changed by dotted path (`with_settings`).
 
         Raises:
@@ -160,6 +186,8 @@ class PipelineConfig:
             mask=mask_cfg,
             video_cut_survival=defaults.video_cut_survival if shot_cuts else None,
         )
+        if preset is not None:
+            settings = (*PRESETS[check_choice("preset", preset, PRESET_NAMES)], *settings)
         return config.with_settings(settings) if settings else config
 
     def with_settings(self, settings: Sequence[str]) -> PipelineConfig:
