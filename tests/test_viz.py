@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import pickle
 import subprocess
 import sys
 from collections import Counter
@@ -213,12 +214,14 @@ def test_overlay_and_viewer_draw_motion_0_alike() -> None:
 def test_first_recording_does_not_import_pyarrow_compute(tmp_path: Path) -> None:
     # pyarrow.compute costs ~0.1 s on first import (benchmarks/output_size.py --startup); nothing
     # a recording needs should pull it in.
+    # The inputs travel pickled: the fresh interpreter imports only what a recording needs (no test module).
+    (tmp_path / "inputs.pkl").write_bytes(pickle.dumps(_inputs()))
     code = f"""
-import sys
-sys.path.insert(0, {str(Path(__file__).parent)!r})
-from test_viz import _inputs
+import pickle, sys
 from mosegpipe.viz import write_recording
-write_recording({str(tmp_path / "c.rrd")!r}, **_inputs())
+with open({str(tmp_path / "inputs.pkl")!r}, "rb") as f:
+    inputs = pickle.load(f)
+write_recording({str(tmp_path / "c.rrd")!r}, **inputs)
 print("pyarrow.compute" in sys.modules)
 """
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=120)
