@@ -27,11 +27,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from mosegpipe.errors import ConfigError
+from mosegpipe.flow import FrameMotion
+
+WORLD_LABEL = 0
+"""The world's label (the mask value colours.WORLD)."""
 
 
 @dataclass(frozen=True)
@@ -47,6 +52,11 @@ class WorldConfig:
         static_px: a track lies where the camera's motion explains the flow when the camera residual
             there is at most this, pixels of the frame.
         static_floor: a motion's area is weighted by this plus its tracks' share on such pixels.
+        parallax: where the world's tracks need a fundamental matrix (3D structure near a moving
+            camera), a pixel whose nearest labelled track is the world's is static when its flow lies on
+            the world's epipolar line (`explain_parallax`).
+        parallax_sigma_px: the noise of a track's position, pixels (GRIC and RANSAC thresholds).
+        parallax_min_points: fewest world tracks to fit a fundamental matrix from.
     """
 
     enabled: bool = True
@@ -55,10 +65,17 @@ class WorldConfig:
     continuity: float = 2.0
     static_px: float = 1.0
     static_floor: float = 0.1
+    parallax: bool = True
+    parallax_sigma_px: float = 1.0
+    parallax_min_points: int = 30
 
     def __post_init__(self) -> None:
         if not 2 <= self.grid <= 64:
             raise ConfigError(f"world.grid={self.grid} must be in 2..64")
+        if self.parallax_min_points < 8:
+            raise ConfigError(f"world.parallax_min_points={self.parallax_min_points} must be at least 8")
+        if not (np.isfinite(self.parallax_sigma_px) and self.parallax_sigma_px > 0):
+            raise ConfigError(f"world.parallax_sigma_px={self.parallax_sigma_px} must be a finite number > 0")
         for name in ("border_weight", "continuity", "static_px", "static_floor"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
@@ -179,3 +196,137 @@ def world_first(labels: npt.NDArray[np.int64], world: int) -> npt.NDArray[np.int
     out[(labels >= 0) & (labels < world)] += 1
     out[labels == world] = 0
     return out
+
+
+def _gric(errors_sq: npt.NDArray[np.float64], sigma_px: float, d: int, k: int, r: int = 4) -> float:
+    """Torr's geometric robust information criterion of a two-view model (lower is better).
+
+    Args:
+        errors_sq: (n,) squared residuals of the correspondences, pixels^2.
+        sigma_px: the noise of a correspondence, pixels.
+        d: the dimension of the model's manifold (homography 2, fundamental matrix 3).
+        k: the model's parameters (homography 8, fundamental matrix 7).
+        r: the dimension of a correspondence (4: two image points).
+    """
+    n = errors_sq.size
+    rho = np.minimum(errors_sq / sigma_px**2, 2.0 * (r - d))
+    return float(rho.sum() + np.log(r) * d * n + np.log(r * n) * k)
+
+
+def _sampson_sq(
+    fm: npt.NDArray[np.float64], p: npt.NDArray[np.float64], q: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """(n,) squared Sampson distances of correspondences p -> q ((n, 2) pixels) to the fundamental matrix fm."""
+    ph = np.concatenate([p, np.ones((len(p), 1))], axis=1)
+    qh = np.concatenate([q, np.ones((len(q), 1))], axis=1)
+    fp = ph @ fm.T  # epipolar lines in the second image
+    fq = qh @ fm  # in the first
+    num = np.einsum("ij,ij->i", qh, fp) ** 2
+    return num / np.maximum(fp[:, 0] ** 2 + fp[:, 1] ** 2 + fq[:, 0] ** 2 + fq[:, 1] ** 2, 1e-12)
+
+
+def world_epipolar(
+    p: npt.NDArray[np.float32], q: npt.NDArray[np.float32], cfg: WorldConfig = WorldConfig()
+) -> npt.NDArray[np.float64] | None:
+    """The fundamental matrix of the world's correspondences p -> q when the scene needs one (parallax).
+
+    A homography and a fundamental matrix are fitted by RANSAC and compared by GRIC (`_gric`): a planar or
+    distant scene, or a camera that only rotates, keeps the homography (None); a scene whose depth makes the
+    world's points move differently (near walls, rocks, poles) takes the fundamental matrix.
+
+    Args:
+        p, q: (n, 2) float32 the world's track positions in two frames, pixels.
+        cfg: parallax_sigma_px (the tracks' noise) and parallax_min_points.
+
+    Returns:
+        (3, 3) float64 fundamental matrix (q^T F p = 0), or None.
+    """
+    if len(p) < max(cfg.parallax_min_points, 8):
+        return None
+    a, b = np.asarray(p, np.float64), np.asarray(q, np.float64)
+    hom, _ = cv2.findHomography(a, b, cv2.RANSAC, 3.0 * cfg.parallax_sigma_px)
+    fm, _ = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, 1.5 * cfg.parallax_sigma_px, 0.999)
+    if fm is None or fm.shape != (3, 3):
+        return None
+    if hom is None:
+        return fm
+    ah = np.concatenate([a, np.ones((len(a), 1))], axis=1) @ hom.T
+    h_err = np.sum((ah[:, :2] / ah[:, 2:3] - b) ** 2, axis=1)
+    if _gric(_sampson_sq(fm, a, b), cfg.parallax_sigma_px, 3, 7) < _gric(h_err, cfg.parallax_sigma_px, 2, 8):
+        return fm
+    return None
+
+
+def epipolar_residual(
+    flow: npt.NDArray[np.float32], fm: npt.NDArray[np.float64], scale: float
+) -> npt.NDArray[np.float32]:
+    """(h, w) float32 Sampson distance of each pixel's flow to the fundamental matrix, pixels at the flow's scale.
+
+    Args:
+        flow: (h, w, 2) float32 displacements at the flow's scale.
+        fm: (3, 3) fundamental matrix in pixels of the frame.
+        scale: the flow's scale (h / H).
+    """
+    h, w = flow.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    p = np.stack([xs.ravel(), ys.ravel()], axis=1) / scale
+    q = p + flow.reshape(-1, 2).astype(np.float64) / scale
+    return (np.sqrt(_sampson_sq(fm, p, q)) * scale).reshape(h, w).astype(np.float32)
+
+
+def explain_parallax(
+    motion: FrameMotion,
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    cfg: WorldConfig = WorldConfig(),
+) -> FrameMotion:
+    """`motion` with the world's 3D structure explained: where the pixel's nearest labelled track is the
+    world's and the world's tracks need a fundamental matrix (`world_epipolar`), the camera residual becomes
+    the smaller of it and the flow's distance to the world's epipolar line (`epipolar_residual`).
+
+    A mover whose own tracks surround it keeps the homography's residual: the epipolar test's blind spot
+    (an object moving along its epipolar line, as one followed by a camera moving parallel to it) is left
+    to the tracks' clustering.
+
+    Args:
+        motion: the window's FrameMotion (forward and backward flows kept).
+        xy: (N, T, 2) float32 positions of the window's labelled tracks, pixels.
+        labels: (N,) int64 their motions (WORLD = the world; -1 ignored).
+        cfg: parallax settings.
+
+    Returns:
+        A FrameMotion with a new residual (the same object when nothing changes).
+    """
+    if not cfg.parallax or motion.forward is None or motion.backward is None:
+        return motion
+    num = motion.residual.shape[0]
+    world = labels == WORLD_LABEL
+    if world.sum() < cfg.parallax_min_points or num < 2:
+        return motion
+    residual = motion.residual.copy()
+    h, w = residual.shape[1:]
+    known = labels >= 0
+    changed = False
+    for t in range(num):
+        other = t + 1 if t + 1 < num else t - 1
+        fm = world_epipolar(xy[world, t], xy[world, other], cfg)
+        if fm is None:
+            continue
+        flow = motion.forward[t] if other > t else motion.backward[t - 1]
+        epi = epipolar_residual(flow, fm, motion.scale)
+        # the pixels whose nearest labelled track is the world's
+        seeds = np.zeros((h, w), np.uint8)
+        pts = np.clip(np.round(xy[known, t] * motion.scale).astype(np.int64), 0, [w - 1, h - 1])
+        seeds[pts[:, 1], pts[:, 0]] = np.where(labels[known] == WORLD_LABEL, 1, 2).astype(np.uint8)
+        _, nearest = cv2.distanceTransformWithLabels(
+            (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
+        )
+        owner = np.zeros(int(nearest.max()) + 1, np.uint8)
+        ys, xs = np.nonzero(seeds)
+        owner[nearest[ys, xs]] = seeds[ys, xs]
+        region = owner[nearest] == 1
+        residual[t] = np.where(region, np.minimum(residual[t], epi), residual[t])
+        changed = True
+    if not changed:
+        return motion
+    return FrameMotion(residual, motion.fb_error, motion.scale, motion.forward, motion.backward)

@@ -9,11 +9,21 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import ConfigError
+from mosegpipe.flow import FrameMotion
 from mosegpipe.io import read_palette_png
 from mosegpipe.model import SubspaceNet
 from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
-from mosegpipe.world import WorldConfig, static_share, world_cluster, world_first, world_scores
+from mosegpipe.world import (
+    WorldConfig,
+    epipolar_residual,
+    explain_parallax,
+    static_share,
+    world_cluster,
+    world_epipolar,
+    world_first,
+    world_scores,
+)
 
 from helpers import motion_checkpoint, write_frames
 
@@ -152,3 +162,72 @@ def test_whole_video_writes_the_world_as_0_in_every_frame(tmp_path: Path) -> Non
     for t, (mask, gt) in enumerate(zip(masks, truth)):
         assert np.bincount(mask[~gt], minlength=256).argmax() == 0, t  # the world is 0 as written
         assert not gt.any() or np.mean(mask[gt] != 0) > 0.5, t  # and the object is not
+
+
+# ---------------------------------------------------------------------------------------------
+# The world's 3D structure: parallax is not motion
+# ---------------------------------------------------------------------------------------------
+
+K_PX = np.array([[300.0, 0.0, W / 2], [0.0, 300.0, H / 2], [0.0, 0.0, 1.0]])
+
+
+def _project(points: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(n, 2) pixels of 3D points (n, 3) seen by the camera moved by `shift` (no rotation)."""
+    cam = (points - shift) @ K_PX.T
+    return (cam[:, :2] / cam[:, 2:3]).astype(np.float32)
+
+
+def _scene(rng: np.random.Generator, depths: tuple[float, ...]) -> np.ndarray:
+    """3D points in front of the camera, at the given depths (metres), spread over the view."""
+    points = []
+    for z in depths:
+        uv = rng.uniform([0, 0], [W, H], size=(60, 2))
+        ray = np.concatenate([(uv - K_PX[:2, 2]) / 300.0, np.ones((60, 1))], axis=1)
+        points.append(ray * z)
+    return np.concatenate(points)
+
+
+def test_a_deep_scene_under_a_moving_camera_needs_a_fundamental_matrix_a_plane_does_not() -> None:
+    rng = np.random.default_rng(5)
+    shift = np.array([0.3, 0.0, 0.0])
+    deep = _scene(rng, (2.0, 4.0, 12.0))
+    fm = world_epipolar(_project(deep, np.zeros(3)), _project(deep, shift))
+    assert fm is not None
+    flat = _scene(rng, (6.0, 6.0, 6.0))
+    assert world_epipolar(_project(flat, np.zeros(3)), _project(flat, shift)) is None
+    few = deep[:20]
+    assert world_epipolar(_project(few, np.zeros(3)), _project(few, shift)) is None  # too few tracks to say
+
+
+def test_flow_along_the_epipolar_line_has_no_residual_across_it_has() -> None:
+    rng = np.random.default_rng(6)
+    shift = np.array([0.3, 0.0, 0.0])  # sideways: the epipolar lines are horizontal
+    deep = _scene(rng, (2.0, 4.0, 12.0))
+    fm = world_epipolar(_project(deep, np.zeros(3)), _project(deep, shift))
+    assert fm is not None
+    flow = np.zeros((H // 2, W // 2, 2), np.float32)
+    flow[..., 0] = -7.0  # along the lines (any depth)
+    assert float(np.median(epipolar_residual(flow, fm, 0.5))) < 0.3
+    flow[..., 1] = 4.0  # and across them
+    assert float(np.median(epipolar_residual(flow, fm, 0.5))) > 1.5
+
+
+def test_explain_parallax_clears_the_worlds_depth_but_not_a_mover_among_its_own_tracks() -> None:
+    rng = np.random.default_rng(7)
+    shift = np.array([0.3, 0.0, 0.0])
+    deep = _scene(rng, (1.5, 3.0, 12.0))
+    p0, p1 = _project(deep, np.zeros(3)), _project(deep, shift)
+    keep = (p0[:, 0] < 200) & (p1[:, 0] > 2)  # the world's tracks, left of the mover
+    p0, p1 = p0[keep], p1[keep]
+    mover = np.array([[x, y] for x in range(240, 320, 10) for y in range(20, 220, 20)], np.float32)
+    xy = np.concatenate([np.stack([p0, p1], axis=1), np.stack([mover, mover + np.float32([-6, 0])], axis=1)])
+    labels = np.array([0] * len(p0) + [1] * len(mover), np.int64)
+    h, w = H // 2, W // 2
+    forward = np.zeros((1, h, w, 2), np.float32)
+    forward[..., 0] = -3.0  # half scale: the world's parallax and the mover's motion are both horizontal
+    residual = np.full((2, h, w), 2.0, np.float32)  # what the homography left: all of it
+    motion = FrameMotion(residual, np.zeros_like(residual), 0.5, forward, forward.copy())
+    out = explain_parallax(motion, xy, labels)
+    assert float(np.median(out.residual[0, :, :80])) < 0.3  # the world's pixels: explained
+    assert float(out.residual[0, :, 130:].min()) == 2.0  # the mover's pixels: its own tracks keep it
+    assert explain_parallax(motion, xy, labels, WorldConfig(parallax=False)) is motion

@@ -35,6 +35,7 @@ from mosegpipe.rigid import label_by_rigid_motion
 from mosegpipe.track import spread_corners, track_klt, track_points
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import Clustering, Frames, Tracks, Trajectories
+from mosegpipe.world import explain_parallax
 
 
 @dataclass(frozen=True)
@@ -222,6 +223,8 @@ def clip_masks(
         (T, H, W) uint8 masks, 255 = unknown.
     """
     if cfg.mask.method == "motion" and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.mask.motion.flow):
+        if motion is not None:  # the world's 3D structure: its parallax is not motion
+            motion = explain_parallax(motion, tracks.xy[track_ids], labels, cfg.world)
         return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:

@@ -254,7 +254,7 @@ class PipelineConfig:
         if isinstance(data, Mapping) and "rigid" not in data:
             config = replace(config, rigid=RigidCheckConfig(enabled=False))
         if isinstance(data, Mapping) and "world" not in data:
-            config = replace(config, world=WorldConfig(enabled=False))
+            config = replace(config, world=WorldConfig(enabled=False, parallax=False))
         if isinstance(data, Mapping) and "video_cut_survival" not in data:
             config = replace(config, video_cut_survival=None)
         if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:

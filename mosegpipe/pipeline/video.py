@@ -50,6 +50,7 @@ from mosegpipe.runtime import run_ahead
 from mosegpipe.track import KLTTracker, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import Trajectories
+from mosegpipe.world import explain_parallax
 
 log = logging.getLogger(__name__)
 
@@ -506,6 +507,11 @@ def _label_window(
     ]
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
     if stream is not None and motion is not None:
+        if found.track_ids.size:  # the world's 3D structure: its parallax is not motion
+            where = [{int(i): r for r, i in enumerate(ids)} for _, _, ids, _ in window]
+            rows = [[w[int(i)] for w in where] for i in found.track_ids]
+            xy = np.stack([np.stack([item[3][r] for item, r in zip(window, row)]) for row in rows])
+            motion = explain_parallax(motion, xy, found.labels, cfg.world)
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
         shown = _shown_motions(run.last_mask)
