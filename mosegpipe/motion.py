@@ -45,12 +45,15 @@ tracks' motions, so that a pipeline's masks carry motion labels as the other mas
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.errors import ConfigError
 from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, pixel_grid
 
 
@@ -189,47 +192,38 @@ class MotionMaskConfig:
     smooth_sigma: float = 5.0
 
     def __post_init__(self) -> None:
-        if not 0 < self.work_scale <= 1:
-            raise ValueError(f"work_scale={self.work_scale} must be in (0, 1]")
-        if self.noise_factor < 0:
-            raise ValueError(f"noise_factor={self.noise_factor} must be >= 0")
-        if not self.eps_px > 0 or self.min_residual_px < 0:
-            raise ValueError(f"eps_px={self.eps_px} must be > 0 and min_residual_px={self.min_residual_px} >= 0")
-        if not 0 <= self.colour_memory < 1:
-            raise ValueError(f"colour_memory={self.colour_memory} must be in [0, 1)")
-        if self.local_colour_weight < 0 or self.local_colour_box_px < 3:
-            raise ValueError(
-                f"local_colour_weight={self.local_colour_weight} must be >= 0 and "
-                f"local_colour_box_px={self.local_colour_box_px} >= 3"
-            )
-        if self.colour_weight < 0 or not 2 <= self.colour_bins <= 64:
-            raise ValueError(
-                f"colour_weight={self.colour_weight} must be >= 0, colour_bins={self.colour_bins} in 2..64"
-            )
-        if self.temporal_weight < 0 or self.temporal_passes < 0:
-            raise ValueError(
-                f"temporal_weight={self.temporal_weight} and temporal_passes={self.temporal_passes} must be >= 0"
-            )
-        if self.superpixel_iterations < 1:
-            raise ValueError(f"superpixel_iterations={self.superpixel_iterations} must be >= 1")
-        if self.fb_weight < 0 or self.fb_box_px < 1:
-            raise ValueError(f"fb_weight={self.fb_weight} must be >= 0 and fb_box_px={self.fb_box_px} >= 1")
-        if self.spread_weight < 0 or self.guided_radius < 0 or not self.guided_eps > 0:
-            raise ValueError(
-                f"spread_weight={self.spread_weight} and guided_radius={self.guided_radius} must be >= 0, "
-                f"guided_eps={self.guided_eps} > 0"
-            )
-        if self.smooth_lambda < 0 or not self.smooth_sigma > 0:
-            raise ValueError(
-                f"smooth_lambda={self.smooth_lambda} must be >= 0 and smooth_sigma={self.smooth_sigma} > 0"
-            )
-        if self.anchor_tracks < 0:
-            raise ValueError(f"anchor_tracks={self.anchor_tracks} must be >= 0")
-        if self.superpixels < 0 or not 0 <= self.min_component <= 1 or self.component_power < 0:
-            raise ValueError(
-                f"superpixels={self.superpixels} must be >= 0, min_component={self.min_component} in [0, 1], "
-                f"component_power={self.component_power} >= 0"
-            )
+        for name, ok, want in _MOTION_CHECKS:
+            value = getattr(self, name)
+            if not ok(value):
+                raise ConfigError(f"{name}={value} must be {want}")
+
+
+_MOTION_CHECKS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("work_scale", lambda v: 0 < v <= 1, "in (0, 1]"),
+    ("noise_factor", lambda v: v >= 0, ">= 0"),
+    ("eps_px", lambda v: v > 0, "> 0"),
+    ("min_residual_px", lambda v: v >= 0, ">= 0"),
+    ("colour_memory", lambda v: 0 <= v < 1, "in [0, 1)"),
+    ("local_colour_weight", lambda v: v >= 0, ">= 0"),
+    ("local_colour_box_px", lambda v: v >= 3, ">= 3"),
+    ("colour_weight", lambda v: v >= 0, ">= 0"),
+    ("colour_bins", lambda v: 2 <= v <= 64, "in 2..64"),
+    ("temporal_weight", lambda v: v >= 0, ">= 0"),
+    ("temporal_passes", lambda v: v >= 0, ">= 0"),
+    ("superpixel_iterations", lambda v: v >= 1, ">= 1"),
+    ("fb_weight", lambda v: v >= 0, ">= 0"),
+    ("fb_box_px", lambda v: v >= 1, ">= 1"),
+    ("spread_weight", lambda v: v >= 0, ">= 0"),
+    ("guided_radius", lambda v: v >= 0, ">= 0"),
+    ("guided_eps", lambda v: v > 0, "> 0"),
+    ("smooth_lambda", lambda v: v >= 0, ">= 0"),
+    ("smooth_sigma", lambda v: v > 0, "> 0"),
+    ("anchor_tracks", lambda v: v >= 0, ">= 0"),
+    ("superpixels", lambda v: v >= 0, ">= 0"),
+    ("min_component", lambda v: 0 <= v <= 1, "in [0, 1]"),
+    ("component_power", lambda v: v >= 0, ">= 0"),
+)
+"""MotionMaskConfig's checks, one field each: (field, test, what it must be)."""
 
 
 def _resize(x: npt.NDArray[np.float32], hw: tuple[int, int]) -> npt.NDArray[np.float32]:

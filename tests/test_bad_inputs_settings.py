@@ -95,6 +95,13 @@ def test_the_api_door_is_the_same_check() -> None:
     assert PipelineConfig(k=None, video_k_step=None, video_cut_survival=None).k is None  # None = left out
 
 
+def test_a_motion_mask_setting_names_itself_alone() -> None:
+    # the check of colour_bins named colour_weight=0.75 as well (issue 40, item 10)
+    with pytest.raises(ConfigError) as caught:
+        PipelineConfig().with_settings(["mask.motion.colour_bins=0"])
+    assert str(caught.value) == "--set mask.motion: colour_bins=0 must be in 2..64"
+
+
 def test_unknown_setting_is_refused_by_name() -> None:
     with pytest.raises(ConfigError, match=r"^--set nope: unknown setting \(known here: frames, start"):
         PipelineConfig().with_settings(["nope=1"])
