@@ -194,6 +194,9 @@ class MotionMaskConfig:
     def __post_init__(self) -> None:
         for name, ok, want in _MOTION_CHECKS:
             value = getattr(self, name)
+            # NaN and infinity are settings.check_settings' to name, with the setting's whole path
+            if isinstance(value, float) and not np.isfinite(value):
+                continue
             if not ok(value):
                 raise ConfigError(f"{name}={value} must be {want}")
 
