@@ -128,11 +128,12 @@ def test_first_window_world_takes_0_and_new_motions_count_from_1() -> None:
     assert labels.tolist() == [0] * 20 + [1] * 20 and book.next_label == 2
 
 
-def _textured_object_over_plain_world(frames: int) -> tuple[np.ndarray, np.ndarray]:
+def _textured_object_over_plain_world(frames: int, stop: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A camera panning over a softly textured world (good flow, weak corners) while a high-contrast object
     (a quarter of the frame, far more corners than the world: the corner detector's quality threshold is
-    relative to the strongest) enters from the right and crosses the frame. Returns (T, H, W, 3) frames and
-    (T, H, W) truth."""
+    relative to the strongest) enters from the right and crosses the frame; from frame `stop` on (None: never) it
+    stands still in the world (it moves with the panning background). Returns (T, H, W, 3) frames and (T, H, W)
+    truth (the object, moving or not)."""
     rng = np.random.default_rng(3)
     world = cv2.GaussianBlur(rng.random((H, W + 8 * frames)).astype(np.float32), (0, 0), 3.0)
     world = np.clip((world - world.mean()) / world.std() * 18 + 110, 0, 255).astype(np.uint8)
@@ -141,7 +142,7 @@ def _textured_object_over_plain_world(frames: int) -> tuple[np.ndarray, np.ndarr
     images, truth = [], []
     for t in range(frames):
         frame = world[:, 8 * t : 8 * t + W].copy()
-        x0 = W + 10 - 14 * t  # the object's left edge
+        x0 = W + 10 - 14 * t if stop is None or t < stop else W + 10 - 14 * stop - 8 * (t - stop)  # its left edge
         gt = np.zeros((H, W), bool)
         if x0 < W:
             seen = slice(max(x0, 0), min(x0 + 150, W))
@@ -162,6 +163,33 @@ def test_whole_video_writes_the_world_as_0_in_every_frame(tmp_path: Path) -> Non
     for t, (mask, gt) in enumerate(zip(masks, truth)):
         assert np.bincount(mask[~gt], minlength=256).argmax() == 0, t  # the world is 0 as written
         assert not gt.any() or np.mean(mask[gt] != 0) > 0.5, t  # and the object is not
+
+
+def test_an_object_that_stops_joins_the_world_and_the_world_stays_0(tmp_path: Path) -> None:
+    frames, truth = _textured_object_over_plain_world(21, stop=11)
+    folder = write_frames(tmp_path / "frames", frames)
+    model = SubspaceNet.from_checkpoint(motion_checkpoint(tmp_path / "m.pt", 5))
+    write_video_outputs(folder, tmp_path / "out", PipelineConfig(frames=5), model, rrd=False)
+    masks = np.stack([read_palette_png(tmp_path / "out" / "masks" / f"{t:06d}.png") for t in range(len(frames))])
+    for t, (mask, gt) in enumerate(zip(masks, truth)):
+        assert np.bincount(mask[~gt], minlength=256).argmax() == 0, t
+    # once it has stood still for a window, the object is the world's: written 0 as well
+    assert all(np.mean(mask[gt] == 0) > 0.8 for mask, gt in zip(masks[16:], truth[16:]))
+
+
+def test_the_world_is_0_on_both_sides_of_a_shot_cut(tmp_path: Path) -> None:
+    from helpers import render_scene
+
+    shots = [render_scene(11, seed=0), render_scene(9, seed=1)]
+    frames = np.concatenate([s.frames for s in shots])
+    static = np.concatenate([s.masks == 0 for s in shots])
+    folder = write_frames(tmp_path / "cut", frames)
+    model = SubspaceNet.from_checkpoint(motion_checkpoint(tmp_path / "m.pt", 5))
+    summary = write_video_outputs(folder, tmp_path / "out", PipelineConfig(frames=5), model, rrd=False)
+    assert summary["shot_cuts"] == [11]
+    masks = np.stack([read_palette_png(tmp_path / "out" / "masks" / f"{t:06d}.png") for t in range(len(frames))])
+    for t, (mask, world) in enumerate(zip(masks, static)):
+        assert np.bincount(mask[world], minlength=256).argmax() == 0, t
 
 
 # ---------------------------------------------------------------------------------------------
