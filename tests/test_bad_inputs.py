@@ -124,7 +124,7 @@ class _FullDisk:
 def test_disk_full_while_writing_the_recording(
     tmp_path: Path, clip_avi: Path, model5: Path, monkeypatch: pytest.MonkeyPatch, whole: bool
 ) -> None:
-    monkeypatch.setattr(viz, "open", _FullDisk, raising=False)  # the recording's writer, nothing else
+    monkeypatch.setattr(viz.blocks, "open", _FullDisk, raising=False)  # the recording's writer, nothing else
     parent = tmp_path / "parent"
     parent.mkdir()
     extra = ["--whole", "--frames", "3"] if whole else []

@@ -180,7 +180,7 @@ def test_annotation_context_matches_rerun_class_descriptions() -> None:
             for i, name in class_names(3, "unknown / outlier").items()
         ]
     )
-    got = viz._annotation_context(class_names(3, "unknown / outlier"), colors)
+    got = viz.blocks._annotation_context(class_names(3, "unknown / outlier"), colors)
     assert got.context is not None and expected.context is not None
     assert got.context.pa_array.to_pylist() == expected.context.pa_array.to_pylist()
 
@@ -370,7 +370,7 @@ def test_failed_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyP
     def broken(*_args, **_kwargs):
         raise RuntimeError("encoder exploded")
 
-    monkeypatch.setattr(viz, "_image_archetype", broken)
+    monkeypatch.setattr(viz.blocks, "_image_archetype", broken)
     with pytest.raises(RuntimeError, match="encoder exploded"):
         write_recording(tmp_path / "clip.rrd", **_inputs())
     assert list(tmp_path.iterdir()) == []
