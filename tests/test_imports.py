@@ -45,6 +45,9 @@ INFERENCE = (
     "mosegpipe.viz",
     "mosegpipe.colours",
     "mosegpipe.batch",
+    "mosegpipe.batch_plan",
+    "mosegpipe.batch_pool",
+    "mosegpipe.batch_ray",
 )
 """The inference stages (a package stands for all its modules; one not written yet is skipped)."""
 FORBIDDEN = ("mosegpipe.training", "mosegpipe.evaluation", "mosegpipe.studies", "mosegpipe.synth")

@@ -10,6 +10,9 @@ import pytest
 INFERENCE_MODULES = [
     "mosegpipe.pipeline",
     "mosegpipe.batch",
+    "mosegpipe.batch_plan",
+    "mosegpipe.batch_pool",
+    "mosegpipe.batch_ray",
     "mosegpipe.io",
     "mosegpipe.track",
     "mosegpipe.match",
