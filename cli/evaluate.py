@@ -124,7 +124,7 @@ def train(
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads for torch.")] = 2,
     verbose: Verbose = False,
 ) -> None:
-    """Train a SubspaceNet checkpoint from a named recipe (synthetic data generated on the fly).
+    """Train a SubspaceNet checkpoint from a named recipe (real tracks or trajectories and synthetic data, as it mixes them).
 
     Without --init a recipe starts from its own starting recipe (clip-f5 from base-f5, pair-f2 from
     synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
@@ -206,7 +206,11 @@ def eval_(
     ] = 0.0,
     baselines: Annotated[
         str,
-        typer.Option("--baselines", help=f"Comma-separated baselines from {', '.join(BASELINE_NAMES)} ('' for none)."),
+        typer.Option(
+            "--baselines",
+            help=f"Comma-separated baselines from {', '.join(BASELINE_NAMES)} ('' for none); davis, davis-clip5: "
+            "any adds the flow-homography reference.",
+        ),
     ] = ",".join(BASELINE_NAMES),
     folds: Annotated[str | None, typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
     k_method: KMethod = KMethodChoice(K_METHODS[0]),

@@ -170,9 +170,9 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
 
 def _stdin_size_value(value: str | None) -> str | None:
     """--stdin-size checked as the option is parsed: a bad one is a usage error (exit code 2)."""
-    from mosegpipe.live import parse_size
-
     if value is not None:
+        from mosegpipe.live import parse_size  # here: parsing any other live command line stays light
+
         try:
             parse_size(value)
         except InputError as exc:  # "--stdin-size '...': why"; the option and value are named by the usage line

@@ -83,7 +83,9 @@ Verbose = Annotated[bool, typer.Option("--verbose", "-v", help="Log progress.")]
 Quiet = Annotated[
     bool,
     typer.Option(
-        "--quiet", "-q", help="No progress bar (it is drawn on stderr only when stderr is a terminal anyway)."
+        "--quiet",
+        "-q",
+        help="No progress bar or status line (drawn only on a terminal: stderr for run, replay, live; stdout for batch).",
     ),
 ]
 
