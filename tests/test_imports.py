@@ -48,6 +48,9 @@ INFERENCE = (
     "mosegpipe.batch_plan",
     "mosegpipe.batch_pool",
     "mosegpipe.batch_ray",
+    "mosegpipe.live",
+    "mosegpipe.live_source",
+    "mosegpipe.live_reader",
 )
 """The inference stages (a package stands for all its modules; one not written yet is skipped)."""
 FORBIDDEN = ("mosegpipe.training", "mosegpipe.evaluation", "mosegpipe.studies", "mosegpipe.synth")
