@@ -34,6 +34,7 @@ INFERENCE = (
     "mosegpipe.rigid",
     "mosegpipe.masks",
     "mosegpipe.io",
+    "mosegpipe.io_write",
     "mosegpipe.types",
     "mosegpipe.errors",
     "mosegpipe.runtime",

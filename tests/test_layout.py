@@ -14,6 +14,7 @@ INFERENCE_MODULES = [
     "mosegpipe.batch_pool",
     "mosegpipe.batch_ray",
     "mosegpipe.io",
+    "mosegpipe.io_write",
     "mosegpipe.track",
     "mosegpipe.match",
     "mosegpipe.trajectories",
