@@ -1,0 +1,260 @@
+""" "motion" masks (mosegpipe.masks): each pixel moving or not by the camera's motion (mosegpipe.motion),
+moving pixels labelled by the nearest track of a moving motion, and a moving region that no moving
+motion's tracks explain split off as a motion of its own (split_unexplained)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.colours import WORLD
+from mosegpipe.flow import FrameMotion
+from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, _nearest, labels_to_mask
+from mosegpipe.motion import moving_masks, stack_motion
+from mosegpipe.types import Tracks
+
+
+def label_moving_pixels(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    new_label: int,
+) -> npt.NDArray[np.uint8]:
+    """One frame's label image: static pixels get the background label, moving ones a moving motion's.
+
+    A moving pixel takes the label of the nearest track of a motion other than the background (the
+    "nearest" partition of those tracks); with no such track in the frame it takes `new_label` (a
+    motion the camera fit found that the tracks' clustering did not).
+
+    Args:
+        moving: (H, W) bool moving pixels.
+        xy: (N, 2) float32 track positions in this frame (pixels).
+        labels: (N,) int64 their motion labels (-1 = unlabelled, ignored).
+        background: the background motion's label.
+        new_label: label for moving pixels when no track of a moving motion is in the frame.
+
+    Returns:
+        (H, W) uint8 label image.
+    """
+    height, width = moving.shape
+    out = np.full((height, width), max(background, 0), np.uint8)
+    if not moving.any():
+        return out
+    keep = (labels >= 0) & (labels != background)
+    pts = np.round(xy[keep]).astype(np.int64)
+    inside = (pts[:, 0] >= 0) & (pts[:, 0] < width) & (pts[:, 1] >= 0) & (pts[:, 1] < height)
+    if not inside.any():
+        out[moving] = new_label
+        return out
+    present = np.unique(labels[keep][inside])
+    if present.size == 1:  # one moving motion: it is every moving pixel's nearest
+        out[moving] = present[0]
+        return out
+    nearest = _nearest(pts[inside], labels[keep][inside].astype(np.uint8), (height, width), np.inf)
+    out[moving] = nearest[moving]
+    return out
+
+
+def carry_unclustered(
+    mask: npt.NDArray[np.uint8], previous: npt.NDArray[np.uint8] | None, min_share: float = 0.3
+) -> npt.NDArray[np.uint8]:
+    """A whole video's frame mask with its MOVING_UNCLUSTERED regions given the moving label they had.
+
+    Each connected region of MOVING_UNCLUSTERED pixels (moving, but no track of a moving motion in
+    the frame: the window's clustering merged the object into the background, or its tracks were
+    lost) takes the moving label that covers most of it in the frame before, when that label covers at
+    least `min_share` of it: an object keeps its identity through the windows where the clustering
+    misses it, instead of turning into an anonymous mover. A label counts when it is neither this
+    world (WORLD) nor MOVING_UNCLUSTERED or UNKNOWN.
+
+    Args:
+        mask: (H, W) uint8 label image of this frame (`moving_to_labels`).
+        previous: the frame before's final mask, same shape (None: the first frame of a shot).
+        min_share: least share of the region the label must cover in the frame before.
+
+    Returns:
+        (H, W) uint8: `mask` itself when nothing changes, else a relabelled copy.
+    """
+    unclustered = mask == MOVING_UNCLUSTERED
+    if previous is None or previous.shape != mask.shape or not unclustered.any():
+        return mask
+    background = WORLD
+    num, regions = cv2.connectedComponents(unclustered.astype(np.uint8), connectivity=8)
+    before = previous.astype(np.int64)
+    usable = (before != background) & (before != MOVING_UNCLUSTERED) & (before != UNKNOWN) & unclustered
+    if not usable.any():
+        return mask
+    # counts[r, l]: pixels of region r that carried label l in the frame before
+    counts = np.zeros((num, 256), np.int64)
+    np.add.at(counts, (regions[usable], before[usable]), 1)
+    sizes = np.bincount(regions[unclustered], minlength=num)
+    best = counts.argmax(axis=1)
+    take = counts[np.arange(num), best] >= min_share * np.maximum(sizes, 1)
+    take[0] = False  # region 0: the pixels that are not MOVING_UNCLUSTERED
+    if not take.any():
+        return mask
+    out = mask.copy()
+    relabel = take[regions] & unclustered
+    out[relabel] = best[regions[relabel]].astype(np.uint8)
+    return out
+
+
+def moving_to_labels(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int = WORLD,
+    image: npt.NDArray[np.uint8] | None = None,
+    cfg: MaskConfig = MaskConfig(),
+) -> npt.NDArray[np.uint8]:
+    """One frame's "motion" mask from its moving pixels and labelled points.
+
+    Static pixels take the background's label. A moving pixel takes the label the watershed of the
+    labelled points gives it (edges between two moving motions follow the image) when that is a
+    moving motion's, else the label of the nearest point of a moving motion, else MOVING_UNCLUSTERED.
+
+    Args:
+        moving: (H, W) bool moving pixels (`motion.moving_masks`).
+        xy: (N, 2) float32 positions of the frame's points, pixels.
+        labels: (N,) int64 their labels (-1 = unlabelled, ignored).
+        background: the world's label (static pixels take it).
+        image: (H, W, 3) uint8 RGB frame for the watershed (None = nearest points only).
+        cfg: the watershed's settings (max_distance_px, scale, ...).
+
+    Returns:
+        (H, W) uint8: background label where static, a moving motion's label (or MOVING_UNCLUSTERED) where moving.
+    """
+    labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+    xy = np.asarray(xy, np.float32).reshape(-1, 2)
+    out = label_moving_pixels(moving, xy, labels, background, MOVING_UNCLUSTERED)
+    keep = labels >= 0
+    # The flood only decides between two or more moving motions: with one, every moving pixel has its
+    # label already (the nearest-track partition above).
+    if image is not None and moving.any() and np.unique(labels[keep & (labels != background)]).size >= 2:
+        # At the mask stage's scale: it only draws the border between two moving motions.
+        flood_cfg = replace(cfg, method="watershed", scale=min(cfg.scale, cfg.motion.work_scale))
+        flood = labels_to_mask(xy[keep], labels[keep], moving.shape, flood_cfg, image)
+        take = moving & (flood != background) & (flood != UNKNOWN)
+        out[take] = flood[take]
+    return out
+
+
+def motion_masks(
+    images: npt.NDArray[np.uint8],
+    tracks: Tracks,
+    track_ids: npt.NDArray[np.int64],
+    labels: npt.NDArray[np.int64],
+    cfg: MaskConfig = MaskConfig(),
+    before: npt.NDArray[np.uint8] | None = None,
+    after: npt.NDArray[np.uint8] | None = None,
+    motion: FrameMotion | None = None,
+) -> npt.NDArray[np.uint8]:
+    """The "motion" masks of a clip: moving pixels from the dense flow, labelled by the clip's tracks.
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB, T >= 2.
+        tracks: the clip's tracks.
+        track_ids: (M,) int64 rows of `tracks` that carry labels.
+        labels: (M,) int64 their labels; 0 is the world (WORLD, `mosegpipe.world`).
+        cfg: mask settings (cfg.motion; the watershed's for the borders between moving motions).
+        before, after: the source's frames next to the clip, as evidence (`motion.moving_masks`).
+        motion: `motion.stack_motion` of the clip, if already computed (None = computed here).
+
+    Returns:
+        (T, H, W) uint8 masks.
+    """
+    if motion is None and cfg.unexplained_px > 0:
+        motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
+    moving = moving_masks(images, cfg.motion, before=before, after=after, motion=motion)
+    labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+    background = WORLD
+    out = np.empty(moving.shape, dtype=np.uint8)
+    num = len(moving)
+    for t in range(num):
+        seen = tracks.visible[track_ids, t]
+        out[t] = moving_to_labels(moving[t], tracks.xy[track_ids[seen], t], labels[seen], background, images[t], cfg)
+        if cfg.unexplained_px > 0 and motion is not None and motion.forward is not None and motion.backward is not None:
+            other = t + 1 if t + 1 < num else t - 1
+            flow = motion.forward[t] if other > t else motion.backward[t - 1]
+            both = seen & tracks.visible[track_ids, other]
+            step = (tracks.xy[track_ids[both], t], tracks.xy[track_ids[both], other])
+            out[t] = split_unexplained(out[t], moving[t], step, labels[both], background, flow, motion.scale, cfg)
+    return out
+
+
+def split_unexplained(
+    mask: npt.NDArray[np.uint8],
+    moving: npt.NDArray[np.bool_],
+    step: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    flow: npt.NDArray[np.float32],
+    scale: float,
+    cfg: MaskConfig = MaskConfig(),
+) -> npt.NDArray[np.uint8]:
+    """One frame's "motion" mask with the moving regions no clustered motion explains set to MOVING_UNCLUSTERED.
+
+    Each moving motion of the mask with at least 8 tracks gets the homography of its tracks' step to the
+    neighbour frame (RANSAC, 2 px); a moving pixel whose flow misses its own motion's prediction by more than
+    max(cfg.unexplained_px, 2 x the 90th percentile of that motion's tracks' misses), and every other moving
+    motion's by as much, is unexplained. Unexplained regions (after an opening of 5 x 5 px) of at least
+    cfg.unexplained_area of the frame whose own flow one homography explains (cfg.unexplained_rigid of
+    their pixels within 1 px) take MOVING_UNCLUSTERED. A motion with fewer tracks is not judged.
+
+    Args:
+        mask: (H, W) uint8 labels of the frame (`moving_to_labels`).
+        moving: (H, W) bool moving pixels.
+        step: (N, 2) float32 positions of the labelled tracks in this frame and (N, 2) in the neighbour frame.
+        labels: (N,) int64 their labels.
+        background: the background's label.
+        flow: (h, w, 2) float32 flow from this frame to the neighbour frame at the flow's scale.
+        scale: the flow's scale (h / H).
+        cfg: the thresholds (unexplained_px, unexplained_area, unexplained_rigid).
+
+    Returns:
+        (H, W) uint8 labels (`mask` itself when nothing changes).
+    """
+    height, width = moving.shape
+    present = [int(m) for m in np.unique(mask[moving]) if m not in (background, UNKNOWN, MOVING_UNCLUSTERED)]
+    if not present:
+        return mask
+    if scale != 1:
+        flow = cv2.resize(flow, (width, height), interpolation=cv2.INTER_LINEAR) / np.float32(scale)
+    xy, xy_next = step
+    ys, xs = np.nonzero(moving)  # only moving pixels are judged: a tenth of the frame or less
+    points = np.stack([xs, ys], axis=1).astype(np.float32)
+    ends = points + flow[ys, xs]
+    explained = np.zeros(ys.size, bool)
+    judged = np.zeros((height, width), bool)
+    for m in present:
+        of = labels == m
+        hom = cv2.findHomography(xy[of], xy_next[of], cv2.RANSAC, 2.0)[0] if of.sum() >= 8 else None
+        if hom is None:
+            continue
+        track_miss = np.linalg.norm(
+            cv2.perspectiveTransform(xy[of].reshape(-1, 1, 2), hom).reshape(-1, 2) - xy_next[of], axis=1
+        )
+        limit = max(cfg.unexplained_px, 2.0 * float(np.percentile(track_miss, 90)))
+        predicted = cv2.perspectiveTransform(points.reshape(-1, 1, 2), hom).reshape(-1, 2)
+        explained |= np.linalg.norm(ends - predicted, axis=1) <= limit
+        judged |= mask == m
+    unexplained = judged.copy()
+    unexplained[ys[explained], xs[explained]] = False
+    unexplained = cv2.morphologyEx(unexplained.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+    n, regions, stats, _ = cv2.connectedComponentsWithStats(unexplained, connectivity=8)
+    split = np.zeros(n, bool)
+    for r in 1 + np.nonzero(stats[1:, cv2.CC_STAT_AREA] >= cfg.unexplained_area * height * width)[0]:
+        ry, rx = np.nonzero(regions == r)
+        pick = slice(None, None, max(1, ry.size // 1500))
+        p = np.stack([rx[pick], ry[pick]], axis=1).astype(np.float32)
+        own, inliers = cv2.findHomography(p, p + flow[ry[pick], rx[pick]], cv2.RANSAC, 1.0)
+        split[r] = own is not None and float(inliers.mean()) >= cfg.unexplained_rigid
+    if not split.any():
+        return mask
+    out = mask.copy()
+    out[split[regions]] = MOVING_UNCLUSTERED
+    return out
