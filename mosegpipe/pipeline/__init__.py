@@ -7,7 +7,8 @@ OpenCV or the OS raise on a broken input into an InputError.
 
 Modules: config (PipelineConfig and its checked loading), common (the model, the shared checks),
 clip (clips), pair (image pairs), tracks (tracks made elsewhere), video (whole videos, window by
-window) and labels (motion labels kept across windows). Every public name is re-exported here.
+window), window (what a whole video yields: WindowResult, VideoFrame, frame_mask) and labels (motion
+labels kept across windows). Every public name is re-exported here.
 """
 
 from __future__ import annotations
@@ -20,14 +21,11 @@ from mosegpipe.pipeline.labels import LabelBook, match_labels
 from mosegpipe.pipeline.pair import PairResult, segment_pair
 from mosegpipe.pipeline.tracks import TracksResult, segment_tracks, tracks_clip
 from mosegpipe.pipeline.video import (
-    AMBIGUOUS_K_NOTE,
-    VideoFrame,
-    WindowResult,
     check_video_settings,
-    frame_mask,
     segment_video,
     video_frames_to_read,
 )
+from mosegpipe.pipeline.window import AMBIGUOUS_K_NOTE, VideoFrame, WindowResult, frame_mask
 
 __all__ = [
     "AMBIGUOUS_K_NOTE",
