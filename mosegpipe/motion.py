@@ -59,109 +59,38 @@ from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, pixel_grid
 
 @dataclass(frozen=True)
 class MotionMaskConfig:
-    """Settings of the motion masks.
+    """Settings of the motion masks, one line each; how each value was chosen and what it bought on the
+    DAVIS dev clips is in docs/HISTORY.md ("How the motion masks work, and what each step bought" and the
+    sections after it).
 
     Attributes:
-        flow: dense flow and camera fit: DIS medium with a patch stride of 4 and 3 refinement iterations
-            (the preset's 3 and 5 cost 40 % more time for the same masks: dev J 0.661 / F 0.605 against
-            0.660 / 0.613).
-        work_scale: the mask steps (colour model, superpixels, components) run on images resized by
-            this factor; the masks are resized back (nearest). DAVIS dev, whole video J / F: 0.5 0.711 /
-            0.688, 0.75 0.717 / 0.697, 1.0 0.724 / 0.700; 854x480 whole video 13.0 / 11.8 / 10.7
-            frames/s (`benchmarks/speed.py --dense-methods`): 0.75 keeps a margin over 10 frames/s.
-        eps_px: residuals are compared on log(residual + eps_px) (full-resolution pixels): below eps
-            differences are flow noise.
-        min_residual_px: a pixel whose residual is below this (full-resolution pixels) is never
-            moving, whatever Otsu's threshold says: a frame with nothing moving is then left empty.
-        noise_factor: ... nor one whose residual is below this many times the frame's median residual
-            (the background's noise: parallax, flow error). Dev J 0.640 -> 0.659, mostly a camera
-            walking beside its subject (stroller 0.09 -> 0.57); 2 / 4 / 8 gave 0.654 / 0.652 / 0.591.
-        fb_weight: the motion score loses this times the local mean of log(1 + forward-backward
-            error) (work-scale pixels): flow that does not hold up in both directions (water, smoke,
-            occlusions) is weak evidence of motion (0 = off).
-        fb_box_px: side of the box (work-scale pixels) that averages the forward-backward error; also
-            the box of the flow's spread (below).
-        spread_weight: the motion score loses this times log(1 + the flow's spread): the standard
-            deviation of the flow vectors in a box around the pixel (work-scale pixels; the flow from
-            the frame to the next, into the last frame for the last). An object moves as a piece, so its
-            flow is locally alike; the flow's spill across an object's border, water and flow failures
-            vary from pixel to pixel (DAVIS dev, whole video J 0.717 -> 0.727; weight 1.0 0.723, 2.0
-            0.705; 0 = off).
-        guided_radius: the score is filtered by a guided filter (He et al.; OpenCV ximgproc) with the
-            frame in grey as the guide, radius in work-scale pixels: the score's edges move onto the
-            image's (DAVIS dev, whole video, with the spread: J 0.727 -> 0.740; a box filter of the same
-            size 0.722, radius 2 0.739, 8 0.735; the colour frame as the guide 0.743 at 13x the cost,
-            22 against 1.6 ms per 640x360 frame). With the local colour contrast, which moves the score's
-            edges itself, a smaller radius: J / F 2 0.771 / 0.745, 3 0.769 / 0.744, 4 0.767 / 0.742, 6 0.761 /
-            0.736; with colour_weight 0.75, radius 2 0.773 / 0.749 against radius 4's 0.770 / 0.746, first
-            5 frames 0.733 / 0.707 against 0.734 / 0.706 (radius 2 and 0.5: 0.732 / 0.705; 4 and 0.5 0.727 /
-            0.700). 0 = off.
-        guided_eps: the guided filter's regulariser, in (intensity / 255)^2: edges of lower contrast
-            than its square root are smoothed over (0.01 0.740, 0.001 0.743, 0.0001 0.743 with the colour
-            guide; with the grey guide and every later step, 0.003 0.749 against 0.001's 0.750).
-        temporal_weight: each frame's score is averaged with its neighbours' scores carried to it along
-            the flow, each neighbour with this weight against the frame's own 1 (0 = off; needs the
-            flows in the FrameMotion).
+        flow: dense flow and camera fit (DIS medium, patch stride 4, 3 refinement iterations).
+        work_scale: the mask steps run on images resized by this factor; masks are resized back (nearest).
+        eps_px: residuals are compared as log(residual + eps_px), full-resolution pixels.
+        min_residual_px: a pixel whose residual is below this (full-resolution pixels) is never moving.
+        noise_factor: nor one whose residual is below this many times the frame's median residual.
+        fb_weight: the score loses this times the local mean of log(1 + forward-backward error).
+        fb_box_px: side of the box (work-scale pixels) averaging the forward-backward error and the spread.
+        spread_weight: the score loses this times log(1 + the flow's local spread).
+        guided_radius: radius of the guided filter of the score, grey frame as guide (0 = off).
+        guided_eps: the guided filter's regulariser, (intensity / 255)^2.
+        temporal_weight: weight of the neighbours' scores carried along the flow (0 = off).
         temporal_passes: how often that averaging is repeated (each pass reaches one frame further).
-        colour_weight: weight of the colour model's log ratio (0 = off). 0.5 before the local colour
-            contrast; with it (DAVIS dev, whole video J / F, guided radius 4): 0.25 0.759 / 0.730, 0.5 0.767 /
-            0.742, 0.75 0.770 / 0.746; with radius 2: 0.5 0.771 / 0.745, 0.75 0.773 / 0.749, 1.0 0.773 / 0.751
-            (the local contrast at 1.0 instead of 1.5 with 0.75: 0.771 / 0.746). Then the local contrast's
-            classes taken from the score with this colour model in rather than before it: 0.774 / 0.753,
-            first 5 frames 0.733 / 0.707 -> 0.737 / 0.712.
-        colour_bins: histogram bins per RGB channel. With the colour memory, finer bins tell an object's
-            colours from the background's better: DAVIS dev, whole video J 16 0.744, 24 0.748, 32 0.750,
-            48 0.752 (first 5 frames: 16 0.699, 24 0.703, 32 0.707); rendered dev clips 0.582 / 0.580
-            (16 / 32).
-        colour_margin: pixels more than this above (below) the frame's threshold in log units train
-            the moving (static) colour model.
-        local_colour_weight: weight of the local colour contrast (`_local_colour_contrast`): a pixel whose
-            colour is nearer the mean colour of the confidently moving pixels around it than that of the
-            confidently static ones (by the score with the clip's colour model in) gains up to this much,
-            and loses as much in the other case. The clip's colour model (colour_weight) cannot tell a cast
-            shadow or the ground under a wheel from the object when the same colours move and stand still
-            elsewhere in the frame; next to the object
-            the two classes' colours differ (DAVIS dev, whole video J / F 0.761 / 0.728 -> 0.767 / 0.742;
-            first 5 frames 0.718 / 0.683 -> 0.729 / 0.704). Chosen on the dev clips before the first frame
-            of a window took its flow back (base 0.759): weight 0.5 0.762-0.764 (box 15 / 31), 1.0 0.765
-            (box 61 or 91), 1.5 0.766, 2.0 0.766; an isotropic Gaussian per class instead of the means
-            0.765. At 1.5: hockey, motorbike, motocross-bumps, bmx-bumps, tennis and horsejump-low gain
-            0.01-0.04; flamingo, dog-agility and bus lose 0.01-0.02. 0 = off.
-        local_colour_box_px: side of the box (work-scale pixels) of those local means.
-        smooth_lambda: after the guided filter, the score is smoothed by OpenCV ximgproc's fast global
-            smoother (Min et al.'s weighted least squares, the work-scale colour frame as the guide) with this
-            smoothness weight: the score spreads within regions of like colour and stops at colour edges,
-            where the grey guided filter (radius 2) sees only its small window. DAVIS dev, whole video J / F
-            0.774 / 0.753 -> 0.779 / 0.753, first 5 frames 0.737 -> 0.742 (motocross-bumps, tennis,
-            breakdance-flare gain 0.01-0.03); lambda 4 / 8 / 32 at sigma 10: 0.777 / 0.778 / 0.778; 8 at sigma 5 /
-            20: 0.777 / 0.776; instead of the guided filter (lambda 8 or 4): 0.777 / 0.772; rendered dev clips
-            and long rendered dev clips unchanged (0.649 -> 0.650, 0.841 -> 0.841). About 2-3 ms per 640x360
-            frame. 0 = off.
+        colour_weight: weight of the colour model's log ratio (0 = off).
+        colour_bins: histogram bins per RGB channel of the colour model.
+        colour_margin: pixels this far (log units) above / below the threshold train the colour model.
+        local_colour_weight: weight of the local colour contrast (`_local_colour_contrast`; 0 = off).
+        local_colour_box_px: side of the box (work-scale pixels) of the local colour means.
+        smooth_lambda: strength of the fast global smoother after the guided filter (0 = off).
         smooth_sigma: its colour scale (0-255 units): colours farther apart than this are an edge.
-        colour_memory: whole-video mode: the colour counts of the windows before count, multiplied
-            by this once per window (`ColourMemory`; 0 = each window alone). DAVIS dev, whole video: J
-            0.740 -> 0.744 (0.6 gave 0.744 as well; elephant, whose legs stand still in some windows,
-            0.64 -> 0.67).
-        superpixels: approximate number of SLIC superpixels per frame (0 = off, the default: see
-            step 4 of the module docstring).
+        colour_memory: whole videos: decay of the colour counts of the windows before (0 = each window alone).
+        superpixels: approximate number of SLIC superpixels the score is averaged over (0 = off).
         compactness: SLIC compactness (colour vs distance).
-        superpixel_iterations: SLIC's k-means iterations (its default is 10; each costs ~8 ms per
-            427x240 image).
-        min_component: connected moving regions whose strength is below this share of the frame's
-            strongest are dropped (0 = keep all).
-        component_power: a region's strength is its area times its mean residual to this power
-            (0 = area alone, as before; step 5 of the module docstring).
-        anchor_tracks: whole videos: a moving motion the frame before showed keeps a region that
-            step 5 would drop when at least this many of its tracks lie in it, more than of any
-            other motion, and no stronger region shows it (a slower object beside a faster one
-            stays while its tracks go on; motions never shown are not added: a new mover must be
-            strong). Long rendered dev clips (seeds 10-21): video J 0.816 -> 0.832, labels per object
-            1.72 -> 1.68; DAVIS dev, whole video J 0.750 either way. Adding motions never shown as well
-            cost DAVIS (5 frames: 0.707 -> 0.692, flamingo 0.82 -> 0.59: the other flamingos walk
-            too, and DAVIS-2016 labels only the main object). Clips and a window's own frames as
-            "before" (a motion strong in one frame of the stack keeps its weak regions in the others):
-            rendered dev clips J 0.580 -> 0.584, DAVIS dev 5 frames 0.707 either way, long rendered dev
-            clips unchanged: not kept. 0 = off.
+        superpixel_iterations: SLIC's k-means iterations.
+        min_component: moving regions weaker than this share of the frame's strongest are dropped.
+        component_power: a region's strength is its area times its mean residual to this power.
+        anchor_tracks: whole videos: a motion the frame before showed keeps a region step 5 would drop
+            when at least this many of its tracks lie in it (0 = off).
     """
 
     flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=3))
