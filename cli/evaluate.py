@@ -228,7 +228,7 @@ def eval_(
         MethodChoice | None,
         typer.Option(
             "--method",
-            help="End-to-end protocols: how tracks become motions, subspacenet or geometric (default: the pipeline's).",
+            help="End-to-end protocols: how tracks become motions, subspacenet, geometric or joint (default: the pipeline's).",
         ),
     ] = None,
     points: Annotated[

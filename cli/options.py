@@ -117,8 +117,9 @@ Method = Annotated[
     typer.Option(
         "--method",
         help="How tracks become motions: subspacenet (default: the learned embedding, automatic K, the rigid-motion "
-        "check) or geometric (homographies / fundamental matrices fitted one after another, automatic K; "
-        "no model needed). moseg pair always uses the embedding.",
+        "check), geometric (homographies / fundamental matrices fitted one after another, automatic K; "
+        "no model needed) or joint (the embedding's groups, then a model per group chosen by GRIC that merges, "
+        "splits and moves tracks). moseg pair always uses the embedding.",
     ),
 ]
 

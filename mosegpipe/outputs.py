@@ -161,7 +161,15 @@ def _write_clip_views(folder: Path, result: ClipResult, summary: dict[str, Any],
         from mosegpipe.viz import write_recording
 
         c = result.clustering
-        clip_args = (result.frames, result.tracks, traj.track_ids, c.labels, result.embeddings, result.masks)
+        shown = c.labels >= 0  # method "joint" leaves out the tracks no model explains (-1): not drawn
+        clip_args = (
+            result.frames,
+            result.tracks,
+            traj.track_ids[shown],
+            c.labels[shown],
+            result.embeddings[shown],
+            result.masks,
+        )
         k_why = {"k_note": c.note, "k_method": c.method}
         _timed_recording(summary, write_recording, folder / "recording.rrd", *clip_args, c.scores, c.k, **k_why)
 
@@ -192,7 +200,7 @@ def clip_summary(result: ClipResult, cfg: PipelineConfig) -> dict[str, Any]:
         "k_reason": k_statement(c.k, c.scores, c.note, c.method),
         "num_tracks_detected": result.tracks.num_tracks,
         "num_tracks_segmented": result.trajectories.num_points,
-        "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
+        "tracks_per_motion": np.bincount(c.labels[c.labels >= 0], minlength=c.k).tolist(),
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
         "model": result.model_info,
         "config": asdict(cfg),
@@ -488,7 +496,7 @@ def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> di
         "k_scores": {str(k): float(v) for k, v in c.scores.items()},
         "k_note": c.note,
         "k_reason": k_statement(c.k, c.scores, c.note, c.method),
-        "tracks_per_motion": np.bincount(c.labels, minlength=c.k).tolist(),
+        "tracks_per_motion": np.bincount(c.labels[c.labels >= 0], minlength=c.k).tolist(),
         "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
         "model": result.model_info,
         "config": asdict(cfg),

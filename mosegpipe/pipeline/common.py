@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.flow import FrameMotion
+from mosegpipe.geometry_select import select_models
 from mosegpipe.inference import Embedder, load_embedder
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import split_by_rigid_motion
@@ -58,8 +59,19 @@ def check_rigid(
     """`clustering` after the rigid-motion check (unchanged when K was given or the check is off); it
     splits off no more groups than cfg.cluster.k_max allows.
 
-    Its note then says how many groups the check split off, after automatic K's own note.
+    Its note then says how many groups the check split off, after automatic K's own note. With method
+    "joint", the model selection of `check_joint` follows the check (cfg.joint.rigid_first) or takes its place.
     """
+    if cfg.method == "joint":
+        if cfg.joint.rigid_first:
+            clustering = _rigid_split(clustering, points, size_hw, cfg)
+        return check_joint(clustering, points, cfg)
+    return _rigid_split(clustering, points, size_hw, cfg)
+
+
+def _rigid_split(
+    clustering: Clustering, points: npt.NDArray[np.float32], size_hw: tuple[int, int], cfg: PipelineConfig
+) -> Clustering:
     if cfg.k is not None or not cfg.rigid.enabled:
         return clustering
     labels, split = split_by_rigid_motion(points, clustering.labels, size_hw, cfg.rigid, max_k=cfg.cluster.k_max)
@@ -68,6 +80,21 @@ def check_rigid(
     what = f"the rigid-motion check split off {split} group{'s' if split > 1 else ''} (K = {clustering.k} -> {clustering.k + split})"
     note = f"{clustering.note}; {what}" if clustering.note else what
     return replace(clustering, labels=labels, k=clustering.k + split, note=note)
+
+
+def check_joint(clustering: Clustering, points: npt.NDArray[np.float32], cfg: PipelineConfig) -> Clustering:
+    """`clustering` after the model selection of method "joint" (`mosegpipe.geometry_select`): groups split
+    and merged, tracks moved to the group whose model explains them (or, with cfg.joint.leave_out, labelled
+    -1 when none does); unchanged when K was given. Splits stop at cfg.cluster.k_max, and the note says
+    what changed after automatic K's own note."""
+    if cfg.k is not None:
+        return clustering
+    labels, what = select_models(points, clustering.labels, cfg.joint, k_max=max(cfg.cluster.k_max, clustering.k))
+    k = int(labels.max()) + 1 if (labels >= 0).any() else 0
+    if k == 0:  # every track left out: keep the embedding's groups
+        return clustering
+    note = f"{clustering.note}; {what}" if clustering.note and what else clustering.note or what
+    return replace(clustering, labels=labels, k=k, note=note)
 
 
 def world_to_zero(

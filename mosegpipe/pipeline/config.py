@@ -19,6 +19,7 @@ from typing import Any, Literal, Union, cast, get_args, get_origin, get_type_hin
 from mosegpipe.cluster import ClusterConfig
 from mosegpipe.errors import ConfigError, check_choice
 from mosegpipe.flow_tracks import FlowTrackConfig
+from mosegpipe.geometry_select import JointConfig
 from mosegpipe.grouping import GeometricConfig
 from mosegpipe.masks import MaskConfig
 from mosegpipe.match import MatchConfig
@@ -64,7 +65,9 @@ class PipelineConfig:
         k: force this many motions (None = automatic K).
         method: how tracks become motions (SEGMENT_METHODS): "subspacenet" embeds them and clusters
             the embeddings (cluster, rigid); "geometric" fits rigid motions to them one after another
-            (mosegpipe.grouping.group_geometric with `geometric`; no embedding, no rigid-motion check).
+            (mosegpipe.grouping.group_geometric with `geometric`; no embedding, no rigid-motion check);
+            "joint" clusters the embeddings (cluster), then splits, merges and moves tracks by the
+            model each group selects (mosegpipe.geometry_select with `joint`, after the rigid-motion check).
             Pairs are always segmented with the embedding.
         min_tracks: fewer surviving tracks / matches than this is an error (too little texture).
         tracker: where a clip's points come from (`mosegpipe.flow_tracks.TRACKERS`): "klt" corners,
@@ -78,6 +81,7 @@ class PipelineConfig:
             with k given): groups of tracks that their cluster's rigid motion does not explain
             become clusters of their own (mosegpipe.rigid).
         geometric: the settings of method "geometric".
+        joint: the settings of method "joint".
         mask: dense-mask settings.
         world: how the world's motion (label 0) is told from the moving ones (mosegpipe.world).
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix RANSAC fit explains less
@@ -103,6 +107,7 @@ class PipelineConfig:
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     rigid: RigidCheckConfig = field(default_factory=RigidCheckConfig)
     geometric: GeometricConfig = field(default_factory=GeometricConfig)
+    joint: JointConfig = field(default_factory=JointConfig)
     mask: MaskConfig = field(default_factory=MaskConfig)
     world: WorldConfig = field(default_factory=WorldConfig)
     outlier_inlier_ratio: float = 0.5

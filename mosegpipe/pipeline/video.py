@@ -351,8 +351,16 @@ def _cluster_window(
         clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
     before = np.array([run.prev.get(int(i), -1) for i in common], np.int64)
     clustering = world_to_zero(clustering, traj.data, tracks.size_hw, cfg, before == WORLD, before >= 0, motion)
-    glob = match_labels(
-        run.prev, common, clustering.labels, clustering.k, run.book, run.num_windows, world=cfg.world.enabled
+    glob = np.full(common.size, -1, np.int64)
+    kept = clustering.labels >= 0  # method "joint" leaves out the tracks no model explains (-1)
+    glob[kept] = match_labels(
+        run.prev,
+        common[kept],
+        clustering.labels[kept],
+        clustering.k,
+        run.book,
+        run.num_windows,
+        world=cfg.world.enabled,
     )
     found = _WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[glob >= 0], glob[glob >= 0])
     run.prev, run.prev_k = found.by_id(), sweep_k

@@ -1,0 +1,431 @@
+"""Joint grouping: the embedding proposes the groups, geometric model selection corrects them.
+
+`select_models` takes the groups that K-means (automatic K) found on the embedding and lets a
+penalised criterion over the frames of the window (at most `max_pairs` frame pairs) decide what they are:
+
+1. Model selection per group. Four models of how a group's points move from frame 0 to frame t
+   (translation, affine, homography, fundamental matrix) are fitted for every frame pair (0, t):
+   RANSAC on the pair (0, F - 1) finds the inliers (`residual_px`), a least-squares fit on each pair
+   from those inliers gives the model of the window, and the inliers are refitted once. The model
+   kept is the one with the smallest GRIC (Torr's geometric robust information criterion,
+   `gric`) summed over the frame pairs: residuals against a noise of `sigma_px`, robustly capped,
+   plus a cost per point for the model's dimension (a fundamental matrix explains any point's
+   motion along a line, so it pays more per point) and a cost for its parameters. A group whose
+   model explains less than `rigid_share` of its tracks is not one rigid motion (a person, an
+   animal): geometry has no say on it, and the embedding's group stands as it is.
+2. Split. A group other than the largest (the world, which the rigid-motion check already splits;
+   `split_largest`) is cut into the tracks of its dominant planar motion (the homography or affine
+   map that explains most of it, by RANSAC) and the rest when the rest is one motion of its own (one
+   homography explains `planar_share` of it, it is at least the smallest group, `min_group` /
+   `min_share`) and the two groups' GRIC is lower than that of the best planar model of the whole;
+   not when both parts need a fundamental matrix (the depth of one scene). Repeated until no group
+   splits or K reaches `k_max`.
+3. Merge. Two rigid groups are merged when one planar model of their union explains `merge_share`
+   of each and has a lower GRIC than their two models: K-means cut one motion in two (a turning
+   object, a plane of the world). A fundamental matrix is the union's model only with `merge_3d` and
+   when both groups need one: beside a part that one homography explains (a still or rotating camera,
+   a plane) it is degenerate and explains an object that translates too, and even between two 3D
+   groups a car driving along the camera's direction fits the world's matrix (measured on
+   kt3d-video, hence off). GRIC alone would merge a small group into a large one, its points costing
+   no more than the capped outliers they become; hence the share. The pair with the largest gain
+   first, repeated.
+4. Outliers. A track of a rigid group that its own model does not explain in most frame pairs
+   (residual above `outlier_px`) goes to the rigid group whose planar model explains it (residual
+   within `residual_px` in most frame pairs), the best such (a fundamental matrix, loose, takes
+   none). When none does, with `leave_out` it is left out of every object (label -1); by default it
+   keeps its group, since the protocols that score every track count a track left out as wrong
+   (kt3d-video: 3.68 % -> 5.22 %). Tracks of the groups that are not rigid keep their label.
+
+The pipeline (`PipelineConfig.method` "joint") runs the rigid-motion check first (`rigid_first`), then
+this. Measured in docs/results/41-geometry.md.
+
+Memory is O(N K) residuals per frame pair. Nothing is applied when K is given (the caller's rule).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.errors import ConfigError
+from mosegpipe.rigid import _h_residual_px, _sampson_px
+
+logger = logging.getLogger(__name__)
+
+ModelKind = Literal["translation", "affine", "homography", "fundamental"]
+MODEL_KINDS: tuple[ModelKind, ...] = ("translation", "affine", "homography", "fundamental")
+
+# (dimension of the model's manifold d, number of parameters k) per model, for GRIC (r = 4: two image points)
+_DIM_PARAMS: dict[str, tuple[int, int]] = {
+    "translation": (2, 2),
+    "affine": (2, 6),
+    "homography": (2, 8),
+    "fundamental": (3, 7),
+}
+# the fewest points each model is fitted to (a fundamental matrix needs 8; 15 to constrain it at all)
+_LEAST: dict[str, int] = {"translation": 2, "affine": 4, "homography": 6, "fundamental": 15}
+
+
+def gric(errors_sq: npt.NDArray[np.float64], sigma_px: float, d: int, k: int, r: int = 4) -> float:
+    """Torr's geometric robust information criterion of a two-view model (lower is better).
+
+    Args:
+        errors_sq: (n,) squared residuals of the correspondences, pixels^2.
+        sigma_px: the noise of a correspondence, pixels.
+        d: the dimension of the model's manifold (homography, affine, translation 2, fundamental matrix 3).
+        k: the model's parameters (homography 8, fundamental matrix 7, affine 6, translation 2).
+        r: the dimension of a correspondence (4: two image points).
+    """
+    n = errors_sq.size
+    rho = np.minimum(errors_sq / sigma_px**2, 2.0 * (r - d))
+    return float(rho.sum() + np.log(r) * d * n + np.log(r * max(n, 1)) * k)
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """Settings of `select_models` (method "joint"; see the module docstring for what each one does).
+
+    Attributes:
+        sigma_px: the noise of a track's position, pixels (GRIC's sigma).
+        residual_px: a track within this many pixels of a model is its inlier (RANSAC's distance too).
+        outlier_px: a track further than this from its group's model in most frame pairs is not
+            explained by it (step 4); None: no track is moved or left out.
+        rigid_share: a group is one rigid motion when its model explains at least this share of it.
+        planar_share: a split's second part must be one motion: a homography explains this share of it.
+        merge_share: two groups merge only when the union's model explains this share of each.
+        reassign: a track its group's model does not explain may go to a group whose model does (else
+            it is left out).
+        leave_out: a track that no model explains is left out (-1); else it keeps its group.
+        merge_3d: two groups that both need a fundamental matrix may merge under one (off: an object
+            moving along the camera's direction fits the world's matrix, the motion degeneracy).
+        split_largest: the largest group (usually the world) may be split too.
+        rigid_first: the rigid-motion check (mosegpipe.rigid) splits the groups first (the caller's rule).
+        min_group: the smallest group a split makes, in tracks ...
+        min_share: ... and as a share of all tracks; the larger applies.
+        max_pairs: at most this many frame pairs (0, t), spread evenly over the window, are fitted.
+        ransac_iters: RANSAC iterations per model.
+        seed: OpenCV's random seed, set before each selection (same seed, same labels).
+    """
+
+    sigma_px: float = 1.0  # KLT tracks: about 0.5 px noise, plus drift over the window; world.parallax_sigma_px
+    residual_px: float = 1.5  # as the rigid-motion check and the geometric fit
+    outlier_px: float | None = 4.0  # well beyond the noise: a tracker failure or a motion of its own
+    rigid_share: float = 0.5
+    planar_share: float = 0.8  # as the geometric fit: one plane explaining 4/5 of the rest is an object
+    merge_share: float = 0.8  # as the rigid-motion check's merge_consistency
+    reassign: bool = True
+    leave_out: bool = False  # True: composites J +0.03, kt3d-video +1.5 points of error (left out = wrong)
+    merge_3d: bool = False  # KT3D (kt3d-video): cars driving with the camera fit the world's matrix
+    split_largest: bool = False
+    rigid_first: bool = True
+    min_group: int = 10  # as the geometric fit: fewer barely constrain a model
+    min_share: float = 0.02
+    max_pairs: int = 8  # a 20-frame window: every third frame or so; enough to see a motion change
+    ransac_iters: int = 1000
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("sigma_px", "residual_px"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"joint: {name}={value} must be a finite number > 0")
+        if self.outlier_px is not None and not (math.isfinite(self.outlier_px) and self.outlier_px > 0):
+            raise ConfigError(f"joint: outlier_px={self.outlier_px} must be a finite number > 0 (or None)")
+        for name in ("rigid_share", "planar_share", "merge_share"):
+            if not 0 < getattr(self, name) <= 1:
+                raise ConfigError(f"joint: {name}={getattr(self, name)} must lie in (0, 1]")
+        if not 0 <= self.min_share < 1:
+            raise ConfigError(f"joint: min_share={self.min_share} must lie in [0, 1)")
+        for name in ("min_group", "max_pairs", "ransac_iters"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"joint: {name}={getattr(self, name)} must be at least 1")
+
+
+@dataclass(frozen=True)
+class GroupModel:
+    """One group's model over the window: a 3x3 matrix per frame pair (0, t) and its evidence.
+
+    Attributes:
+        kind: translation, affine, homography or fundamental.
+        mats: one (3, 3) float64 matrix per frame pair (translation and affine as homographies).
+        score: the model's GRIC on the group, summed over the frame pairs (lower is better).
+        share: the share of the group's tracks it explains (residual within residual_px in every pair).
+    """
+
+    kind: str
+    mats: tuple[npt.NDArray[np.float64], ...]
+    score: float
+    share: float
+
+    def residuals(self, xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """(M, P + 1, 2) positions in the fitted frames -> (M, P) residual per frame pair, pixels."""
+        pair = _sampson_px if self.kind == "fundamental" else _h_residual_px
+        a = np.ascontiguousarray(xy[:, 0])
+        return np.stack([pair(m, a, np.ascontiguousarray(xy[:, t + 1])) for t, m in enumerate(self.mats)], axis=1)
+
+
+def _pair_fit(kind: str, a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]) -> npt.NDArray[np.float64] | None:
+    """The model of all correspondences a -> b by least squares, None when degenerate."""
+    if kind == "translation":
+        mat = np.eye(3)
+        mat[:2, 2] = np.mean(b - a, axis=0)
+        return mat
+    if kind == "affine":
+        design = np.c_[a, np.ones(len(a))]
+        sol, _, rank, _ = np.linalg.lstsq(design, b, rcond=None)
+        if rank < 3:
+            return None
+        return np.vstack([sol.T, [0.0, 0.0, 1.0]])
+    if kind == "homography":
+        found, _ = cv2.findHomography(a, b, 0)
+    else:
+        found, _ = cv2.findFundamentalMat(a, b, cv2.FM_8POINT)
+    if found is None or found.shape != (3, 3) or not np.all(np.isfinite(found)):
+        return None
+    return np.asarray(found, dtype=np.float64)
+
+
+def _ransac_inliers(
+    kind: str, a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cfg: JointConfig
+) -> npt.NDArray[np.bool_] | None:
+    """The inliers of the model of most correspondences a -> b (RANSAC), None when none is found."""
+    thr = cfg.residual_px
+    if kind == "translation":
+        d = b - a
+        return np.asarray(np.linalg.norm(d - np.median(d, axis=0), axis=1) <= thr)
+    if kind == "affine":
+        _, mask = cv2.estimateAffine2D(a, b, method=cv2.RANSAC, ransacReprojThreshold=thr, maxIters=cfg.ransac_iters)
+    elif kind == "homography":
+        _, mask = cv2.findHomography(a, b, cv2.RANSAC, thr, maxIters=cfg.ransac_iters, confidence=0.999)
+    else:
+        _, mask = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, thr, 0.999, cfg.ransac_iters)
+    if mask is None or len(mask) != len(a):
+        return None
+    return np.asarray(mask.ravel().astype(bool))
+
+
+def fit_model(kind: str, xy: npt.NDArray[np.float64], cfg: JointConfig = JointConfig()) -> GroupModel | None:
+    """One kind of model of the tracks xy (M, P + 1, 2) over the frame pairs (0, t) (step 1), or None.
+
+    The inliers of RANSAC on the pair (0, P) give a least-squares model per frame pair; the tracks it
+    explains in every pair are refitted once. Its score is GRIC summed over the pairs.
+    """
+    if len(xy) < _LEAST[kind]:
+        return None
+    a = np.ascontiguousarray(xy[:, 0])
+    inliers = _ransac_inliers(kind, a, np.ascontiguousarray(xy[:, -1]), cfg)
+    best: tuple[tuple[npt.NDArray[np.float64], ...], npt.NDArray[np.float64]] | None = None
+    for _ in range(2):
+        if inliers is None or inliers.sum() < _LEAST[kind]:
+            break
+        pair_mats = [_pair_fit(kind, a[inliers], np.ascontiguousarray(xy[inliers, t])) for t in range(1, xy.shape[1])]
+        if any(m is None for m in pair_mats):
+            break
+        found = tuple(m for m in pair_mats if m is not None)
+        res = GroupModel(kind, found, 0.0, 0.0).residuals(xy)
+        if (
+            best is not None
+            and (res.max(axis=1) <= cfg.residual_px).sum() < (best[1].max(axis=1) <= cfg.residual_px).sum()
+        ):
+            break
+        best = (found, res)
+        inliers = res.max(axis=1) <= cfg.residual_px
+    if best is None:
+        return None
+    mats, res = best
+    d, k = _DIM_PARAMS[kind]
+    score = sum(gric(res[:, t] ** 2, cfg.sigma_px, d, k) for t in range(res.shape[1]))
+    return GroupModel(kind, mats, score, float((res.max(axis=1) <= cfg.residual_px).mean()))
+
+
+def best_model(xy: npt.NDArray[np.float64], cfg: JointConfig = JointConfig()) -> GroupModel | None:
+    """The model of the tracks xy (M, P + 1, 2) with the lowest GRIC (step 1), None when none fits."""
+    fitted = [m for m in (fit_model(kind, xy, cfg) for kind in MODEL_KINDS) if m is not None]
+    return min(fitted, key=lambda m: m.score) if fitted else None
+
+
+def _pairs(num_frames: int, most: int) -> npt.NDArray[np.int64]:
+    """Frames 0 and up to `most` later frames spread evenly to the last."""
+    later = np.unique(np.round(np.linspace(1, num_frames - 1, min(most, num_frames - 1))).astype(np.int64))
+    return np.concatenate([[0], later])
+
+
+@dataclass
+class _Group:
+    rows: npt.NDArray[np.int64]
+    model: GroupModel | None
+
+    def is_rigid(self, cfg: JointConfig) -> bool:
+        return self.model is not None and self.model.share >= cfg.rigid_share
+
+
+def _planar(model: GroupModel | None) -> bool:
+    return model is not None and model.kind != "fundamental"
+
+
+def best_planar(xy: npt.NDArray[np.float64], cfg: JointConfig = JointConfig()) -> GroupModel | None:
+    """The translation, affine map or homography of the tracks xy with the lowest GRIC, None when none fits."""
+    fitted = [m for m in (fit_model(kind, xy, cfg) for kind in MODEL_KINDS[:3]) if m is not None]
+    return min(fitted, key=lambda m: m.score) if fitted else None
+
+
+def _try_split(
+    xy: npt.NDArray[np.float64], group: _Group, min_size: int, cfg: JointConfig
+) -> tuple[_Group, _Group] | None:
+    """The group cut into its dominant planar motion and the rest when two models beat one (step 2)."""
+    if group.model is None or group.rows.size < 2 * min_size:
+        return None
+    own = xy[group.rows]
+    fits = [m for m in (fit_model(kind, own, cfg) for kind in ("homography", "affine")) if m is not None]
+    if not fits:
+        return None
+    dominant = max(fits, key=lambda m: m.share)
+    first = dominant.residuals(own).max(axis=1) <= cfg.residual_px
+    if first.sum() < min_size or (~first).sum() < min_size:
+        return None
+    a, b = (
+        _Group(group.rows[first], best_model(own[first], cfg)),
+        _Group(group.rows[~first], best_model(own[~first], cfg)),
+    )
+    if a.model is None or b.model is None or not b.is_rigid(cfg):
+        return None
+    if not (_planar(a.model) or _planar(b.model)):
+        return None  # both parts need a fundamental matrix: one scene's depth, the whole's matrix stands
+    rest = fit_model("homography", own[~first], cfg)
+    if rest is None or rest.share < cfg.planar_share:
+        return None  # the rest is no one motion of its own (depth around the dominant plane)
+    one = best_planar(own, cfg)
+    if one is not None and a.model.score + b.model.score >= one.score:
+        return None
+    return a, b
+
+
+def _merge_gain(xy: npt.NDArray[np.float64], one: _Group, two: _Group, cfg: JointConfig) -> tuple[float, _Group] | None:
+    """(GRIC saved, the merged group) when one model of the union beats the two (step 3), else None.
+
+    A fundamental matrix is the union's model only when both groups need one: with a part that one
+    homography explains (a still or rotating camera, a plane), it is degenerate and explains an object
+    that translates as well.
+    """
+    assert one.model is not None and two.model is not None
+    rows = np.concatenate([one.rows, two.rows])
+    both_3d = cfg.merge_3d and not _planar(one.model) and not _planar(two.model)
+    model = best_model(xy[rows], cfg) if both_3d else best_planar(xy[rows], cfg)
+    if model is None:
+        return None
+    fits = model.residuals(xy[rows]).max(axis=1) <= cfg.residual_px
+    if min(fits[: one.rows.size].mean(), fits[one.rows.size :].mean()) < cfg.merge_share:
+        return None  # GRIC caps an outlier's cost: a small group's motion must be explained, not outvoted
+    gain = one.model.score + two.model.score - model.score
+    return (gain, _Group(rows, model)) if gain > 0 else None
+
+
+def select_models(
+    points: npt.ArrayLike,
+    labels: npt.ArrayLike,
+    cfg: JointConfig = JointConfig(),
+    k_max: int = 8,
+) -> tuple[npt.NDArray[np.int64], str]:
+    """The embedding's groups split, merged and cleaned by model selection (module docstring).
+
+    Args:
+        points: (N, 2F) float trajectories in pixels (x_0, y_0, x_1, y_1, ...), F >= 2.
+        labels: (N,) int groups in 0..K-1 (automatic K on the embedding).
+        cfg: thresholds, see JointConfig.
+        k_max: splits stop at this many groups.
+
+    Returns:
+        ((N,) int64 labels in 0..K'-1 by decreasing group size, -1 for the tracks no model explains;
+        a note saying what changed, "" when nothing did).
+    """
+    data = np.asarray(points, dtype=np.float64)
+    labs = np.asarray(labels, dtype=np.int64).reshape(-1)
+    n = labs.size
+    if n == 0 or data.shape[1] < 4:
+        return labs.copy(), ""
+    xy = data.reshape(n, -1, 2)[:, _pairs(data.shape[1] // 2, cfg.max_pairs)]
+    cv2.setRNGSeed(cfg.seed)
+    min_size = max(cfg.min_group, math.ceil(cfg.min_share * n))
+    groups = [
+        _Group(rows, best_model(xy[rows], cfg))
+        for rows in (np.flatnonzero(labs == g) for g in np.unique(labs[labs >= 0]))
+    ]
+    splits = merges = 0
+    largest = max(range(len(groups)), key=lambda g: groups[g].rows.size) if groups else -1
+    queue = [g for g in range(len(groups)) if cfg.split_largest or g != largest]
+    while queue and len(groups) < k_max:
+        i = queue.pop(0)
+        cut = _try_split(xy, groups[i], min_size, cfg)
+        if cut is None:
+            continue
+        groups[i] = cut[0]
+        groups.append(cut[1])
+        queue += [i, len(groups) - 1]
+        splits += 1
+    while len(groups) > 1:
+        rigid = [i for i, g in enumerate(groups) if g.is_rigid(cfg)]
+        found = [
+            (m, i, j)
+            for ii, i in enumerate(rigid)
+            for j in rigid[ii + 1 :]
+            if (m := _merge_gain(xy, groups[i], groups[j], cfg))
+        ]
+        if not found:
+            break
+        (gain, merged), i, j = max(found, key=lambda f: f[0][0])
+        groups[i] = merged
+        del groups[j]
+        merges += 1
+    out = np.full(n, -1, dtype=np.int64)
+    for g, group in enumerate(groups):
+        out[group.rows] = g
+    moved = left = 0
+    rigid = [i for i, g in enumerate(groups) if g.is_rigid(cfg)]
+    if cfg.outlier_px is not None and rigid:
+        pairs = xy.shape[1] - 1
+        models = [m for m in (groups[i].model for i in rigid) if m is not None]
+        res = np.stack([m.residuals(xy) for m in models], axis=0)  # (R, N, P)
+        unexplained = (res > cfg.outlier_px).sum(axis=2) * 2 > pairs  # (R, N): off the model in most pairs
+        explained = (res <= cfg.residual_px).sum(axis=2) * 2 > pairs
+        planar = np.array([_planar(m) for m in models])[:, None]  # a loose fundamental matrix takes no tracks
+        cost = np.where(explained & planar & cfg.reassign, res.mean(axis=2), np.inf)
+        for r, i in enumerate(rigid):
+            rows = groups[i].rows[unexplained[r, groups[i].rows]]
+            if rows.size == 0:
+                continue
+            best = np.argmin(cost[:, rows], axis=0)
+            ok = np.isfinite(cost[best, rows])
+            out[rows] = np.where(ok, np.array(rigid)[best], -1 if cfg.leave_out else i)
+            moved += int(ok.sum())
+            left += int((~ok).sum()) if cfg.leave_out else 0
+    final = _by_size(out)
+    notes = [
+        f"{what} {num}"
+        for what, num in (("split", splits), ("merged", merges), ("moved", moved), ("left out", left))
+        if num
+    ]
+    kinds = ", ".join(g.model.kind if g.is_rigid(cfg) and g.model else "not rigid" for g in groups)
+    note = f"joint: models {kinds}" + (f"; {', '.join(notes)}" if notes else "")
+    logger.debug("%s", note)
+    return final, note
+
+
+def _by_size(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Labels renumbered 0..K-1 by decreasing group size (ties: first appearance), -1 kept."""
+    out = np.full(labels.size, -1, dtype=np.int64)
+    keep = labels >= 0
+    if keep.any():
+        values, first, inverse, counts = np.unique(
+            labels[keep], return_index=True, return_inverse=True, return_counts=True
+        )
+        order = np.lexsort((first, -counts))
+        new_id = np.empty(values.size, dtype=np.int64)
+        new_id[order] = np.arange(values.size, dtype=np.int64)
+        out[keep] = new_id[inverse.ravel()]
+    return out

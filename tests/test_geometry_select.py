@@ -1,0 +1,138 @@
+"""The joint grouping's model selection on hand-made tracks: merge, split, outliers left out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mosegpipe.errors import ConfigError
+from mosegpipe.geometry_select import JointConfig, best_model, gric, select_models
+
+FRAMES = 5
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _moving(
+    rng: np.random.Generator,
+    n: int,
+    box: tuple[float, float, float, float],
+    step: tuple[float, float],
+    turn: float = 0.0,
+) -> np.ndarray:
+    """(n, 2F) tracks of points in box (x0, y0, x1, y1) moving by `step` px and turning by `turn` rad a frame."""
+    x0, y0, x1, y1 = box
+    p = np.c_[rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)]
+    centre = p.mean(axis=0)
+    out = []
+    for t in range(FRAMES):
+        c, s = np.cos(turn * t), np.sin(turn * t)
+        q = (p - centre) @ np.array([[c, s], [-s, c]]) + centre + np.array(step) * t
+        out.append(q + rng.normal(0, 0.2, q.shape))
+    return np.stack(out, axis=1).reshape(n, -1)
+
+
+def test_two_motions_cut_in_three_are_merged() -> None:
+    rng = np.random.default_rng(0)
+    world = _moving(rng, 200, (0, 0, 640, 480), (0.0, 0.0))
+    car = _moving(rng, 60, (300, 200, 400, 280), (6.0, 1.0))
+    points = np.vstack([world, car])
+    labels = np.r_[np.zeros(100, int), np.ones(100, int), np.full(60, 2)]  # K-means cut the world in two
+    out, note = select_models(points, labels)
+    assert "merged 1" in note
+    assert len(np.unique(out[:200])) == 1 and len(np.unique(out[200:])) == 1 and out[0] != out[-1]
+
+
+def test_a_group_of_two_motions_is_split() -> None:
+    rng = np.random.default_rng(1)
+    world = _moving(rng, 300, (0, 0, 640, 480), (1.0, 0.0))
+    one = _moving(rng, 60, (100, 100, 200, 180), (8.0, 0.0))
+    two = _moving(rng, 50, (400, 300, 500, 380), (-2.0, 5.0), turn=0.03)
+    points = np.vstack([world, one, two])
+    labels = np.r_[np.zeros(300, int), np.ones(110, int)]
+    out, note = select_models(points, labels)
+    assert "split 1" in note
+    assert len(np.unique(out[300:360])) == 1 and len(np.unique(out[360:])) == 1 and out[300] != out[-1]
+    assert len(np.unique(out)) == 3
+
+
+def test_tracks_no_model_explains_are_left_out() -> None:
+    rng = np.random.default_rng(2)
+    world = _moving(rng, 200, (0, 0, 640, 480), (0.0, 0.0))
+    car = _moving(rng, 60, (300, 200, 400, 280), (6.0, 1.0))
+    start = rng.uniform(0, 480, (8, 2))
+    wild = np.cumsum(np.concatenate([start[:, None], rng.normal(0, 12, (8, FRAMES - 1, 2))], axis=1), axis=1)
+    points = np.vstack([world, car, wild.reshape(8, -1)])
+    labels = np.r_[np.zeros(200, int), np.ones(60, int), np.zeros(8, int)]
+    out, note = select_models(points, labels, JointConfig(leave_out=True))
+    assert np.all(out[260:] == -1) and "left out 8" in note
+    assert np.all(out[:200] == 0) and np.all(out[200:260] == 1)
+    kept, note = select_models(points, labels)  # the default: they keep their group
+    assert np.all(kept == labels) and "left out" not in note
+
+
+def test_a_track_of_another_groups_motion_moves_to_it() -> None:
+    rng = np.random.default_rng(5)
+    world = _moving(rng, 200, (0, 0, 640, 480), (0.0, 0.0))
+    car = _moving(rng, 60, (300, 200, 400, 280), (6.0, 1.0))
+    labels = np.r_[np.zeros(200, int), np.ones(60, int)]
+    labels[200:205] = 0  # five of the car's tracks in the world's group
+    out, note = select_models(np.vstack([world, car]), labels)
+    assert np.all(out[200:] == 1) and np.all(out[:200] == 0) and "moved 5" in note
+
+
+def test_a_group_no_rigid_model_explains_is_kept() -> None:
+    rng = np.random.default_rng(3)
+    world = _moving(rng, 200, (0, 0, 640, 480), (0.0, 0.0))
+    start = rng.uniform(200, 300, (40, 2))
+    limbs = np.cumsum(np.concatenate([start[:, None], rng.normal(0, 6, (40, FRAMES - 1, 2))], axis=1), axis=1)
+    out, _ = select_models(np.vstack([world, limbs.reshape(40, -1)]), np.r_[np.zeros(200, int), np.ones(40, int)])
+    assert np.all(out[200:] == 1) and np.all(out[:200] == 0)
+
+
+def test_gric_prefers_the_plane_for_planar_points_and_the_matrix_for_depth() -> None:
+    rng = np.random.default_rng(4)
+    plane = _moving(rng, 100, (0, 0, 640, 480), (3.0, 0.0)).reshape(100, FRAMES, 2)
+    model = best_model(plane)
+    assert model is not None and model.kind != "fundamental" and model.share > 0.95
+    # a camera moving sideways through points of many depths: displacement 1 / depth
+    depth = rng.uniform(1, 10, 150)
+    base = rng.uniform(0, 480, (150, 2))
+    deep = np.stack(
+        [base + np.c_[30.0 * t / depth, np.zeros(150)] + rng.normal(0, 0.2, (150, 2)) for t in range(FRAMES)], axis=1
+    )
+    model = best_model(deep)
+    assert model is not None and model.kind == "fundamental"
+    assert gric(np.zeros(10), 1.0, 2, 8) < gric(np.zeros(10), 1.0, 3, 7)
+
+
+def test_config_is_checked() -> None:
+    with pytest.raises(ConfigError, match="rigid_share"):
+        JointConfig(rigid_share=0.0)
+    with pytest.raises(ConfigError, match="outlier_px"):
+        JointConfig(outlier_px=-1.0)
+
+
+def test_joint_method_on_a_clip_and_a_whole_video(tmp_path: Path) -> None:
+    from mosegpipe.io import read_video
+    from mosegpipe.outputs import write_clip_outputs
+    from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_video
+
+    clip = ROOT / "samples" / "rendered" / "frames"
+    frames = read_video(clip, max_frames=5)
+    result = segment_frames(frames, PipelineConfig(frames=5, method="joint"))
+    labels = result.clustering.labels
+    assert result.clustering.k >= 2 and labels.max() == result.clustering.k - 1 and labels.min() >= -1
+    assert "joint: models" in result.clustering.note
+    # strict thresholds leave tracks out (-1): the outputs and whole videos take them
+    strict = PipelineConfig(
+        frames=5, method="joint", joint=JointConfig(outlier_px=0.05, residual_px=0.1, leave_out=True)
+    )
+    result = segment_frames(frames, strict)
+    assert (result.clustering.labels == -1).any()
+    summary = write_clip_outputs(result, tmp_path / "out", strict)
+    assert sum(summary["tracks_per_motion"]) == (result.clustering.labels >= 0).sum()
+    assert (tmp_path / "out" / "recording.rrd").is_file()
+    windows = list(segment_video(clip, strict))
+    assert windows and all(w.k >= 1 for w in windows)
