@@ -34,6 +34,7 @@ from scipy.spatial import cKDTree
 
 from mosegpipe.errors import ConfigError
 from mosegpipe.flow import FrameMotion
+from mosegpipe.geometry_select import gric
 
 WORLD_LABEL = 0
 """The world's label (the mask value colours.WORLD)."""
@@ -198,21 +199,6 @@ def world_first(labels: npt.NDArray[np.int64], world: int) -> npt.NDArray[np.int
     return out
 
 
-def _gric(errors_sq: npt.NDArray[np.float64], sigma_px: float, d: int, k: int, r: int = 4) -> float:
-    """Torr's geometric robust information criterion of a two-view model (lower is better).
-
-    Args:
-        errors_sq: (n,) squared residuals of the correspondences, pixels^2.
-        sigma_px: the noise of a correspondence, pixels.
-        d: the dimension of the model's manifold (homography 2, fundamental matrix 3).
-        k: the model's parameters (homography 8, fundamental matrix 7).
-        r: the dimension of a correspondence (4: two image points).
-    """
-    n = errors_sq.size
-    rho = np.minimum(errors_sq / sigma_px**2, 2.0 * (r - d))
-    return float(rho.sum() + np.log(r) * d * n + np.log(r * n) * k)
-
-
 def _sampson_sq(
     fm: npt.NDArray[np.float64], p: npt.NDArray[np.float64], q: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]:
@@ -230,7 +216,7 @@ def world_epipolar(
 ) -> npt.NDArray[np.float64] | None:
     """The fundamental matrix of the world's correspondences p -> q when the scene needs one (parallax).
 
-    A homography and a fundamental matrix are fitted by RANSAC and compared by GRIC (`_gric`): a planar or
+    A homography and a fundamental matrix are fitted by RANSAC and compared by GRIC (`geometry_select.gric`, shared with method "joint"): a planar or
     distant scene, or a camera that only rotates, keeps the homography (None); a scene whose depth makes the
     world's points move differently (near walls, rocks, poles) takes the fundamental matrix.
 
@@ -252,7 +238,7 @@ def world_epipolar(
         return fm
     ah = np.concatenate([a, np.ones((len(a), 1))], axis=1) @ hom.T
     h_err = np.sum((ah[:, :2] / ah[:, 2:3] - b) ** 2, axis=1)
-    if _gric(_sampson_sq(fm, a, b), cfg.parallax_sigma_px, 3, 7) < _gric(h_err, cfg.parallax_sigma_px, 2, 8):
+    if gric(_sampson_sq(fm, a, b), cfg.parallax_sigma_px, 3, 7) < gric(h_err, cfg.parallax_sigma_px, 2, 8):
         return fm
     return None
 
