@@ -344,22 +344,7 @@ def live(
     the motion masks with --preset fast unless --preset or --mask-method say otherwise.
     """
     started = time.perf_counter()
-    from mosegpipe.live import parse_size, parse_source
-
-    if (source == "-") != (stdin_size is not None):
-        raise _click.exceptions.UsageError(
-            "SOURCE '-' (raw frames on stdin) needs --stdin-size WIDTHxHEIGHT"
-            if source == "-"
-            else "--stdin-size only applies to SOURCE '-' (raw frames on stdin)",
-            ctx=ctx,
-        )
-    src = parse_source(source, realtime, None if stdin_size is None else parse_size(stdin_size), fps, drop)
-    if not (viewer or connect or serve or out):
-        raise InputError("nothing to show or write: pass --viewer, --connect URL, --serve or --out DIR")
-    if no_rrd and out is None:
-        raise InputError("--no-rrd only applies with --out (the recording is written into the output folder)")
-    if connect is not None:
-        _check_connect_url(connect)
+    src = _live_source(ctx, source, stdin_size, realtime, fps, drop, viewer, connect, serve, out, no_rrd)
     _check_model_path(model)
     _setup(threads, verbose, "mosegpipe.outputs")
     from mosegpipe.inference import load_embedder
@@ -416,19 +401,59 @@ def live(
     if result.summary is not None and out is not None:
         _print_video_summary(result.summary, out, not no_rrd)
     _print_total(started)
+    if signals.signum is None:
+        _warn_end(src, result, stdin_size, stall_timeout)
+    if signals.signum is not None:
+        _stop_line(signals.signum)
+
+
+def _live_source(
+    ctx: typer.Context,
+    source: str,
+    stdin_size: str | None,
+    realtime: bool,
+    fps: float | None,
+    drop: bool | None,
+    viewer: bool,
+    connect: str | None,
+    serve: bool,
+    out: Path | None,
+    no_rrd: bool,
+) -> Any:
+    """The parsed SOURCE (mosegpipe.live.LiveSource), once the options that go with it are checked."""
+    from mosegpipe.live import parse_size, parse_source
+
+    if (source == "-") != (stdin_size is not None):
+        raise _click.exceptions.UsageError(
+            "SOURCE '-' (raw frames on stdin) needs --stdin-size WIDTHxHEIGHT"
+            if source == "-"
+            else "--stdin-size only applies to SOURCE '-' (raw frames on stdin)",
+            ctx=ctx,
+        )
+    src = parse_source(source, realtime, None if stdin_size is None else parse_size(stdin_size), fps, drop)
+    if not (viewer or connect or serve or out):
+        raise InputError("nothing to show or write: pass --viewer, --connect URL, --serve or --out DIR")
+    if no_rrd and out is None:
+        raise InputError("--no-rrd only applies with --out (the recording is written into the output folder)")
+    if connect is not None:
+        _check_connect_url(connect)
+    return src
+
+
+def _warn_end(src: Any, result: Any, stdin_size: str | None, stall_timeout: float) -> None:
+    """The warning line of a run that ended on the source's side: a camera or a stream that ended or
+    stalled, any stalled source, or a last raw frame cut short on stdin."""
     line = _END_LINES.get(result.end) if src.kind in ("camera", "url") or result.end == "stalled" else None
     if result.partial_bytes:
         line = (
             f"the stream ended inside a frame ({result.partial_bytes} bytes of it, dropped; "
             f"is --stdin-size {stdin_size} right?)"
         )
-    if line is not None and signals.signum is None:
+    if line is not None:
         typer.echo(
             f"moseg: warning: {src.name}: {line.format(timeout=stall_timeout)} after {result.stats.frames_read} frames",
             err=True,
         )
-    if signals.signum is not None:
-        _stop_line(signals.signum)
 
 
 def _stop_line(signum: int) -> None:
