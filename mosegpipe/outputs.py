@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import ExitStack
 from dataclasses import asdict, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -45,7 +46,7 @@ from mosegpipe.viz import k_statement
 
 if TYPE_CHECKING:
     from mosegpipe.inference import Embedder
-    from mosegpipe.viz import VizConfig
+    from mosegpipe.viz import VideoRecorder, VizConfig
 
 SUMMARY_SCHEMA = "mosegpipe.summary/2"
 """Version 2: mask value = motion label (0 = the world), 255 = unknown (version 1: label + 1, 0 unknown)."""
@@ -435,47 +436,59 @@ def write_video_outputs(
                     VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps, margins=cfg.k is None)
                 )
 
-            def overlays() -> Iterator[npt.NDArray[np.uint8]]:
-                """Writes each frame's mask (and recording) as the windows arrive; yields its overlay."""
-                for window in run_ahead(
-                    segment_video(path, cfg, model, max_frames, masks=False, frames=frames),
-                    _WINDOWS_AHEAD,
-                    "moseg-segment",
-                ):
-                    # Keep what the summary and labels.npz need, not the images (flat memory).
-                    windows.append(replace(window, frames=()))
-                    if recorder is not None:
-                        recorder.log_window(window.start, window.k, window.k_scores)
-                    for fr in window.frames:
-                        keep = fr.labels >= 0
-                        mask = frame_mask(fr, cfg.mask)
-                        write_mask_png(tmp / "masks" / f"{fr.index:06d}.png", mask)
-                        if recorder is not None:
-                            recorder.log_frame(
-                                fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask
-                            )
-                        if on_frame is not None:
-                            on_frame(fr, mask)
-                        yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
-                    if on_window is not None:
-                        on_window(windows[-1])
-                    del window, fr  # before the next window is read: hold a few windows' frames at most
-
-            write_video(tmp / "overlay.mp4", overlays(), fps)
-        labelled = [w for w in windows if w.is_labelled]
-        write_npz(
-            tmp / "labels.npz",
-            track_ids=np.concatenate([w.track_ids for w in labelled]),
-            labels=np.concatenate([w.labels for w in labelled]),
-            window=np.concatenate(
-                [np.full(w.track_ids.size, i, dtype=np.int64) for i, w in enumerate(windows) if w.is_labelled]
-            ),
-        )
+            segmented = partial(segment_video, path, cfg, model, max_frames, masks=False, frames=frames)
+            overlays = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window)
+            write_video(tmp / "overlay.mp4", overlays, fps)
+        _write_window_labels(tmp / "labels.npz", windows)
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
         if summary_extra is not None:
             summary.update(summary_extra())
         write_json(tmp / "summary.json", summary)
     return summary
+
+
+def _written_overlays(
+    segmented: Callable[[], Iterator[WindowResult]],
+    cfg: PipelineConfig,
+    tmp: Path,
+    windows: list[WindowResult],
+    recorder: VideoRecorder | None,
+    on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None,
+    on_window: Callable[[WindowResult], None] | None,
+) -> Iterator[npt.NDArray[np.uint8]]:
+    """Writes each frame's mask (and recording) as the windows arrive; yields its overlay. The windows
+    come from `segmented()`, called when the first overlay is asked for; each, without its frames, is
+    appended to `windows`."""
+    for window in run_ahead(segmented(), _WINDOWS_AHEAD, "moseg-segment"):
+        # Keep what the summary and labels.npz need, not the images (flat memory).
+        windows.append(replace(window, frames=()))
+        if recorder is not None:
+            recorder.log_window(window.start, window.k, window.k_scores)
+        for fr in window.frames:
+            keep = fr.labels >= 0
+            mask = frame_mask(fr, cfg.mask)
+            write_mask_png(tmp / "masks" / f"{fr.index:06d}.png", mask)
+            if recorder is not None:
+                recorder.log_frame(fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask)
+            if on_frame is not None:
+                on_frame(fr, mask)
+            yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
+        if on_window is not None:
+            on_window(windows[-1])
+        del window, fr  # before the next window is read: hold a few windows' frames at most
+
+
+def _write_window_labels(path: Path, windows: list[WindowResult]) -> None:
+    """labels.npz of a whole video: the labelled windows' track ids and labels, and each one's window."""
+    labelled = [w for w in windows if w.is_labelled]
+    write_npz(
+        path,
+        track_ids=np.concatenate([w.track_ids for w in labelled]),
+        labels=np.concatenate([w.labels for w in labelled]),
+        window=np.concatenate(
+            [np.full(w.track_ids.size, i, dtype=np.int64) for i, w in enumerate(windows) if w.is_labelled]
+        ),
+    )
 
 
 def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> dict[str, Any]:
