@@ -29,6 +29,8 @@ __all__ = ["PROTOCOLS", "EndToEnd", "EvalRequest", "EvalResult", "Protocol", "Va
 if TYPE_CHECKING:
     from mosegpipe.model import SubspaceNet
     from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.training.loop import TrainConfig
+    from mosegpipe.training.recipes import Recipe
     from mosegpipe.types import LabeledClip
 
 log = logging.getLogger(__name__)
@@ -203,11 +205,9 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
     from dataclasses import asdict
 
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
-    from mosegpipe.io import write_text
-    from mosegpipe.model import SubspaceNet
     from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.recipes import get_recipe
-    from mosegpipe.training.run import TrainOverrides, train_recipe, train_sources
+    from mosegpipe.training.run import TrainOverrides
 
     assert protocol.end_to_end is not None and protocol.fold_recipe is not None and protocol.fold_names is not None
     if req.data_root is None:
@@ -229,44 +229,16 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
             raise ConfigError(f"--folds {', '.join(unknown)}: not in {protocol.name} (choose from {', '.join(names)})")
         names = [n for n in names if n in set(req.folds)]
 
-    init: SubspaceNet | None = None
-    init_path: Path | None = req.init
-    if init_path is None and recipe.init is not None:
-        init_path = req.out_dir / f"{recipe.init}.pt"
-        if not (init_path.is_file() and SubspaceNet.from_checkpoint(init_path).recipe.get("name") == recipe.init):
-            say(f"training the folds' starting point {recipe.init} -> {init_path}")
-            train_recipe(recipe.init, init_path, req.data_root, device=device)
-    init_hash = None
-    if init_path is not None:
-        init = SubspaceNet.from_checkpoint(init_path)
-        init_hash = hashlib.sha256(init_path.read_bytes()).hexdigest()[:16]
+    init, init_path, init_hash = _fold_init(recipe, req, req.data_root, device, say)
     training = {"recipe": recipe.to_dict(), "train": asdict(train_cfg), "init_sha256": init_hash}
     chash = hashlib.sha256(json.dumps(training, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
     fold_dir = req.out_dir / "folds"
     rows: list[dict[str, Any]] = []
     for name in names:
-        meta_path, model_path = fold_dir / f"{name}.json", fold_dir / f"{name}.pt"
-        stored = json.loads(meta_path.read_text()) if meta_path.is_file() and model_path.is_file() else {}
-        if stored.get("config_hash") == chash:
-            model = SubspaceNet.from_checkpoint(model_path)
-            seconds = stored.get("train_seconds")
-            trained = "trained earlier"
-        else:
-            result, rec = train_sources(
-                recipe.sources,
-                req.data_root,
-                train_cfg,
-                model_cfg=recipe.model,
-                init=init,
-                exclude=(name,),
-                device=device,
-            )
-            model, seconds = result.model, round(result.seconds, 1)
-            rec.update(name=f"{protocol.name}/{name}", init=str(init_path) if init_path else None, excluded=[name])
-            model.save(model_path, recipe=rec)
-            write_text(meta_path, json.dumps({"config_hash": chash, "train_seconds": seconds, "training": training}))
-            trained = f"trained {result.steps_done} steps in {seconds:.0f} s"
+        model, seconds, trained = _fold_model(
+            protocol, req.data_root, name, fold_dir, chash, training, recipe, train_cfg, init, init_path, device
+        )
         fold_rows = protocol.end_to_end(req.data_root, model, cfg, [name], req.baselines)
         for r in fold_rows:
             r["train_seconds"] = seconds
@@ -288,6 +260,75 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
     summary = summarize_rows(rows)
     write_results(req.out_dir, rows, summary, config, table)
     return EvalResult(rows, summary, table)
+
+
+def _fold_init(
+    recipe: Recipe, req: EvalRequest, data_root: Path, device: Any, say: Callable[[str], None]
+) -> tuple[SubspaceNet | None, Path | None, str | None]:
+    """The folds' starting model, its checkpoint and the checkpoint's hash (all None: from scratch):
+    `req.init`, else out_dir/<recipe.init>.pt, trained first by its own recipe when missing."""
+    import hashlib
+
+    from mosegpipe.model import SubspaceNet
+    from mosegpipe.training.run import train_recipe
+
+    init: SubspaceNet | None = None
+    init_path: Path | None = req.init
+    if init_path is None and recipe.init is not None:
+        init_path = req.out_dir / f"{recipe.init}.pt"
+        if not (init_path.is_file() and SubspaceNet.from_checkpoint(init_path).recipe.get("name") == recipe.init):
+            say(f"training the folds' starting point {recipe.init} -> {init_path}")
+            train_recipe(recipe.init, init_path, data_root, device=device)
+    init_hash = None
+    if init_path is not None:
+        init = SubspaceNet.from_checkpoint(init_path)
+        init_hash = hashlib.sha256(init_path.read_bytes()).hexdigest()[:16]
+    return init, init_path, init_hash
+
+
+def _fold_model(
+    protocol: Protocol,
+    data_root: Path,
+    name: str,
+    fold_dir: Path,
+    chash: str,
+    training: dict[str, Any],
+    recipe: Recipe,
+    train_cfg: TrainConfig,
+    init: SubspaceNet | None,
+    init_path: Path | None,
+    device: Any,
+) -> tuple[SubspaceNet, Any, str]:
+    """The model of the fold that holds `name` out, its training seconds and a word on it: read back
+    from fold_dir when trained earlier with the same config hash, else trained now and stored there."""
+    import json
+
+    from mosegpipe.io import write_text
+    from mosegpipe.model import SubspaceNet
+    from mosegpipe.training.run import train_sources
+
+    meta_path, model_path = fold_dir / f"{name}.json", fold_dir / f"{name}.pt"
+    stored = json.loads(meta_path.read_text()) if meta_path.is_file() and model_path.is_file() else {}
+    if stored.get("config_hash") == chash:
+        model = SubspaceNet.from_checkpoint(model_path)
+        seconds = stored.get("train_seconds")
+        trained = "trained earlier"
+    else:
+        result, rec = train_sources(
+            recipe.sources,
+            data_root,
+            train_cfg,
+            model_cfg=recipe.model,
+            init=init,
+            exclude=(name,),
+            device=device,
+        )
+        model, seconds = result.model, round(result.seconds, 1)
+        rec.update(name=f"{protocol.name}/{name}", init=str(init_path) if init_path else None, excluded=[name])
+        model.save(model_path, recipe=rec)
+        write_text(meta_path, json.dumps({"config_hash": chash, "train_seconds": seconds, "training": training}))
+        trained = f"trained {result.steps_done} steps in {seconds:.0f} s"
+    return model, seconds, trained
 
 
 # ---------------------------------------------------------------------------------------------

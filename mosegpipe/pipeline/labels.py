@@ -96,42 +96,9 @@ def match_labels(
     """
     old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
-    shared = old >= 0
-    mapping: dict[int, int] = {}
     sizes = np.bincount(clusters, minlength=k)
     small = max(min(_MIN_NEW_TRACKS, 0.25 * clusters.size), _MIN_NEW_SHARE * clusters.size)
-    splits: dict[int, int] = {}  # cluster -> the label it split off (it keeps that label for now)
-    confirmed: set[int] = set()  # clusters that split off in two windows running: new labels
-    if shared.any():
-        olds = np.unique(old[shared])
-        overlap = np.zeros((k, olds.size), dtype=np.int64)
-        np.add.at(overlap, (clusters[shared], np.searchsorted(olds, old[shared])), 1)
-        per_cluster = overlap.sum(axis=1)
-        known = per_cluster >= _MIN_CONTINUED * sizes
-        for r in range(k):
-            mine = candidate[(clusters == r) & (candidate >= 0)]
-            if known[r] and sizes[r] >= small and mine.size and np.bincount(mine).max() >= _MIN_SHARE * per_cluster[r]:
-                confirmed.add(r)
-        if world:
-            confirmed.discard(0)
-        overlap[list(confirmed)] = 0  # a recurring split continues none of the labels
-        carried = overlap.copy()
-        if world:  # the world continues label 0, and only it
-            mapping[0] = 0
-            overlap[0] = 0
-            overlap[:, olds == 0] = 0
-        rows, cols = linear_sum_assignment(-overlap)
-        for r, c in zip(rows, cols):
-            if r in mapping:
-                continue
-            if known[r] and overlap[r, c] > 0 and overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
-                mapping[int(r)] = int(olds[c])
-        for r in range(k):
-            if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
-                continue
-            mapping[r] = int(olds[int(carried[r].argmax())])
-            if sizes[r] >= small:
-                splits[r] = mapping[r]
+    mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world)
     book.pending = {int(i): int(c) for i, c in zip(ids, clusters) if int(c) in splits}
     # The world takes label 0 (with `world`: cluster 0, always); without it, the dominant motion takes 0
     # when no cluster carries 0 on, e.g. after a camera cut.
@@ -152,3 +119,53 @@ def match_labels(
         if lab >= 0:
             book.last_window[lab] = window
     return np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
+
+
+def _continued_labels(
+    old: npt.NDArray[np.int64],
+    candidate: npt.NDArray[np.int64],
+    clusters: npt.NDArray[np.int64],
+    k: int,
+    sizes: npt.NDArray[np.int64],
+    small: float,
+    world: bool,
+) -> tuple[dict[int, int], dict[int, int]]:
+    """Steps 1 and 2 of match_labels: (cluster -> the previous label it continues, cluster -> the label
+    it split off), from the labels its tracks carried (`old`, -1: none) and the split candidates they
+    were (`candidate`, -1: none)."""
+    shared = old >= 0
+    mapping: dict[int, int] = {}
+    splits: dict[int, int] = {}  # cluster -> the label it split off (it keeps that label for now)
+    confirmed: set[int] = set()  # clusters that split off in two windows running: new labels
+    if not shared.any():
+        return mapping, splits
+    olds = np.unique(old[shared])
+    overlap = np.zeros((k, olds.size), dtype=np.int64)
+    np.add.at(overlap, (clusters[shared], np.searchsorted(olds, old[shared])), 1)
+    per_cluster = overlap.sum(axis=1)
+    known = per_cluster >= _MIN_CONTINUED * sizes
+    for r in range(k):
+        mine = candidate[(clusters == r) & (candidate >= 0)]
+        if known[r] and sizes[r] >= small and mine.size and np.bincount(mine).max() >= _MIN_SHARE * per_cluster[r]:
+            confirmed.add(r)
+    if world:
+        confirmed.discard(0)
+    overlap[list(confirmed)] = 0  # a recurring split continues none of the labels
+    carried = overlap.copy()
+    if world:  # the world continues label 0, and only it
+        mapping[0] = 0
+        overlap[0] = 0
+        overlap[:, olds == 0] = 0
+    rows, cols = linear_sum_assignment(-overlap)
+    for r, c in zip(rows, cols):
+        if r in mapping:
+            continue
+        if known[r] and overlap[r, c] > 0 and overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
+            mapping[int(r)] = int(olds[c])
+    for r in range(k):
+        if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
+            continue
+        mapping[r] = int(olds[int(carried[r].argmax())])
+        if sizes[r] >= small:
+            splits[r] = mapping[r]
+    return mapping, splits

@@ -260,28 +260,12 @@ def train_model(
         raise ConfigError(f"unknown loss {cfg.loss!r}; choose from {sorted(LOSSES)}")
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    if init is not None:
-        model = SubspaceNet(init.cfg)
-        model.load_state_dict(init.state_dict())
-    else:
-        model = SubspaceNet(model_cfg or ModelConfig(in_dim=2 * cfg.frames))
-    if model.cfg.in_dim != 2 * cfg.frames:
-        raise ConfigError(f"model input dimension {model.cfg.in_dim} does not fit {cfg.frames} frames")
-    bad = sorted(c for c in checkpoints if not 1 <= c <= cfg.steps)
-    if bad:
-        raise ConfigError(f"checkpoint steps {bad} outside 1..{cfg.steps}")
+    model = _initial_model(cfg, model_cfg, init, checkpoints)
     loss_fn = LOSSES[cfg.loss]
     kwargs: dict[str, Any] = {"alpha": cfg.alpha} if cfg.loss.startswith("mimi") else {}
     model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    history: list[dict[str, float]] = []
-    first = 0
-    spent = 0.0  # training seconds before this call (resumed runs)
-    if resume is not None:
-        model.load_state_dict(resume.model_state)
-        opt.load_state_dict(resume.optim_state)
-        rng.bit_generator.state = resume.rng_state
-        history, first, spent = list(resume.history), resume.step, resume.seconds
+    history, first, spent = _resumed(resume, model, opt, rng)
     last = cfg.steps if stop_after is None else min(cfg.steps, stop_after)
     wanted = set(checkpoints)
     model.train()
@@ -300,17 +284,7 @@ def train_model(
             break
         for group in opt.param_groups:
             group["lr"] = _lr_at(step, cfg)
-        batch = [augment(sampler(rng), rng, cfg) for _ in range(cfg.batch_size)]
-        x, labels, mask = pad_batch([b[0] for b in batch], [b[1] for b in batch])
-        assert labels is not None  # pad_batch returns labels when given labels
-        x, labels, mask = x.to(device), labels.to(device), mask.to(device)
-        z = model(x, mask)
-        loss = loss_fn(z, labels, mask, **kwargs)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-        opt.step()
-        running += float(loss.detach())
+        running += _train_step(model, opt, loss_fn, kwargs, sampler, rng, cfg, device)
         count += 1
         if (step + 1) % log_every == 0 or step + 1 == cfg.steps:
             history.append(_log_entry(step + 1, running / count, _lr_at(step, cfg), elapsed(), on_log))
@@ -319,17 +293,82 @@ def train_model(
             state = TrainState(
                 step + 1, model.state_dict(), opt.state_dict(), dict(rng.bit_generator.state), list(history), elapsed()
             )
-            t_pause = time.perf_counter()
-            model.eval()
-            on_checkpoint(state, model)
-            model.train()
-            paused += time.perf_counter() - t_pause
+            paused += _checkpoint(state, model, on_checkpoint)
     else:
         step = last
     if count:  # stopped by the time budget between two log points: keep the last losses
         history.append(_log_entry(step, running / count, _lr_at(step - 1, cfg), elapsed(), on_log))
     model.eval()
     return TrainResult(model=model, history=history, seconds=elapsed(), steps_done=step)
+
+
+def _initial_model(
+    cfg: TrainConfig, model_cfg: ModelConfig | None, init: SubspaceNet | None, checkpoints: Collection[int]
+) -> SubspaceNet:
+    """The model training starts from (a copy of `init`, else a fresh one); ConfigError when it does
+    not fit cfg.frames or a checkpoint step lies outside 1..cfg.steps."""
+    if init is not None:
+        model = SubspaceNet(init.cfg)
+        model.load_state_dict(init.state_dict())
+    else:
+        model = SubspaceNet(model_cfg or ModelConfig(in_dim=2 * cfg.frames))
+    if model.cfg.in_dim != 2 * cfg.frames:
+        raise ConfigError(f"model input dimension {model.cfg.in_dim} does not fit {cfg.frames} frames")
+    bad = sorted(c for c in checkpoints if not 1 <= c <= cfg.steps)
+    if bad:
+        raise ConfigError(f"checkpoint steps {bad} outside 1..{cfg.steps}")
+    return model
+
+
+def _resumed(
+    resume: TrainState | None, model: SubspaceNet, opt: torch.optim.Optimizer, rng: np.random.Generator
+) -> tuple[list[dict[str, float]], int, float]:
+    """(history, first step, seconds spent) of the run `resume` continues, its model, optimiser and rng
+    state loaded; ([], 0, 0.0) for a fresh run."""
+    history: list[dict[str, float]] = []
+    first = 0
+    spent = 0.0  # training seconds before this call (resumed runs)
+    if resume is not None:
+        model.load_state_dict(resume.model_state)
+        opt.load_state_dict(resume.optim_state)
+        rng.bit_generator.state = resume.rng_state
+        history, first, spent = list(resume.history), resume.step, resume.seconds
+    return history, first, spent
+
+
+def _train_step(
+    model: SubspaceNet,
+    opt: torch.optim.Optimizer,
+    loss_fn: Callable[..., torch.Tensor],
+    kwargs: dict[str, Any],
+    sampler: Sampler,
+    rng: np.random.Generator,
+    cfg: TrainConfig,
+    device: str | torch.device,
+) -> float:
+    """One optimiser step on a batch of augmented clips drawn from `sampler`; returns its loss."""
+    batch = [augment(sampler(rng), rng, cfg) for _ in range(cfg.batch_size)]
+    x, labels, mask = pad_batch([b[0] for b in batch], [b[1] for b in batch])
+    assert labels is not None  # pad_batch returns labels when given labels
+    x, labels, mask = x.to(device), labels.to(device), mask.to(device)
+    z = model(x, mask)
+    loss = loss_fn(z, labels, mask, **kwargs)
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+    opt.step()
+    return float(loss.detach())
+
+
+def _checkpoint(
+    state: TrainState, model: SubspaceNet, on_checkpoint: Callable[[TrainState, SubspaceNet], None]
+) -> float:
+    """on_checkpoint with the model in eval mode; returns the seconds it took (not training time)."""
+    t_pause = time.perf_counter()
+    model.eval()
+    on_checkpoint(state, model)
+    model.train()
+    return time.perf_counter() - t_pause
 
 
 def _log_entry(
