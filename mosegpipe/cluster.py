@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import get_args
 
@@ -399,13 +400,7 @@ def _cluster_auto_k(
     if points is not None and np.shape(points)[0] != n:
         raise InputError(f"points: {np.shape(points)[0]} rows for {n} embeddings")
     if k is not None:
-        k = _check_k(k, "--k")
-        if k < 1:
-            raise InputError(f"--k {k} must be at least 1")
-        if k > n:
-            raise InputError(f"--k {k} is larger than the number of tracks ({n})")
-        labels, _ = kmeans(x, k, seed=cfg.seed, n_init=cfg.n_init, num_threads=cfg.num_threads)
-        return Clustering(labels=labels, k=k, scores={}, method="fixed")
+        return _fixed_k(x, cfg, k)
 
     def fit(kk: int) -> tuple[npt.NDArray[np.int64], float]:
         return kmeans(x, kk, seed=cfg.seed, n_init=cfg.n_init, num_threads=cfg.num_threads)
@@ -436,6 +431,50 @@ def _cluster_auto_k(
         logger.debug("no candidate K for N=%d and k_min=%d: K=%d", n, cfg.k_min, k_only)
         return Clustering(fit(k_only)[0], k_only, {}, cfg.method)
 
+    fits, scores, threshold = _scored_fits(x, cfg, candidates, k_hi, spread, fit)
+    if cfg.k_min == 1 and spread <= cfg.one_motion_spread * total:
+        scores = {1: float(threshold), **scores}
+        fits[1] = np.zeros(n, dtype=np.int64)
+    best = max(scores, key=lambda kk: (scores[kk], -kk))
+    preferred = False
+    if prefer_k is not None and prefer_k in scores and scores[best] - scores[prefer_k] <= cfg.ambiguity_margin:
+        best, preferred = prefer_k, best != prefer_k
+    logger.debug("%s scores %s: K=%d", cfg.method, scores, best)
+    note = ""
+    runner_up = max((kk for kk in scores if kk != best), key=lambda kk: (scores[kk], -kk), default=None)
+    if runner_up is not None and scores[best] - scores[runner_up] <= cfg.ambiguity_margin:
+        note = (
+            f"the K choice is ambiguous: K = {best} scored {scores[best]:.3f}, K = {runner_up} {scores[runner_up]:.3f} "
+            f"({cfg.method}, within {cfg.ambiguity_margin:g}){'; the preferred K kept' if preferred else ''}; "
+            "pass --k to decide"
+        )
+        logger.warning(note)
+    return Clustering(labels=fits[best], k=best, scores=scores, method=cfg.method, note=note)
+
+
+def _fixed_k(x: npt.NDArray[np.floating], cfg: ClusterConfig, k: int) -> Clustering:
+    """K-means with the K given (--k); InputError for a K below 1 or above the number of tracks."""
+    n = x.shape[0]
+    k = _check_k(k, "--k")
+    if k < 1:
+        raise InputError(f"--k {k} must be at least 1")
+    if k > n:
+        raise InputError(f"--k {k} is larger than the number of tracks ({n})")
+    labels, _ = kmeans(x, k, seed=cfg.seed, n_init=cfg.n_init, num_threads=cfg.num_threads)
+    return Clustering(labels=labels, k=k, scores={}, method="fixed")
+
+
+def _scored_fits(
+    x: npt.NDArray[np.floating],
+    cfg: ClusterConfig,
+    candidates: range,
+    k_hi: int,
+    spread: float,
+    fit: Callable[[int], tuple[npt.NDArray[np.int64], float]],
+) -> tuple[dict[int, npt.NDArray[np.int64]], dict[int, float], float]:
+    """(the labels of each K fitted, the score of each candidate K, the score K = 1 stands for) by
+    cfg.method: the elbow of the K-means residuals, or the mean silhouette."""
+    n = x.shape[0]
     fits: dict[int, npt.NDArray[np.int64]] = {}
     if cfg.method == "residual":
         residuals = np.zeros(k_hi + 2, dtype=np.float64)
@@ -456,21 +495,4 @@ def _cluster_auto_k(
                 continue
             scores[kk] = mean_silhouette(distances, fits[kk])
         threshold = cfg.min_silhouette
-    if cfg.k_min == 1 and spread <= cfg.one_motion_spread * total:
-        scores = {1: float(threshold), **scores}
-        fits[1] = np.zeros(n, dtype=np.int64)
-    best = max(scores, key=lambda kk: (scores[kk], -kk))
-    preferred = False
-    if prefer_k is not None and prefer_k in scores and scores[best] - scores[prefer_k] <= cfg.ambiguity_margin:
-        best, preferred = prefer_k, best != prefer_k
-    logger.debug("%s scores %s: K=%d", cfg.method, scores, best)
-    note = ""
-    runner_up = max((kk for kk in scores if kk != best), key=lambda kk: (scores[kk], -kk), default=None)
-    if runner_up is not None and scores[best] - scores[runner_up] <= cfg.ambiguity_margin:
-        note = (
-            f"the K choice is ambiguous: K = {best} scored {scores[best]:.3f}, K = {runner_up} {scores[runner_up]:.3f} "
-            f"({cfg.method}, within {cfg.ambiguity_margin:g}){'; the preferred K kept' if preferred else ''}; "
-            "pass --k to decide"
-        )
-        logger.warning(note)
-    return Clustering(labels=fits[best], k=best, scores=scores, method=cfg.method, note=note)
+    return fits, scores, threshold

@@ -172,17 +172,7 @@ def kt3d_video_rows(
             log.warning("%s: %s; not scored", name, exc)
             rows.append({**row, "error": float("nan"), "seconds": 0.0})
             continue
-        xy = result.tracks.xy[result.trajectories.track_ids]  # (N, F, 2)
-        in_first = np.flatnonzero(seq.visible[:, 0])
-        idx = nearest_within(xy[:, 0], seq.xy[in_first, 0], max_dist_px)
-        matched = idx >= 0
-        gt_rows = np.where(matched, in_first[np.maximum(idx, 0)], -1)
-        # Drop pairs that part ways by frame F: the two points followed different surfaces.
-        last = f - 1
-        seen_last = matched & seq.visible[np.maximum(gt_rows, 0), last]
-        apart = np.linalg.norm(xy[:, last] - seq.xy[np.maximum(gt_rows, 0), last], axis=1) > 2 * max_dist_px
-        scored = matched & ~(seen_last & apart)
-        gt = seq.labels[gt_rows[scored]]
+        scored, gt = _transferred_labels(result.tracks.xy[result.trajectories.track_ids], seq, f, max_dist_px)
         k_true, error = _score(result.clustering.labels[scored], gt)
         row.update(
             num_tracks=result.trajectories.num_points,
@@ -197,6 +187,24 @@ def kt3d_video_rows(
         rows.append(row)
         log.info("%s: %d/%d tracks scored, error %.4f", name, scored.sum(), scored.size, error)
     return rows
+
+
+def _transferred_labels(
+    xy: npt.NDArray[np.float32], seq: Any, f: int, max_dist_px: float
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64]]:
+    """(which of the tracks `xy` (N, F, 2) are scored, the ground-truth label of each scored one): a track
+    takes the label of the nearest ground-truth point within max_dist_px in frame 1, unless the two
+    part ways by frame F."""
+    in_first = np.flatnonzero(seq.visible[:, 0])
+    idx = nearest_within(xy[:, 0], seq.xy[in_first, 0], max_dist_px)
+    matched = idx >= 0
+    gt_rows = np.where(matched, in_first[np.maximum(idx, 0)], -1)
+    # Drop pairs that part ways by frame F: the two points followed different surfaces.
+    last = f - 1
+    seen_last = matched & seq.visible[np.maximum(gt_rows, 0), last]
+    apart = np.linalg.norm(xy[:, last] - seq.xy[np.maximum(gt_rows, 0), last], axis=1) > 2 * max_dist_px
+    scored = matched & ~(seen_last & apart)
+    return scored, seq.labels[gt_rows[scored]]
 
 
 def adelaide_pair_rows(
