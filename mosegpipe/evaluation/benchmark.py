@@ -160,12 +160,7 @@ def run_protocol(
     config = cfg.to_dict()
     config["init"] = None if init is None else getattr(init, "recipe", {}).get("name", "checkpoint")
     config["model"] = None if model is None else getattr(model, "recipe", {}).get("name", "checkpoint")
-    clips = protocol.load_clips(data_root, cfg.frames)
-    if cfg.folds is not None:
-        wanted = set(cfg.folds)
-        clips = [c for c in clips if sequence_of(c) in wanted or c.name in wanted]
-        if not clips:
-            raise ConfigError(f"no test clip matches --folds {sorted(wanted)}")
+    clips = _test_clips(protocol.load_clips, cfg, data_root)
     # Leave-one-out protocols always train; a one-fold protocol (lce) trains only without a given model.
     trains = protocol.train_source is not None and (protocol.fold_key is not None or model is None)
     if not trains:
@@ -203,22 +198,52 @@ def run_protocol(
                 rows.extend(fold_rows)
                 say(f"{held_out}: trained earlier, re-scored")
                 continue
-        sources: list[tuple[str, float]] = [source]
-        if cfg.synthetic_weight > 0:
-            sources.append(("synthetic-pair" if cfg.frames == 2 else "synthetic", cfg.synthetic_weight))
-        exclude = () if protocol.fold_key is None else (held_out,)
-        train_cfg = replace(cfg.train, frames=cfg.frames)
-        result, recipe = train_sources(sources, data_root, train_cfg, init=init, exclude=exclude, device=device)
-        fold_rows = evaluate_clips(result.model, test, cfg.cluster, cfg.baselines)
-        for r in fold_rows:
-            r["train_seconds"] = round(result.seconds, 1)
-        result.model.save(model_path, recipe={**recipe, "name": f"{cfg.protocol}/{held_out}"})
-        with atomic_write(path) as tmp:
-            Path(tmp).write_text(json.dumps({"config_hash": chash, "recipe": recipe, "rows": fold_rows}))
-        rows.extend(fold_rows)
-        errs = ", ".join(
-            f"{r['name']}: {100 * r['error']:.2f} % (K {r['k_pred']}/{r['k_true']})" for r in fold_rows[:3]
-        )
-        say(f"{held_out}: trained {result.steps_done} steps in {result.seconds:.0f} s; {errs}")
+        rows.extend(_train_fold(protocol, cfg, data_root, source, held_out, test, path, chash, init, device, say))
     summary = summarize(rows)
     return rows, summary, write_results(out_dir, rows, summary, config)
+
+
+def _test_clips(
+    load_clips: Callable[[Path, int], list[LabeledClip]], cfg: EvalConfig, data_root: Path
+) -> list[LabeledClip]:
+    """The protocol's test clips, only those of --folds when given (ConfigError when none is)."""
+    clips = load_clips(data_root, cfg.frames)
+    if cfg.folds is not None:
+        wanted = set(cfg.folds)
+        clips = [c for c in clips if sequence_of(c) in wanted or c.name in wanted]
+        if not clips:
+            raise ConfigError(f"no test clip matches --folds {sorted(wanted)}")
+    return clips
+
+
+def _train_fold(
+    protocol: Protocol,
+    cfg: EvalConfig,
+    data_root: Path,
+    source: tuple[str, float],
+    held_out: str,
+    test: list[LabeledClip],
+    path: Path,
+    chash: str,
+    init: SubspaceNet | None,
+    device: str,
+    say: Callable[[str], None],
+) -> list[dict[str, Any]]:
+    """Trains the fold that holds `held_out` out, scores its test clips and stores both (the model
+    beside `path`, the rows in it, under the config hash); returns the rows."""
+    model_path = path.with_suffix(".pt")
+    sources: list[tuple[str, float]] = [source]
+    if cfg.synthetic_weight > 0:
+        sources.append(("synthetic-pair" if cfg.frames == 2 else "synthetic", cfg.synthetic_weight))
+    exclude = () if protocol.fold_key is None else (held_out,)
+    train_cfg = replace(cfg.train, frames=cfg.frames)
+    result, recipe = train_sources(sources, data_root, train_cfg, init=init, exclude=exclude, device=device)
+    fold_rows = evaluate_clips(result.model, test, cfg.cluster, cfg.baselines)
+    for r in fold_rows:
+        r["train_seconds"] = round(result.seconds, 1)
+    result.model.save(model_path, recipe={**recipe, "name": f"{cfg.protocol}/{held_out}"})
+    with atomic_write(path) as tmp:
+        Path(tmp).write_text(json.dumps({"config_hash": chash, "recipe": recipe, "rows": fold_rows}))
+    errs = ", ".join(f"{r['name']}: {100 * r['error']:.2f} % (K {r['k_pred']}/{r['k_true']})" for r in fold_rows[:3])
+    say(f"{held_out}: trained {result.steps_done} steps in {result.seconds:.0f} s; {errs}")
+    return fold_rows

@@ -398,50 +398,8 @@ def render_clip(cfg: RenderConfig = RenderConfig(), photos: Sequence[npt.NDArray
     cam_rot, cam_centre = video_camera_poses(rng, cfg.camera_motion, frames)
     specs = list(cfg.objects) if cfg.objects is not None else _sample_objects(rng, cfg, f, cx, cy)
 
-    still_rot = np.broadcast_to(np.eye(3), (frames, 3, 3))
-    still_pos = np.zeros((frames, 3))
-    # The wall covers the first view 1.5 times over; beyond it the texture repeats mirrored.
-    wall_w = 1.5 * 2 * _WALL_DEPTH_M * math.tan(0.5 * math.radians(cfg.fov_deg))
-    wall_h = wall_w * h / w
-    wall_texels = int(np.clip(1.5 * w, 64, 2048))
-    wall = _Quad(
-        _rect(wall_w, wall_h) + [0, 0, _WALL_DEPTH_M],
-        np.array([0.0, 0.0, -1.0]),
-        _texture(rng, cfg.texture, (wall_texels, round(wall_texels * h / w)), photos),
-    )
-    background = [_Body(0, [wall], still_rot, still_pos, cull=False)]
-    if cfg.ground:
-        near, far = 2.0, _WALL_DEPTH_M
-        half = 0.5 * wall_w
-        corners = np.array(
-            [
-                [-half, _CAMERA_HEIGHT_M, far],
-                [half, _CAMERA_HEIGHT_M, far],
-                [half, _CAMERA_HEIGHT_M, near],
-                [-half, _CAMERA_HEIGHT_M, near],
-            ]
-        )
-        tex = _texture(rng, cfg.texture, (wall_texels, wall_texels // 2), photos)
-        background.append(_Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)], still_rot, still_pos, cull=False))
-
-    bodies: list[_Body] = []
-    t = np.arange(frames, dtype=np.float64)[:, None]
-    for i, spec in enumerate(specs):
-        size = np.asarray(spec.size_m, dtype=np.float64)
-        z0 = max(float(spec.centre_m[2]), 0.5)
-        texels_per_m = f / z0  # about one texel per pixel at the starting depth
-        if spec.shape == "plane":
-            tw = int(np.clip(size[0] * texels_per_m, 16, 1024))
-            th = int(np.clip(size[1] * texels_per_m, 16, 1024))
-            quads = [
-                _Quad(_rect(size[0], size[1]), np.array([0.0, 0.0, -1.0]), _texture(rng, cfg.texture, (tw, th), photos))
-            ]
-        else:
-            quads = _box_quads(rng, size, cfg.texture, texels_per_m, photos)
-        orient = rotation_matrix(spec.rotation)
-        rot = np.stack([rotation_matrix(np.asarray(spec.spin) * k) @ orient for k in range(frames)])
-        pos = np.asarray(spec.centre_m) + t * np.asarray(spec.velocity_m)
-        bodies.append(_Body(i + 1, quads, rot, pos, cull=spec.shape == "box"))
+    background = _background_bodies(rng, cfg, photos)
+    bodies = _object_bodies(rng, cfg, specs, f, photos)
 
     images = np.empty((frames, h, w, 3), dtype=np.uint8)
     masks = np.zeros((frames, h, w), dtype=np.uint8)
@@ -472,6 +430,70 @@ def render_clip(cfg: RenderConfig = RenderConfig(), photos: Sequence[npt.NDArray
         camera_motion=cfg.camera_motion,
         intrinsics=intrinsics,
     )
+
+
+def _background_bodies(
+    rng: np.random.Generator, cfg: RenderConfig, photos: Sequence[npt.NDArray[np.uint8]]
+) -> list[_Body]:
+    """The still wall (label 0) that fills the view, and the ground in front of it when cfg.ground."""
+    h, w = cfg.size_hw
+    frames = cfg.frames
+    still_rot = np.broadcast_to(np.eye(3), (frames, 3, 3))
+    still_pos = np.zeros((frames, 3))
+    # The wall covers the first view 1.5 times over; beyond it the texture repeats mirrored.
+    wall_w = 1.5 * 2 * _WALL_DEPTH_M * math.tan(0.5 * math.radians(cfg.fov_deg))
+    wall_h = wall_w * h / w
+    wall_texels = int(np.clip(1.5 * w, 64, 2048))
+    wall = _Quad(
+        _rect(wall_w, wall_h) + [0, 0, _WALL_DEPTH_M],
+        np.array([0.0, 0.0, -1.0]),
+        _texture(rng, cfg.texture, (wall_texels, round(wall_texels * h / w)), photos),
+    )
+    background = [_Body(0, [wall], still_rot, still_pos, cull=False)]
+    if cfg.ground:
+        near, far = 2.0, _WALL_DEPTH_M
+        half = 0.5 * wall_w
+        corners = np.array(
+            [
+                [-half, _CAMERA_HEIGHT_M, far],
+                [half, _CAMERA_HEIGHT_M, far],
+                [half, _CAMERA_HEIGHT_M, near],
+                [-half, _CAMERA_HEIGHT_M, near],
+            ]
+        )
+        tex = _texture(rng, cfg.texture, (wall_texels, wall_texels // 2), photos)
+        background.append(_Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)], still_rot, still_pos, cull=False))
+    return background
+
+
+def _object_bodies(
+    rng: np.random.Generator,
+    cfg: RenderConfig,
+    specs: Sequence[ObjectSpec],
+    f: float,
+    photos: Sequence[npt.NDArray[np.uint8]],
+) -> list[_Body]:
+    """The moving objects (labels 1, 2, ...), textured about one texel a pixel at their starting depth."""
+    frames = cfg.frames
+    bodies: list[_Body] = []
+    t = np.arange(frames, dtype=np.float64)[:, None]
+    for i, spec in enumerate(specs):
+        size = np.asarray(spec.size_m, dtype=np.float64)
+        z0 = max(float(spec.centre_m[2]), 0.5)
+        texels_per_m = f / z0  # about one texel per pixel at the starting depth
+        if spec.shape == "plane":
+            tw = int(np.clip(size[0] * texels_per_m, 16, 1024))
+            th = int(np.clip(size[1] * texels_per_m, 16, 1024))
+            quads = [
+                _Quad(_rect(size[0], size[1]), np.array([0.0, 0.0, -1.0]), _texture(rng, cfg.texture, (tw, th), photos))
+            ]
+        else:
+            quads = _box_quads(rng, size, cfg.texture, texels_per_m, photos)
+        orient = rotation_matrix(spec.rotation)
+        rot = np.stack([rotation_matrix(np.asarray(spec.spin) * k) @ orient for k in range(frames)])
+        pos = np.asarray(spec.centre_m) + t * np.asarray(spec.velocity_m)
+        bodies.append(_Body(i + 1, quads, rot, pos, cull=spec.shape == "box"))
+    return bodies
 
 
 def write_clip(clip: RenderedClip, folder: str | Path, video: bool = False, fps: float = 10.0) -> Path:
