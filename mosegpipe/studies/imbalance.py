@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from mosegpipe.model import ModelConfig, SubspaceNet
     from mosegpipe.studies.common import Study, StudyRequest, StudyResult
     from mosegpipe.studies.ransac_curves import RansacConfig
+    from mosegpipe.synth.lce import LCEConfig
     from mosegpipe.training.loop import TrainConfig
     from mosegpipe.types import LabeledClip
 
@@ -363,22 +364,7 @@ def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
             parts.append(payload)
     log.info("sampling-imbalance: %d test parts computed, %d reused", computed, len(parts) - computed)
     summary = summarize_imbalance(parts)
-    trained = "; ".join(
-        f"{kind}: {t['steps_done']} steps, {t['seconds']} s, final loss {_loss(t)}, weights {t['weights']}"
-        for kind, t in training.items()
-    )
-    notes = [
-        f"Budget: {budget_name} ({budget.describe()}).",
-        f"Data: K curves of one kind per problem, the LCE generator's parameter ranges, 20-60 points per curve, "
-        f"noise sigma {gen.noise_sigma} (synth/lce.py, seed 0). SubspaceNet: F = 1, trained from scratch per "
-        f"kind on K = 2..6 mixed; automatic K by cluster.py's default rule, K in 1..{req.k_max}.",
-        f"RANSAC: sequential, uniform minimal samples (2 / 3 / 5 points), given the true K and the noise level: "
-        f"inlier threshold {ransac_cfg.threshold_sigmas} sigma = {ransac_cfg.threshold:.3f}, at most "
-        f"{ransac_cfg.max_hypotheses} samples per model (adaptive stop at confidence {ransac_cfg.confidence}), "
-        f"{ransac_cfg.refits} least-squares refits, then every point to its nearest curve.",
-        f"Training: {trained}.",
-        "Error: misclassification rate (Hungarian matching), mean over the test samples, in percent.",
-    ]
+    notes = _notes(budget_name, budget, gen, ransac_cfg, req.k_max, training)
     table = _table(summary, notes)
     results = {
         "study": study.name,
@@ -392,3 +378,31 @@ def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
     }
     files = _write_outputs(req, table, results, _plot(summary))
     return StudyResult(table, results, files)
+
+
+def _notes(
+    budget_name: str,
+    budget: ImbalanceBudget,
+    gen: LCEConfig,
+    ransac_cfg: RansacConfig,
+    k_max: int,
+    training: dict[str, dict[str, Any]],
+) -> list[str]:
+    """The lines under the study's table: budget, data, RANSAC's settings, training, the error."""
+    trained = "; ".join(
+        f"{kind}: {t['steps_done']} steps, {t['seconds']} s, final loss {_loss(t)}, weights {t['weights']}"
+        for kind, t in training.items()
+    )
+    notes = [
+        f"Budget: {budget_name} ({budget.describe()}).",
+        f"Data: K curves of one kind per problem, the LCE generator's parameter ranges, 20-60 points per curve, "
+        f"noise sigma {gen.noise_sigma} (synth/lce.py, seed 0). SubspaceNet: F = 1, trained from scratch per "
+        f"kind on K = 2..6 mixed; automatic K by cluster.py's default rule, K in 1..{k_max}.",
+        f"RANSAC: sequential, uniform minimal samples (2 / 3 / 5 points), given the true K and the noise level: "
+        f"inlier threshold {ransac_cfg.threshold_sigmas} sigma = {ransac_cfg.threshold:.3f}, at most "
+        f"{ransac_cfg.max_hypotheses} samples per model (adaptive stop at confidence {ransac_cfg.confidence}), "
+        f"{ransac_cfg.refits} least-squares refits, then every point to its nearest curve.",
+        f"Training: {trained}.",
+        "Error: misclassification rate (Hungarian matching), mean over the test samples, in percent.",
+    ]
+    return notes

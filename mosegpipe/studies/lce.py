@@ -23,6 +23,7 @@ import logging
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -278,25 +279,14 @@ def _run_config(
     import torch
 
     from mosegpipe.io import atomic_write
-    from mosegpipe.training.loop import TrainState, recipe_of, train_model
+    from mosegpipe.training.loop import recipe_of, train_model
 
     say = req.progress or (lambda _msg: None)
     steps = budget.full_steps or cc.cpu_steps
     cfg = TrainConfig(**{**asdict(cc.train), "steps": steps})
     cps = checkpoint_steps(steps, budget.num_checkpoints)
     device = _device(budget_name, req.device)
-    chash = _hash(
-        {
-            "study": "lce-curve",
-            "v": _PARTS_VERSION,
-            "config": cc.to_dict(),
-            "train": asdict(cfg),
-            "checkpoints": cps,
-            "clips": {k: len(v) for k, v in clips.items()},
-            "k_max": req.k_max,
-            "device": device,
-        }
-    )
+    chash = _curve_hash(cc, cfg, cps, clips, req.k_max, device)
     paths = {s: _part_path(req, f"{cc.name}__step{s:07d}", ".json") for s in cps}
     parts: dict[int, dict[str, Any] | None] = {s: _load_part(paths[s], chash) for s in cps}
     missing = [s for s in cps if parts[s] is None]
@@ -306,15 +296,9 @@ def _run_config(
         return [p for p in parts.values() if p is not None], spent
 
     state_path = _part_path(req, f"{cc.name}__state", ".pt")
-    resume = None
-    if state_path.is_file():
-        try:
-            stored = torch.load(state_path, map_location=device, weights_only=True)
-        except Exception:  # an unreadable state only costs a retraining
-            stored = {}
-        if stored.get("config_hash") == chash and int(stored["state"]["step"]) <= min(missing):
-            resume = TrainState.from_dict(stored["state"])
-            say(f"{cc.name}: resuming from step {resume.step}")
+    resume = _stored_state(state_path, chash, device, min(missing))
+    if resume is not None:
+        say(f"{cc.name}: resuming from step {resume.step}")
 
     def on_checkpoint(state: TrainState, model: SubspaceNet) -> None:
         t0 = time.perf_counter()
@@ -358,6 +342,42 @@ def _run_config(
     )
     spent["train"] = result.seconds - (resume.seconds if resume is not None else 0.0)
     return [p for p in parts.values() if p is not None], spent
+
+
+def _curve_hash(
+    cc: CurveConfig, cfg: TrainConfig, cps: list[int], clips: dict[str, list[LabeledClip]], k_max: int, device: str
+) -> str:
+    """The hash a configuration's checkpoint parts and training state are stored under."""
+    return _hash(
+        {
+            "study": "lce-curve",
+            "v": _PARTS_VERSION,
+            "config": cc.to_dict(),
+            "train": asdict(cfg),
+            "checkpoints": cps,
+            "clips": {k: len(v) for k, v in clips.items()},
+            "k_max": k_max,
+            "device": device,
+        }
+    )
+
+
+def _stored_state(state_path: Path, chash: str, device: str, first_missing: int) -> TrainState | None:
+    """The training state stored at `state_path` when it was saved under `chash` no later than the first
+    missing checkpoint (None: none, another hash, or unreadable: training starts over)."""
+    import torch
+
+    from mosegpipe.training.loop import TrainState
+
+    if not state_path.is_file():
+        return None
+    try:
+        stored = torch.load(state_path, map_location=device, weights_only=True)
+    except Exception:  # an unreadable state only costs a retraining
+        stored = {}
+    if stored.get("config_hash") == chash and int(stored["state"]["step"]) <= first_missing:
+        return TrainState.from_dict(stored["state"])
+    return None
 
 
 def _fmt(x: float) -> str:
