@@ -440,6 +440,15 @@ def moving_from_motion(
         ratios = _colour_log_ratio(small, scores, cfg, colour)
         scores = [z + np.float32(cfg.colour_weight) * a for z, a in zip(scores, ratios)]
     small, scores, res = small[first:], scores[first:], res[first:]
+    scores = _refined_scores(small, scores, cfg)
+    return _moving_masks(scores, res, cfg, anchors, hw, (height, width))
+
+
+def _refined_scores(
+    small: list[npt.NDArray[np.uint8]], scores: list[npt.NDArray[np.float32]], cfg: MotionMaskConfig
+) -> list[npt.NDArray[np.float32]]:
+    """The scores refined on the (work-size) images: local colour contrast, superpixel means, the
+    guided filter and the global smoother, each when its setting is on."""
     if cfg.local_colour_weight > 0:
         weight = np.float32(cfg.local_colour_weight)
         scores = [
@@ -457,8 +466,23 @@ def moving_from_motion(
             cv2.ximgproc.fastGlobalSmootherFilter(im, z, cfg.smooth_lambda, cfg.smooth_sigma)
             for im, z in zip(small, scores)
         ]
+    return scores
+
+
+def _moving_masks(
+    scores: list[npt.NDArray[np.float32]],
+    res: list[npt.NDArray[np.float32]],
+    cfg: MotionMaskConfig,
+    anchors: list[Anchors] | None,
+    hw: tuple[int, int],
+    size_hw: tuple[int, int],
+) -> npt.NDArray[np.bool_]:
+    """(T, H, W) bool masks at full size from the masked frames' scores and residuals (work size): a
+    pixel moves where its score is positive and its residual above the floor, in a strong enough
+    component or one its anchors hold."""
+    height, width = size_hw
     to_small = np.array([hw[1] / width, hw[0] / height], np.float32)
-    masks = np.zeros((num - first, height, width), bool)
+    masks = np.zeros((len(scores), height, width), bool)
     for t, (z, r) in enumerate(zip(scores, res)):
         moving = z > 0
         floor = max(cfg.min_residual_px, cfg.noise_factor * float(np.median(r)))
