@@ -356,7 +356,7 @@ def select_models(
         _Group(rows, best_model(xy[rows], cfg))
         for rows in (np.flatnonzero(labs == g) for g in np.unique(labs[labs >= 0]))
     ]
-    splits = merges = 0
+    splits = 0
     largest = max(range(len(groups)), key=lambda g: groups[g].rows.size) if groups else -1
     queue = [g for g in range(len(groups)) if cfg.split_largest or g != largest]
     while queue and len(groups) < k_max:
@@ -368,20 +368,7 @@ def select_models(
         groups.append(cut[1])
         queue += [i, len(groups) - 1]
         splits += 1
-    while len(groups) > 1:
-        rigid = [i for i, g in enumerate(groups) if g.is_rigid(cfg)]
-        found = [
-            (m, i, j)
-            for ii, i in enumerate(rigid)
-            for j in rigid[ii + 1 :]
-            if (m := _merge_gain(xy, groups[i], groups[j], cfg))
-        ]
-        if not found:
-            break
-        (gain, merged), i, j = max(found, key=lambda f: f[0][0])
-        groups[i] = merged
-        del groups[j]
-        merges += 1
+    merges = _merge_rigid(xy, groups, cfg)
     out = np.full(n, -1, dtype=np.int64)
     for g, group in enumerate(groups):
         out[group.rows] = g
@@ -414,6 +401,27 @@ def select_models(
     note = f"joint: models {kinds}" + (f"; {', '.join(notes)}" if notes else "")
     logger.debug("%s", note)
     return final, note
+
+
+def _merge_rigid(xy: npt.NDArray[np.float64], groups: list[_Group], cfg: JointConfig) -> int:
+    """Merges, best gain first, pairs of rigid groups that one model explains better (in place); returns
+    the number of merges."""
+    merges = 0
+    while len(groups) > 1:
+        rigid = [i for i, g in enumerate(groups) if g.is_rigid(cfg)]
+        found = [
+            (m, i, j)
+            for ii, i in enumerate(rigid)
+            for j in rigid[ii + 1 :]
+            if (m := _merge_gain(xy, groups[i], groups[j], cfg))
+        ]
+        if not found:
+            break
+        (gain, merged), i, j = max(found, key=lambda f: f[0][0])
+        groups[i] = merged
+        del groups[j]
+        merges += 1
+    return merges
 
 
 def _by_size(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
