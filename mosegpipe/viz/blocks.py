@@ -254,6 +254,9 @@ class _Sink:
         it (a default that is not active only applies to a viewer that has none yet).
         """
         self.rec.send_blueprint(blueprint, make_active=True, make_default=True)
+        # the layout's messages reach the sink before any data is logged: under load the batcher thread
+        # could otherwise write the first data ahead of them
+        self.rec.flush(timeout_sec=_FLUSH_TIMEOUT_S)
 
     def finish(self, write: bool = True) -> None:
         """Ends the stream; writes the recording to `tmp` when `write` (OSError when that fails)."""
