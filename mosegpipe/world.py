@@ -141,21 +141,12 @@ def world_scores(
     return scores
 
 
-def world_cluster(
-    xy: npt.NDArray[np.float32],
-    labels: npt.NDArray[np.int64],
-    k: int,
-    size_hw: tuple[int, int],
-    was_world: npt.NDArray[np.bool_] | None = None,
-    known: npt.NDArray[np.bool_] | None = None,
-    cfg: WorldConfig = WorldConfig(),
-    static: npt.NDArray[np.float64] | None = None,
-) -> int:
-    """The motion that is the world (`world_scores`' best; ties go to the lower id, the larger motion;
-    0 when cfg.enabled is False)."""
-    if k <= 1 or not cfg.enabled:
+def world_cluster(scores: npt.NDArray[np.float64], cfg: WorldConfig = WorldConfig()) -> int:
+    """The motion that is the world: the best of `world_scores` (ties go to the lower id, the larger motion);
+    0 when there is one motion or cfg.enabled is False."""
+    if scores.size <= 1 or not cfg.enabled:
         return 0
-    return int(np.argmax(world_scores(xy, labels, k, size_hw, was_world, known, cfg, static)))
+    return int(np.argmax(scores))
 
 
 def static_share(

@@ -42,12 +42,12 @@ def test_the_world_is_where_the_tracks_spread_not_where_they_crowd() -> None:
     xy, labels = _crowd_and_spread(np.random.default_rng(0))
     scores = world_scores(xy, labels, 2, (H, W))
     assert scores[1] > 3 * scores[0]
-    assert world_cluster(xy, labels, 2, (H, W)) == 1
+    assert world_cluster(world_scores(xy, labels, 2, (H, W))) == 1
     # the old rule, for a summary written before this step: the motion with the most tracks
-    assert world_cluster(xy, labels, 2, (H, W), cfg=WorldConfig(enabled=False)) == 0
+    assert world_cluster(world_scores(xy, labels, 2, (H, W)), WorldConfig(enabled=False)) == 0
     # several frames: (N, T, 2) positions vote in every frame
     moving = np.stack([xy, xy + np.float32([4.0, 0.0])], axis=1)
-    assert world_cluster(moving, labels, 2, (H, W)) == 1
+    assert world_cluster(world_scores(moving, labels, 2, (H, W))) == 1
 
 
 def test_border_cells_count_more() -> None:
@@ -58,7 +58,7 @@ def test_border_cells_count_more() -> None:
     labels = (((cy == 0) | (cy == g - 1) | (cx == 0) | (cx == g - 1)).ravel()).astype(np.int64)
     assert world_scores(xy, labels, 2, (H, W), cfg=WorldConfig(border_weight=0.0)).tolist() == [196.0, 60.0]
     assert world_scores(xy, labels, 2, (H, W), cfg=WorldConfig(border_weight=3.0)).tolist() == [196.0, 240.0]
-    assert world_cluster(xy, labels, 2, (H, W), cfg=WorldConfig(border_weight=3.0)) == 1
+    assert world_cluster(world_scores(xy, labels, 2, (H, W), cfg=WorldConfig(border_weight=3.0))) == 1
 
 
 def _object_filling_the_frame() -> tuple[np.ndarray, np.ndarray]:
@@ -72,11 +72,11 @@ def _object_filling_the_frame() -> tuple[np.ndarray, np.ndarray]:
 
 def test_the_world_of_the_window_before_keeps_its_role_when_an_object_fills_the_frame() -> None:
     xy, labels = _object_filling_the_frame()
-    assert world_cluster(xy, labels, 2, (H, W)) == 0  # alone, the area says the object
+    assert world_cluster(world_scores(xy, labels, 2, (H, W))) == 0  # alone, the area says the object
     was_world = labels == 1
-    assert world_cluster(xy, labels, 2, (H, W), was_world, np.ones(380, bool)) == 1
+    assert world_cluster(world_scores(xy, labels, 2, (H, W), was_world, np.ones(380, bool))) == 1
     # tracks that were unlabelled before say nothing
-    assert world_cluster(xy, labels, 2, (H, W), was_world, labels == 0) == 0
+    assert world_cluster(world_scores(xy, labels, 2, (H, W), was_world, labels == 0)) == 0
 
 
 def test_the_camera_evidence_outweighs_the_area() -> None:
@@ -87,8 +87,8 @@ def test_the_camera_evidence_outweighs_the_area() -> None:
     residual[:, -20:] = 0.2
     static = static_share(np.stack([xy, xy], axis=1), residual, 0.5, 1.0)
     assert static[:300].max() == 0.0 and static[300:].min() == 1.0
-    assert world_cluster(xy, labels, 2, (H, W)) == 0
-    assert world_cluster(xy, labels, 2, (H, W), static=static) == 1
+    assert world_cluster(world_scores(xy, labels, 2, (H, W))) == 0
+    assert world_cluster(world_scores(xy, labels, 2, (H, W), static=static)) == 1
 
 
 def test_world_first_renumbers_hand_computed() -> None:

@@ -25,7 +25,7 @@ from mosegpipe.inference import Embedder, load_embedder
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import split_by_rigid_motion
 from mosegpipe.types import Clustering, Trajectories
-from mosegpipe.world import static_share, world_cluster, world_first
+from mosegpipe.world import static_share, world_cluster, world_first, world_scores
 
 
 def model_info(model: Embedder) -> dict[str, Any]:
@@ -120,7 +120,8 @@ def world_to_zero(
     if clustering.k <= 1 or not cfg.world.enabled:
         return clustering
     static = None if motion is None else static_share(xy, motion.residual, motion.scale, cfg.world.static_px)
-    world = world_cluster(xy, clustering.labels, clustering.k, size_hw, was_world, known, cfg.world, static)
+    scores = world_scores(xy, clustering.labels, clustering.k, size_hw, was_world, known, cfg.world, static)
+    world = world_cluster(scores, cfg.world)
     if world == 0:
         return clustering
     return replace(clustering, labels=world_first(clustering.labels, world))

@@ -22,7 +22,7 @@ from mosegpipe.pipeline.common import _check_k, _model_or_default, decode_errors
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.trajectories import trajectories_from_matches
 from mosegpipe.types import Clustering, Matches
-from mosegpipe.world import world_cluster, world_first
+from mosegpipe.world import world_cluster, world_first, world_scores
 
 
 @dataclass(frozen=True)
@@ -124,7 +124,8 @@ def segment_pair(
         labels[clustering.labels > outlier] -= 1
     # the world's motion is 0, told by where its matches lie in the first image (mosegpipe.world)
     motions = int(labels.max()) + 1 if (labels >= 0).any() else 0
-    labels = world_first(labels, world_cluster(matches.xy1, labels, motions, im1.shape[:2], cfg=cfg.world))
+    scores = world_scores(matches.xy1, labels, motions, im1.shape[:2], cfg=cfg.world)
+    labels = world_first(labels, world_cluster(scores, cfg.world))
     timings["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     inl = labels >= 0
