@@ -32,12 +32,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from mosegpipe.colours import WORLD
 from mosegpipe.errors import ConfigError
 from mosegpipe.flow import FrameMotion
 from mosegpipe.geometry_select import gric
-
-WORLD_LABEL = 0
-"""The world's label (the mask value colours.WORLD)."""
 
 
 @dataclass(frozen=True)
@@ -277,7 +275,7 @@ def explain_parallax(
     if not cfg.parallax or motion.forward is None or motion.backward is None:
         return motion
     num = motion.residual.shape[0]
-    world = labels == WORLD_LABEL
+    world = labels == WORLD
     if world.sum() < cfg.parallax_min_points or num < 2:
         return motion
     residual = motion.residual.copy()
@@ -294,7 +292,7 @@ def explain_parallax(
         # the pixels whose nearest labelled track is the world's
         seeds = np.zeros((h, w), np.uint8)
         pts = np.clip(np.round(xy[known, t] * motion.scale).astype(np.int64), 0, [w - 1, h - 1])
-        seeds[pts[:, 1], pts[:, 0]] = np.where(labels[known] == WORLD_LABEL, 1, 2).astype(np.uint8)
+        seeds[pts[:, 1], pts[:, 0]] = np.where(labels[known] == WORLD, 1, 2).astype(np.uint8)
         _, nearest = cv2.distanceTransformWithLabels(
             (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
         )

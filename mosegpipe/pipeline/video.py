@@ -218,6 +218,7 @@ class _WindowLabels:
         scores: automatic K's score per candidate K.
         track_ids: (N,) int64 ids of the labelled tracks.
         labels: (N,) int64 their global labels (>= 0).
+        xy: (N, T, 2) float32 their positions in the window's frames, pixels.
     """
 
     k: int = 0
@@ -225,6 +226,7 @@ class _WindowLabels:
     scores: dict[int, float] = field(default_factory=dict)
     track_ids: npt.NDArray[np.int64] = field(default_factory=_no_labels)
     labels: npt.NDArray[np.int64] = field(default_factory=_no_labels)
+    xy: npt.NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 0, 2), np.float32))
 
     def by_id(self) -> dict[int, int]:
         """Track id -> global label."""
@@ -362,7 +364,9 @@ def _cluster_window(
         run.num_windows,
         world=cfg.world.enabled,
     )
-    found = _WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[glob >= 0], glob[glob >= 0])
+    keep = glob >= 0
+    xy = traj.data[keep].reshape(int(keep.sum()), len(window), 2)
+    found = _WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[keep], glob[keep], xy)
     run.prev, run.prev_k = found.by_id(), sweep_k
     run.num_labelled += 1
     return common, found
@@ -407,10 +411,7 @@ def _label_window(
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
     if stream is not None and motion is not None:
         if found.track_ids.size:  # the world's 3D structure: its parallax is not motion
-            where = [{int(i): r for r, i in enumerate(ids)} for _, _, ids, _ in window]
-            rows = [[w[int(i)] for w in where] for i in found.track_ids]
-            xy = np.stack([np.stack([item[3][r] for item, r in zip(window, row)]) for row in rows])
-            motion = explain_parallax(motion, xy, found.labels, cfg.world)
+            motion = explain_parallax(motion, found.xy, found.labels, cfg.world)
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
         shown = _shown_motions(run.last_mask)
