@@ -14,6 +14,8 @@ from mosegpipe.cli.app import _fail, _friendly, _setup
 from mosegpipe.cli.common import _check_model_path, _print_total, _progress_columns
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
+    MASK_EXTRA_TRACKS,
+    RIGID_CHECK,
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
@@ -76,10 +78,10 @@ def batch(
     clustering: ClusterOptions = ClusterOptions(),
     method: Method = MethodChoice(SEGMENT_METHODS[0]),
     points: Points = PointsChoice(TRACKERS[0]),
-    rigid_check: RigidCheck = True,
+    rigid_check: RigidCheck = RIGID_CHECK,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
-    mask_extra_tracks: MaskExtraTracks = 1000,
+    mask_extra_tracks: MaskExtraTracks = MASK_EXTRA_TRACKS,
     preset: Preset = PresetChoice(PRESET_NAMES[0]),
     model: ModelOpt = None,
     overwrite: Annotated[

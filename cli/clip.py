@@ -21,6 +21,8 @@ from mosegpipe.cli.common import (
 )
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
+    MASK_EXTRA_TRACKS,
+    RIGID_CHECK,
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
@@ -88,10 +90,10 @@ def run(
     clustering: ClusterOptions = ClusterOptions(),
     method: Method = MethodChoice(SEGMENT_METHODS[0]),
     points: Points = PointsChoice(TRACKERS[0]),
-    rigid_check: RigidCheck = True,
+    rigid_check: RigidCheck = RIGID_CHECK,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
-    mask_extra_tracks: MaskExtraTracks = 1000,
+    mask_extra_tracks: MaskExtraTracks = MASK_EXTRA_TRACKS,
     preset: Preset = PresetChoice(PRESET_NAMES[0]),
     model: ModelOpt = None,
     overwrite: Overwrite = False,
@@ -252,7 +254,7 @@ def tracks(
     ] = None,
     clustering: ClusterOptions = ClusterOptions(),
     method: Method = MethodChoice(SEGMENT_METHODS[0]),
-    rigid_check: RigidCheck = True,
+    rigid_check: RigidCheck = RIGID_CHECK,
     model: ModelOpt = None,
     video: Annotated[
         Path | None,

@@ -1,6 +1,5 @@
 """moseg train (a checkpoint from a named recipe), moseg eval (a benchmark protocol) and moseg study (a
-study of the paper), with the choices they offer: built from the library's registries, but for the recipes,
-losses and baselines, whose modules import torch or scikit-learn (kept equal to them by a test)."""
+study of the paper), with the choices they offer, built from the library's registries and vocabularies (mosegpipe.types)."""
 
 from __future__ import annotations
 
@@ -14,11 +13,13 @@ import typer
 from mosegpipe.cli.app import _friendly, _setup
 from mosegpipe.cli.common import _check_model_path
 from mosegpipe.cli.options import (
+    K_MAX,
+    K_METHOD,
+    RIGID_CHECK,
     DataRoot,
     Device,
     KMax,
     KMethod,
-    KMethodChoice,
     MaskMethodChoice,
     MethodChoice,
     ModelOpt,
@@ -33,50 +34,22 @@ from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
 from mosegpipe.studies import STUDIES, Budget
-from mosegpipe.types import K_METHODS
-
-
-class PresetChoice(StrEnum):
-    """train --preset: the names of mosegpipe.training.recipes.RECIPES (a test keeps them equal)."""
-
-    clip_f5 = "clip-f5"
-    clip_f5_rendered = "clip-f5-rendered"
-    clip_f5_davis = "clip-f5-davis"
-    base_f5 = "base-f5"
-    synthetic_f5 = "synthetic-f5"
-    pair_f2 = "pair-f2"
-    synthetic_f2 = "synthetic-f2"
-    lce = "lce"
-
-
-class LossChoice(StrEnum):
-    """--loss: the names of mosegpipe.training.losses.LOSSES (a test keeps them equal)."""
-
-    mimi = "mimi"
-    l2 = "l2"
-    l2_balanced = "l2-balanced"
-    ce = "ce"
-    triplet = "triplet"
-    lifted = "lifted"
-    facility = "facility"
-    mimi_point = "mimi-point"
-    mimi_mean = "mimi-mean"
-
+from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, RECIPE_NAMES
 
 if TYPE_CHECKING:
+    PresetChoice: TypeAlias = StrEnum
+    LossChoice: TypeAlias = StrEnum
     ProtocolChoice: TypeAlias = StrEnum
     VariantChoice: TypeAlias = StrEnum
     StudyChoice: TypeAlias = StrEnum
     BudgetChoice: TypeAlias = StrEnum
 else:  # the registries and vocabularies of the library (light modules: they import nothing heavy)
+    PresetChoice = _choices("PresetChoice", RECIPE_NAMES)  # train --preset, eval --recipe
+    LossChoice = _choices("LossChoice", LOSS_NAMES)  # --loss
     ProtocolChoice = _choices("ProtocolChoice", list(PROTOCOLS))  # eval PROTOCOL
     VariantChoice = _choices("VariantChoice", get_args(Variant))  # eval --variant
     StudyChoice = _choices("StudyChoice", list(STUDIES))  # study NAME
     BudgetChoice = _choices("BudgetChoice", get_args(Budget))  # study --budget
-
-
-BASELINE_NAMES = ("kmeans-raw", "spectral-raw", "ssc")
-"""eval --baselines: the names of mosegpipe.evaluation.baselines.BASELINES (a test keeps them equal)."""
 
 
 def _protocol_help() -> str:
@@ -95,7 +68,7 @@ def train(
             help="Named recipe: clip-f5 (the shipped 5-frame model), base-f5 (its starting point), synthetic-f5, "
             "pair-f2 (the shipped two-view model), synthetic-f2, lce (the paper's LCE study).",
         ),
-    ] = PresetChoice.clip_f5,
+    ] = PresetChoice(RECIPE_NAMES[0]),
     out: Annotated[Path, typer.Option("--out", "-o", help="Checkpoint file to write.")] = Path("runs/model.pt"),
     steps: Annotated[int | None, typer.Option("--steps", min=1, help="Override the recipe's step count.")] = None,
     batch_size: Annotated[
@@ -213,9 +186,9 @@ def eval_(
         ),
     ] = ",".join(BASELINE_NAMES),
     folds: Annotated[str | None, typer.Option("--folds", help="Comma-separated held-out names (default: all).")] = None,
-    k_method: KMethod = KMethodChoice(K_METHODS[0]),
-    k_max: KMax = 8,
-    rigid_check: RigidCheck = True,
+    k_method: KMethod = K_METHOD,
+    k_max: KMax = K_MAX,
+    rigid_check: RigidCheck = RIGID_CHECK,
     mask_method: Annotated[
         MaskMethodChoice | None,
         typer.Option(
@@ -322,7 +295,7 @@ def study(
         str | None,
         typer.Option("--clips", help="tsne: comma-separated KT3DMoSeg sequences / AdelaideRMF pairs."),
     ] = None,
-    k_max: KMax = 8,
+    k_max: KMax = K_MAX,
     data_root: DataRoot = None,
     device: Device = None,
     threads: Annotated[int, typer.Option("--threads", min=1, help="CPU threads.")] = 1,

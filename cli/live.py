@@ -16,6 +16,7 @@ import typer
 from mosegpipe.cli.app import _STOP_SIGNALS, _click, _friendly, _setup, _stopped, _Terminated
 from mosegpipe.cli.common import _check_model_path, _print_total, _print_video_summary, stop_child
 from mosegpipe.cli.options import (
+    RIGID_CHECK,
     ClusterOptions,
     MaskOptions,
     Method,
@@ -321,7 +322,7 @@ def live(
     ] = True,
     clustering: ClusterOptions = ClusterOptions(),
     method: Method = MethodChoice(SEGMENT_METHODS[0]),
-    rigid_check: RigidCheck = True,
+    rigid_check: RigidCheck = RIGID_CHECK,
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
     preset: Preset = PresetChoice(LIVE_PRESET),

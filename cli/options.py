@@ -7,8 +7,9 @@ parameter typed with the block; Typer sees the block's options in that parameter
 lists them where they stand), and the command receives the one dataclass. `_pipeline_cfg` turns the
 blocks into a PipelineConfig.
 
-The tracker and mask defaults are the library's (TrackConfig, MaskConfig; a test keeps them equal),
-written out here so that --help shows them without importing OpenCV.
+Every default is the library's, read from its config classes' fields (`mosegpipe.configs`, which import no
+OpenCV, so --help stays light); every check of a value is the library's: an error names the setting, and
+SETTING_OPTIONS names the option that set it.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, cast
 import typer
 
 from mosegpipe.cli.app import F
+from mosegpipe.configs import ClusterConfig, MaskConfig, RigidCheckConfig, TrackConfig
 from mosegpipe.errors import InputError
 from mosegpipe.settings import (
     MAX_CORNERS,
@@ -40,6 +42,7 @@ from mosegpipe.settings import (
     MAX_MIN_DISTANCE_PX,
     MAX_THREADS,
     MAX_WIN_SIZE_PX,
+    SettingError,
 )
 from mosegpipe.types import K_METHODS, MASK_METHODS, PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
@@ -99,6 +102,11 @@ KOpt = Annotated[
         help=f"Force this many motions, 1..{MAX_FORCED_K} and at most the tracks (default: automatic K).",
     ),
 ]
+
+
+def _default(config: type, name: str) -> Any:
+    """The default of a config class's field (the library's default of the option that sets it)."""
+    return next(f.default for f in dataclasses.fields(config) if f.name == name)
 
 
 def _value(choice: Any) -> Any:
@@ -169,8 +177,6 @@ Start = Annotated[
 ]
 
 
-# Tracker and mask settings. The defaults are the library's (TrackConfig, MaskConfig; a test keeps them
-# equal), written out here so that --help shows them without importing OpenCV.
 _TRACKER = "Tracker (KLT)"
 
 
@@ -307,24 +313,32 @@ MaskExtraTracks = Annotated[
 ]
 
 
+K_MAX: int = _default(ClusterConfig, "k_max")
+"""--k-max's default (ClusterConfig.k_max)."""
+K_METHOD: Any = KMethodChoice(_default(ClusterConfig, "method"))
+"""--k-method's default (ClusterConfig.method)."""
+
+
 @dataclass(frozen=True)
 class ClusterOptions:
     """--k, --k-method, --k-max: how many motions (run, pair, tracks, batch)."""
 
     k: KOpt = None
-    k_method: KMethod = KMethodChoice(K_METHODS[0])
-    k_max: KMax = 8
+    k_method: KMethod = K_METHOD
+    k_max: KMax = K_MAX
 
 
 @dataclass(frozen=True)
 class TrackerOptions:
     """--max-corners, --min-distance, --quality, --win-size: the KLT tracker (run, batch). Each field's
-    metadata names the TrackConfig field it sets."""
+    metadata names the TrackConfig field it sets, whose default is the option's."""
 
-    max_corners: MaxCorners = field(default=1000, metadata={"config": "max_corners"})
-    min_distance: MinDistance = field(default=7.0, metadata={"config": "min_distance_px"})
-    quality: Quality = field(default=0.01, metadata={"config": "quality_level"})
-    win_size: WinSize = field(default=21, metadata={"config": "win_size_px"})
+    max_corners: MaxCorners = field(default=_default(TrackConfig, "max_corners"), metadata={"config": "max_corners"})
+    min_distance: MinDistance = field(
+        default=_default(TrackConfig, "min_distance_px"), metadata={"config": "min_distance_px"}
+    )
+    quality: Quality = field(default=_default(TrackConfig, "quality_level"), metadata={"config": "quality_level"})
+    win_size: WinSize = field(default=_default(TrackConfig, "win_size_px"), metadata={"config": "win_size_px"})
 
     def config_fields(self) -> dict[str, Any]:
         """The TrackConfig fields these options set."""
@@ -335,17 +349,27 @@ class TrackerOptions:
 class MaskOptions:
     """--mask-method, --mask-max-distance, --mask-min-agree, --mask-median, --mask-scale: the dense masks
     (run, pair, batch; --mask-extra-tracks is an option of run and batch only). Each field's metadata
-    names the MaskConfig field it sets."""
+    names the MaskConfig field it sets, whose default is the option's."""
 
-    mask_method: MaskMethod = field(default=MaskMethodChoice(MASK_METHODS[0]), metadata={"config": "method"})
-    mask_max_distance: MaskMaxDistance = field(default=40.0, metadata={"config": "max_distance_px"})
-    mask_min_agree: MaskMinAgree = field(default=1, metadata={"config": "min_agree"})
-    mask_median: MaskMedian = field(default=0, metadata={"config": "median_px"})
-    mask_scale: MaskScale = field(default=1.0, metadata={"config": "scale"})
+    mask_method: MaskMethod = field(
+        default=MaskMethodChoice(_default(MaskConfig, "method")), metadata={"config": "method"}
+    )
+    mask_max_distance: MaskMaxDistance = field(
+        default=_default(MaskConfig, "max_distance_px"), metadata={"config": "max_distance_px"}
+    )
+    mask_min_agree: MaskMinAgree = field(default=_default(MaskConfig, "min_agree"), metadata={"config": "min_agree"})
+    mask_median: MaskMedian = field(default=_default(MaskConfig, "median_px"), metadata={"config": "median_px"})
+    mask_scale: MaskScale = field(default=_default(MaskConfig, "scale"), metadata={"config": "scale"})
 
     def config_fields(self) -> dict[str, Any]:
         """The MaskConfig fields these options set."""
         return _config_fields(self)
+
+
+MASK_EXTRA_TRACKS: int = _default(MaskConfig, "extra_tracks")
+"""--mask-extra-tracks' default (MaskConfig.extra_tracks)."""
+RIGID_CHECK: bool = _default(RigidCheckConfig, "enabled")
+"""--rigid-check's default (RigidCheckConfig.enabled)."""
 
 
 def _config_fields(block: TrackerOptions | MaskOptions) -> dict[str, Any]:
@@ -355,10 +379,31 @@ def _config_fields(block: TrackerOptions | MaskOptions) -> dict[str, Any]:
 OPTION_BLOCKS: tuple[type, ...] = (ClusterOptions, TrackerOptions, MaskOptions)
 """The dataclasses `option_blocks` expands into options."""
 
-TRACKER_DEFAULTS = {f.metadata["config"]: f.default for f in dataclasses.fields(TrackerOptions)}
-"""TrackConfig fields set by --max-corners, --min-distance, --quality, --win-size, with their defaults."""
-MASK_DEFAULTS = {f.metadata["config"]: _value(f.default) for f in dataclasses.fields(MaskOptions)}
-"""MaskConfig fields set by --mask-method, --mask-max-distance, --mask-min-agree, --mask-median, --mask-scale."""
+
+def _option_name(block: type, name: str) -> str:
+    """The option a block's field declares (`--max-corners`)."""
+    option = typing.get_type_hints(block, include_extras=True)[name].__metadata__[0]
+    return next(d for d in (option.default, *option.param_decls) if isinstance(d, str) and d.startswith("--"))
+
+
+SETTING_OPTIONS: dict[str, str] = {
+    **{
+        f"track.{f.metadata['config']}": _option_name(TrackerOptions, f.name)
+        for f in dataclasses.fields(TrackerOptions)
+    },
+    **{f"mask.{f.metadata['config']}": _option_name(MaskOptions, f.name) for f in dataclasses.fields(MaskOptions)},
+    "mask.extra_tracks": "--mask-extra-tracks",
+    "cluster.method": "--k-method",
+    "cluster.k_max": "--k-max",
+    "geometric.k_max": "--k-max",
+    "k": "--k",
+    "frames": "--frames",
+    "start": "--start",
+    "method": "--method",
+    "tracker": "--points",
+}
+"""The option that sets each setting of a PipelineConfig (dotted path -> option), by which an error in a
+setting is reported: `--mask-scale: 0.0 must lie in (0, 1]`."""
 
 
 def option_blocks(fn: F) -> F:
@@ -394,23 +439,6 @@ def option_blocks(fn: F) -> F:
     return cast(F, wrapper)
 
 
-def _check_settings(track: dict[str, Any], mask: dict[str, Any], vote_k: int) -> None:
-    """What the option ranges cannot say, as one error line naming the option."""
-    quality, scale = track.get("quality_level"), mask.get("scale")
-    if quality is not None and not 0 < quality <= 1:
-        raise InputError(f"--quality {quality:g}: must be in (0, 1]")
-    if mask.get("max_distance_px") is not None and mask["max_distance_px"] <= 0:
-        raise InputError(f"--mask-max-distance {mask['max_distance_px']:g}: must be > 0")
-    if scale is not None and not 0 < scale <= 1:
-        raise InputError(f"--mask-scale {scale:g}: must be in (0, 1]")
-    median = mask.get("median_px")
-    if median is not None and median not in (0, 1) and (median < 3 or median % 2 == 0):
-        raise InputError(f"--mask-median {median}: must be 0 (off) or an odd number >= 3")
-    agree = mask.get("min_agree")
-    if agree is not None and not 1 <= agree <= vote_k:
-        raise InputError(f"--mask-min-agree {agree}: must be in 1..{vote_k} (the nearest tracks consulted)")
-
-
 def _pipeline_cfg(
     frames: int,
     clustering: ClusterOptions,
@@ -427,28 +455,31 @@ def _pipeline_cfg(
 ) -> Any:
     """The PipelineConfig of a command's options (`PipelineConfig.from_options`; tracker / masks None: the
     library's defaults; mask_extra_tracks None: not an option of the command; preset None: "best")."""
-    from mosegpipe.masks import MaskConfig
     from mosegpipe.pipeline import PipelineConfig
 
     track = tracker.config_fields() if tracker is not None else {}
     mask = masks.config_fields() if masks is not None else {}
     if mask_extra_tracks is not None:
         mask["extra_tracks"] = mask_extra_tracks
-    _check_settings(track, mask, MaskConfig().vote_k)
-    return PipelineConfig.from_options(
-        frames,
-        start=start,
-        k=clustering.k,
-        k_method=_value(clustering.k_method),
-        k_max=clustering.k_max,
-        method=_value(segment_method),
-        points=_value(points),
-        rigid_check=rigid_check,
-        shot_cuts=shot_cuts,
-        track=track,
-        mask=mask,
-        preset=_value(preset),
-    )
+    try:
+        return PipelineConfig.from_options(
+            frames,
+            start=start,
+            k=clustering.k,
+            k_method=_value(clustering.k_method),
+            k_max=clustering.k_max,
+            method=_value(segment_method),
+            points=_value(points),
+            rigid_check=rigid_check,
+            shot_cuts=shot_cuts,
+            track=track,
+            mask=mask,
+            preset=_value(preset),
+        )
+    except SettingError as exc:  # named by the option that set it
+        if exc.path not in SETTING_OPTIONS:
+            raise
+        raise InputError(f"{SETTING_OPTIONS[exc.path]}: {exc.reason}") from exc
 
 
 def _data_root(data_root: Path | None) -> Path:

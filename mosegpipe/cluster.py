@@ -16,8 +16,7 @@ from __future__ import annotations
 import logging
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, replace
-from typing import get_args
+from dataclasses import replace
 
 import numpy as np
 import numpy.typing as npt
@@ -28,14 +27,12 @@ from sklearn.cluster import KMeans
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.metrics import pairwise_distances
 
-from mosegpipe.errors import ConfigError, InputError
+from mosegpipe.configs.grouping import ClusterConfig
+from mosegpipe.errors import InputError
 from mosegpipe.runtime import limited_threads
-from mosegpipe.settings import MAX_K, MAX_THREADS, SettingError
-from mosegpipe.types import Clustering, KMethodName
+from mosegpipe.types import Clustering
 
 logger = logging.getLogger(__name__)
-
-_METHODS = get_args(KMethodName)
 
 # A residual at or below this fraction of r(1) counts as "nothing left to explain": float noise,
 # not structure, so the relative drop after it is defined as 0 instead of 0/0.
@@ -46,86 +43,6 @@ _RESIDUAL_FLOOR = 1e-9
 # without a sample 20 000 tracks took 3.3 GB and 100 000 asked for 74.5 GiB. 3000 points cost about
 # 70 MB of distances and keep clips and video windows (< 1100 tracks) exactly as they were.
 MAX_SCORED_POINTS = 3000
-
-
-@dataclass(frozen=True)
-class ClusterConfig:
-    """How :func:`cluster_auto_k` chooses K.
-
-    Attributes:
-        method: "residual" (elbow of the K-means residual) or "silhouette".
-        k_min: smallest K considered; 1 allows the answer "a single motion".
-        k_max: largest K considered (capped at N - 1 for a clip of N points).
-        n_init: K-means restarts per K; the best residual of the restarts is kept.
-        seed: random seed of K-means (same seed, same labels).
-        num_threads: BLAS/OpenMP threads for scikit-learn; 1 is fastest for these sizes.
-        min_elbow: "residual" answers K = 1 unless some K >= 2 scores above this (scores lie in
-            [-1, 1]; see cluster_auto_k for measured values).
-        min_silhouette: "silhouette" answers K = 1 unless the best silhouette exceeds this.
-        one_motion_spread: K = 1 is considered only when the mean squared distance to the centroid
-            is at most this fraction of the mean squared norm.
-        min_spread: when the mean squared distance to the centroid is below this fraction of the
-            mean squared norm, the embeddings are one point up to noise and K = 1 outright.
-    """
-
-    # Silhouette chose K better on KT3DMoSeg leave-one-out (correct K 64 % vs 45-59 %, docs/RESULTS.md);
-    # "residual" is about twice as fast (no O(N^2) distances).
-    method: KMethodName = "silhouette"
-    k_min: int = 1  # single-motion clips exist (static scene, camera motion only)
-    k_max: int = 8  # benchmarks have at most 5 motions; 8 leaves headroom for real videos
-    n_init: int = 3  # 10 restarts cost 3x the time; see docs/RESULTS.md for the accuracy check
-    seed: int = 0  # fixed so that repeated runs give identical labels
-    num_threads: int = 1  # see the timing note in kmeans(): 2 threads were 10-400x slower
-    # Measured on Gaussian blobs on the unit sphere: one blob with N >= 100 scores at most 0.15
-    # for E >= 3 (0.19-0.24 for E = 2, up to 0.48 for N = 10; 6 seeds each), while 2-6 groups
-    # of 300 points with E = 5 or 16 score 0.4-0.9 at noise 0.05 and 0.2-0.76 at noise 0.15.
-    min_elbow: float = 0.2
-    # Same blobs: one blob reaches 0.20 (E=5) to 0.38 (E=3) for N >= 100, groups 0.56-0.92 at
-    # noise 0.05-0.15 with E = 5; 0.25 (Kaufman & Rousseeuw's "no structure") is too low for E=3.
-    min_silhouette: float = 0.4
-    min_spread: float = 1e-4  # RMS distance 0.01 on the unit sphere: identical up to noise
-    # K = 1 is a candidate only when the mean squared distance to the centroid is at most this
-    # fraction of the mean squared norm (RMS distance 0.32 on the unit sphere). Trained embeddings
-    # of several motions spread far wider; without this gate the K = 1 threshold score beat the
-    # elbow of loosely clustered multi-motion embeddings (zero-shot AdelaideRMF: K = 1 on 14 of 19
-    # pairs). Calibrated on synthetic one-body clips: docs/RESULTS.md.
-    one_motion_spread: float = 0.1
-    # K = 1 without clustering when one affine motion explains the tracks to within this many
-    # pixels (99th percentile of the per-track RMS residual, see single_motion_residual_px): the
-    # residual flow is tracking noise. Calibrated on rendered synthetic clips (mosegpipe.synth.render,
-    # 6 seeds, pixel noise 0/5/10 grey levels, static camera): with nothing moving the percentile
-    # was at most 1.62 px, with 1-2 moving objects at least 3.05 px. None = never.
-    static_residual_px: float | None = 2.0
-    # The K choice is reported as ambiguous (summary.json k_note, a warning) when the runner-up
-    # scores within this of the winner (tree.avi, where nothing moves, had 0.003 between K = 3 and 2
-    # before the no-motion rule; a clean rendered three-motion clip 0.020). Reporting only: no K changes.
-    ambiguity_margin: float = 0.01
-
-    def __post_init__(self) -> None:
-        if self.method not in _METHODS:
-            raise ConfigError(f"cluster method {self.method!r} is not one of {', '.join(_METHODS)}")
-        if self.k_min < 1:
-            raise ConfigError(f"k_min={self.k_min} must be at least 1")
-        if self.k_max < self.k_min:
-            raise ConfigError(f"k_max={self.k_max} is smaller than k_min={self.k_min}")
-        if self.k_max > MAX_K:
-            raise ConfigError(f"k_max={self.k_max} is larger than {MAX_K} (each K is a K-means fit)")
-        if self.n_init < 1:
-            raise ConfigError(f"n_init={self.n_init} must be at least 1")
-        if not 1 <= self.num_threads <= MAX_THREADS:
-            raise SettingError("num_threads", f"{self.num_threads} must lie in 1..{MAX_THREADS}")
-        if not -1.0 <= self.min_elbow <= 1.0:
-            raise ConfigError(f"min_elbow={self.min_elbow} must lie in [-1, 1]")
-        if not -1.0 <= self.min_silhouette <= 1.0:
-            raise ConfigError(f"min_silhouette={self.min_silhouette} must lie in [-1, 1]")
-        if not 0.0 <= self.min_spread < 1.0:
-            raise ConfigError(f"min_spread={self.min_spread} must lie in [0, 1)")
-        if not 0.0 <= self.one_motion_spread <= 1.0:
-            raise ConfigError(f"one_motion_spread={self.one_motion_spread} must lie in [0, 1]")
-        if self.static_residual_px is not None and not self.static_residual_px >= 0:
-            raise ConfigError(f"static_residual_px={self.static_residual_px} must be >= 0 (or None)")
-        if not self.ambiguity_margin >= 0:
-            raise ConfigError(f"ambiguity_margin={self.ambiguity_margin} must be >= 0")
 
 
 def _check_embeddings(emb: npt.ArrayLike) -> npt.NDArray[np.float64]:

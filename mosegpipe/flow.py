@@ -24,7 +24,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-DIS_PRESETS = {
+from mosegpipe.configs.tracking import FlowConfig
+from mosegpipe.types import CameraFit, DisPreset
+
+DIS_PRESETS: dict[DisPreset, int] = {
     "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
     "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
     "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM,
@@ -40,74 +43,8 @@ def flow_fits(size_hw: tuple[int, int], cfg: FlowConfig) -> bool:
     return min(size_hw) * cfg.scale >= MIN_FLOW_SIDE_PX
 
 
-CAMERA_FITS = {"ransac": cv2.RANSAC, "magsac": cv2.USAC_MAGSAC}
+CAMERA_FITS: dict[CameraFit, int] = {"ransac": cv2.RANSAC, "magsac": cv2.USAC_MAGSAC}
 """The robust fits of the camera's homography (FlowConfig.camera_fit) and their OpenCV methods."""
-
-
-@dataclass(frozen=True)
-class FlowConfig:
-    """Settings of the dense flow and the camera fit.
-
-    Attributes:
-        preset: DIS preset ("ultrafast", "fast" or "medium"); medium is the most accurate of the three.
-        scale: flow is computed on images resized by this factor (0 < scale <= 1); residuals are
-            returned at full resolution in full-resolution pixels.
-        grid_step_px: the camera fit samples one pixel every this many pixels (at the flow's scale);
-            8 fits as well as 4 (DAVIS dev J 0.646 either way) at a quarter of the fit's time.
-        fb_max_px: a sample whose forward flow and the backward flow at its end point disagree by
-            more than this (pixels, at the flow's scale) is left out of the camera fit (occlusions,
-            flow failures).
-        ransac_px: RANSAC inlier threshold of the homography, in pixels at the flow's scale.
-        camera_fit: the robust fit of the camera's homography (CAMERA_FITS): "ransac" (OpenCV's RANSAC,
-            the inliers' fit refined by Levenberg-Marquardt) or "magsac" (OpenCV's USAC MAGSAC, the
-            choice before). MAGSAC weighs samples by a soft score up to its threshold and beyond: an
-            object moving 2-3 px against the camera, over a third of the frame, pulls its fit off the
-            background (median background residual 0.2-0.7 px where a least-squares fit of the true
-            background leaves 0.05-0.08; rendered clips, seeds 12 and 17), and the noise floor then hides
-            slow movers. RANSAC leaves 0.04 there, in half MAGSAC's time (2.5 against 4.9 ms for 5 400
-            samples). DAVIS dev, whole video J / F 0.750 / 0.714 -> 0.759 / 0.726 (elephant 0.67 -> 0.81;
-            ransac_px 0.5 0.751, 2.0 0.754), first 5 frames 0.707 / 0.672 -> 0.718 / 0.683.
-        workers: threads that compute the flows and fits of a stack (`frame_motion`); OpenCV releases
-            the GIL, so two threads use both cores of a small machine (each thread has its own DIS).
-        patch_stride: DIS patch stride in pixels (None = the preset's: 3 for medium).
-        refinement_iterations: DIS variational refinement iterations (None = the preset's: 5 for medium).
-        both_directions: a frame between two others takes, per pixel, the smaller camera residual and
-            the smaller forward-backward error of its flow to the next frame and its flow to the one
-            before (each with its own camera fit). A band beside a moving object is occluded in one
-            of its neighbours only, so one of the two flows is right there: the band's residual (the
-            flow smoothed across the object's border) drops out, the object's own stays (it moves
-            in both). DAVIS dev J of the moving masks (25 frames pooled) 0.676 -> 0.713; False =
-            the next frame's flow only.
-    """
-
-    preset: str = "medium"
-    scale: float = 1.0
-    grid_step_px: int = 8
-    fb_max_px: float = 1.0
-    ransac_px: float = 1.0
-    camera_fit: str = "ransac"
-    workers: int = 2
-    patch_stride: int | None = None
-    refinement_iterations: int | None = None
-    both_directions: bool = True
-
-    def __post_init__(self) -> None:
-        if self.preset not in DIS_PRESETS:
-            raise ValueError(f"preset={self.preset!r} must be one of {', '.join(DIS_PRESETS)}")
-        if not 0 < self.scale <= 1:
-            raise ValueError(f"scale={self.scale} must be in (0, 1]")
-        if self.grid_step_px < 1:
-            raise ValueError(f"grid_step_px={self.grid_step_px} must be >= 1")
-        if self.workers < 1:
-            raise ValueError(f"workers={self.workers} must be >= 1")
-        if self.patch_stride is not None and not 1 <= self.patch_stride <= 8:
-            raise ValueError(f"patch_stride={self.patch_stride} must be in 1..8 (the patches are 8 px)")
-        if self.refinement_iterations is not None and not 0 <= self.refinement_iterations <= 100:
-            raise ValueError(f"refinement_iterations={self.refinement_iterations} must be in 0..100")
-        if self.camera_fit not in CAMERA_FITS:
-            raise ValueError(f"camera_fit={self.camera_fit!r} must be one of {', '.join(CAMERA_FITS)}")
-        if not self.fb_max_px > 0 or not self.ransac_px > 0:
-            raise ValueError(f"fb_max_px={self.fb_max_px} and ransac_px={self.ransac_px} must be > 0")
 
 
 def to_gray(image: npt.NDArray[np.uint8], scale: float) -> npt.NDArray[np.uint8]:

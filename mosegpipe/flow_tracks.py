@@ -26,61 +26,14 @@ corner are dropped), for `PipelineConfig.tracker` "klt+flow".
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from mosegpipe.errors import ConfigError
+from mosegpipe.configs.tracking import FlowTrackConfig
 from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, to_gray
-from mosegpipe.settings import MAX_CORNERS
 from mosegpipe.types import Tracks
-
-
-@dataclass(frozen=True)
-class FlowTrackConfig:
-    """Settings of `track_flow`.
-
-    Attributes:
-        max_points: the grid holds about this many seeds (its step is sqrt(H * W / max_points) pixels,
-            at least `min_step_px`).
-        min_step_px: the grid's smallest step, pixels.
-        border_px: a point closer than this to the image border is lost.
-        fb_rel: forward-backward check, relative part (see the module docstring).
-        fb_abs_px: forward-backward check, absolute part, pixels.
-        boundary_rel: motion-boundary check: a point is lost where |grad u|^2 + |grad v|^2 exceeds
-            boundary_rel |w|^2 + boundary_abs (a negative boundary_rel = no check).
-        boundary_abs: absolute part of the motion-boundary check (flow gradient squared, per pixel).
-        max_brightness: brightness check, grey levels (0-255) of the images smoothed by a Gaussian of
-            sigma 1 px (0 = no check).
-        min_texture: seeds whose smallest structure-tensor eigenvalue is below this share of the
-            frame's mean are left out (0 = every grid point is seeded).
-        klt_distance_px: "klt+flow": flow points nearer than this to a KLT corner in the first
-            frame are dropped.
-    """
-
-    max_points: int = 2000
-    min_step_px: int = 4
-    border_px: float = 4.0
-    fb_rel: float = 0.01
-    fb_abs_px: float = 0.7
-    boundary_rel: float = 0.01
-    boundary_abs: float = 0.002
-    max_brightness: float = 20.0
-    min_texture: float = 0.0
-    klt_distance_px: float = 4.0
-
-    def __post_init__(self) -> None:
-        if not 1 <= self.max_points <= MAX_CORNERS or self.min_step_px < 1:
-            raise ConfigError(
-                f"max_points={self.max_points} must lie in 1..{MAX_CORNERS} and min_step_px={self.min_step_px} be >= 1"
-            )
-        if self.fb_rel < 0 or self.fb_abs_px < 0 or self.border_px < 0 or self.klt_distance_px < 0:
-            raise ConfigError("fb_rel, fb_abs_px, border_px and klt_distance_px must be >= 0")
-        if self.min_texture < 0 or self.max_brightness < 0:
-            raise ConfigError(f"min_texture={self.min_texture} and max_brightness={self.max_brightness} must be >= 0")
 
 
 def grid_seeds(image: npt.NDArray[np.uint8], cfg: FlowTrackConfig = FlowTrackConfig()) -> npt.NDArray[np.float32]:

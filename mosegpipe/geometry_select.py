@@ -53,7 +53,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import ConfigError
+from mosegpipe.configs.grouping import JointConfig
 from mosegpipe.rigid import _h_residual_px, _sampson_px
 
 logger = logging.getLogger(__name__)
@@ -85,66 +85,6 @@ def gric(errors_sq: npt.NDArray[np.float64], sigma_px: float, d: int, k: int, r:
     n = errors_sq.size
     rho = np.minimum(errors_sq / sigma_px**2, 2.0 * (r - d))
     return float(rho.sum() + np.log(r) * d * n + np.log(r * max(n, 1)) * k)
-
-
-@dataclass(frozen=True)
-class JointConfig:
-    """Settings of `select_models` (method "joint"; see the module docstring for what each one does).
-
-    Attributes:
-        sigma_px: the noise of a track's position, pixels (GRIC's sigma).
-        residual_px: a track within this many pixels of a model is its inlier (RANSAC's distance too).
-        outlier_px: a track further than this from its group's model in most frame pairs is not
-            explained by it (step 4); None: no track is moved or left out.
-        rigid_share: a group is one rigid motion when its model explains at least this share of it.
-        planar_share: a split's second part must be one motion: a homography explains this share of it.
-        merge_share: two groups merge only when the union's model explains this share of each.
-        reassign: a track its group's model does not explain may go to a group whose model does (else
-            it is left out).
-        leave_out: a track that no model explains is left out (-1); else it keeps its group.
-        merge_3d: two groups that both need a fundamental matrix may merge under one (off: an object
-            moving along the camera's direction fits the world's matrix, the motion degeneracy).
-        split_largest: the largest group (usually the world) may be split too.
-        rigid_first: the rigid-motion check (mosegpipe.rigid) splits the groups first (the caller's rule).
-        min_group: the smallest group a split makes, in tracks ...
-        min_share: ... and as a share of all tracks; the larger applies.
-        max_pairs: at most this many frame pairs (0, t), spread evenly over the window, are fitted.
-        ransac_iters: RANSAC iterations per model.
-        seed: OpenCV's random seed, set before each selection (same seed, same labels).
-    """
-
-    sigma_px: float = 1.0  # KLT tracks: about 0.5 px noise, plus drift over the window; world.parallax_sigma_px
-    residual_px: float = 1.5  # as the rigid-motion check and the geometric fit
-    outlier_px: float | None = 4.0  # well beyond the noise: a tracker failure or a motion of its own
-    rigid_share: float = 0.5
-    planar_share: float = 0.8  # as the geometric fit: one plane explaining 4/5 of the rest is an object
-    merge_share: float = 0.8  # as the rigid-motion check's merge_consistency
-    reassign: bool = True
-    leave_out: bool = False  # True: composites J +0.03, kt3d-video +1.5 points of error (left out = wrong)
-    merge_3d: bool = False  # KT3D (kt3d-video): cars driving with the camera fit the world's matrix
-    split_largest: bool = False
-    rigid_first: bool = True
-    min_group: int = 10  # as the geometric fit: fewer barely constrain a model
-    min_share: float = 0.02
-    max_pairs: int = 8  # a 20-frame window: every third frame or so; enough to see a motion change
-    ransac_iters: int = 1000
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ("sigma_px", "residual_px"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"joint: {name}={value} must be a finite number > 0")
-        if self.outlier_px is not None and not (math.isfinite(self.outlier_px) and self.outlier_px > 0):
-            raise ConfigError(f"joint: outlier_px={self.outlier_px} must be a finite number > 0 (or None)")
-        for name in ("rigid_share", "planar_share", "merge_share"):
-            if not 0 < getattr(self, name) <= 1:
-                raise ConfigError(f"joint: {name}={getattr(self, name)} must lie in (0, 1]")
-        if not 0 <= self.min_share < 1:
-            raise ConfigError(f"joint: min_share={self.min_share} must lie in [0, 1)")
-        for name in ("min_group", "max_pairs", "ransac_iters"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"joint: {name}={getattr(self, name)} must be at least 1")
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.cluster import kmeans, relabel_by_size
-from mosegpipe.errors import ConfigError, InputError
+from mosegpipe.configs.grouping import GeometricConfig
+from mosegpipe.errors import InputError
 from mosegpipe.rigid import _MIN_FUNDAMENTAL, _h_residual_px, _sampson_px
 from mosegpipe.types import Clustering
 
@@ -49,55 +50,6 @@ logger = logging.getLogger(__name__)
 ModelKind = Literal["homography", "fundamental"]
 
 _MIN_HOMOGRAPHY = 4  # points that determine a homography
-
-
-@dataclass(frozen=True)
-class GeometricConfig:
-    """Settings of `group_geometric` (see the module docstring for what each one does).
-
-    Attributes:
-        residual_px: a track within this many pixels of a model (in every frame pair) is its inlier;
-            also RANSAC's inlier distance.
-        min_group: with automatic K, the smallest group, in tracks.
-        min_share: with automatic K, the smallest group as a share of all tracks, in [0, 1); the
-            larger of the two minimums applies.
-        k_max: with automatic K, the most groups fitted.
-        homography_ratio: the homography is the group's model when it keeps at least this fraction
-            of the fundamental matrix's inliers, in (0, 1].
-        planar_share: the tracks that only the fundamental matrix explains are one planar motion of
-            their own (and the homography stays the model) when one homography explains at least
-            this share of them, in (0, 1].
-        ransac_iters: RANSAC iterations per model.
-        confidence: RANSAC's confidence, in (0, 1).
-        seed: OpenCV's random seed, set before each grouping (same seed, same labels).
-    """
-
-    residual_px: float = 1.5  # KLT tracks of textured points: about 0.5 px noise; rigid.py's threshold
-    min_group: int = 10  # fewer tracks barely constrain a model (8 for a fundamental matrix)
-    min_share: float = 0.02  # on 1000 tracks, a group of 20: a small object, not a patch of tracker errors
-    k_max: int = 8  # as ClusterConfig.k_max: benchmarks have at most 5 motions
-    homography_ratio: float = 0.9  # parallax must add a tenth more inliers before the fundamental matrix is used
-    planar_share: float = 0.8  # one plane explaining 4/5 of the extra inliers is an object, not depth
-    ransac_iters: int = 2000  # USAC_MAGSAC converges in far fewer on these inlier shares
-    confidence: float = 0.999  # OpenCV's default for findFundamentalMat
-    seed: int = 0  # fixed so that repeated runs give identical labels
-
-    def __post_init__(self) -> None:
-        if not self.residual_px > 0:
-            raise ConfigError(f"geometric grouping: residual_px={self.residual_px} must be positive")
-        if self.min_group < 1:
-            raise ConfigError(f"geometric grouping: min_group={self.min_group} must be at least 1")
-        if not 0 <= self.min_share < 1:
-            raise ConfigError(f"geometric grouping: min_share={self.min_share} must lie in [0, 1)")
-        if self.k_max < 1:
-            raise ConfigError(f"geometric grouping: k_max={self.k_max} must be at least 1")
-        for name in ("homography_ratio", "planar_share"):
-            if not 0 < getattr(self, name) <= 1:
-                raise ConfigError(f"geometric grouping: {name}={getattr(self, name)} must lie in (0, 1]")
-        if self.ransac_iters < 1:
-            raise ConfigError(f"geometric grouping: ransac_iters={self.ransac_iters} must be at least 1")
-        if not 0 < self.confidence < 1:
-            raise ConfigError(f"geometric grouping: confidence={self.confidence} must lie in (0, 1)")
 
 
 @dataclass(frozen=True)

@@ -7,56 +7,16 @@ this stage produces the same kind of input for any image pair.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import ConfigError, InputError
+from mosegpipe.configs.tracking import MatchConfig
+from mosegpipe.errors import InputError
 from mosegpipe.types import Matches
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class MatchConfig:
-    """Settings of SIFT detection and matching.
-
-    Attributes:
-        nfeatures: keypoints kept per image, strongest first (0 = all). Caps the quadratic
-            matching cost: ~2.5k keypoints per 640x480 image took 180 ms to detect and 250 ms
-            to brute-force match both ways on one core.
-        n_octave_layers: SIFT layers per octave (Lowe's 3).
-        contrast_threshold: SIFT's DoG contrast threshold (OpenCV default 0.04); lower finds
-            more keypoints in low-contrast images at the cost of weaker ones.
-        edge_threshold: SIFT's edge-response threshold (OpenCV default 10).
-        sigma: Gaussian blur of the base octave (Lowe's 1.6).
-        ratio: Lowe's ratio test: keep a match when best distance < ratio * second best; 0.8
-            is Lowe's value, rejecting ~90 % of false matches and ~5 % of true ones.
-        cross_check: keep a match only if it is also the best match from image 2 back to
-            image 1 (mutual nearest neighbours); otherwise only the best-ratio match per
-            keypoint of image 2 survives.
-        matcher: "bf" (exact brute force, deterministic) or "flann" (approximate KD-trees;
-            measured ~3x faster matching at 2.5k keypoints, with the same matches to within 0.5 %).
-    """
-
-    nfeatures: int = 4000
-    n_octave_layers: int = 3
-    contrast_threshold: float = 0.04
-    edge_threshold: float = 10.0
-    sigma: float = 1.6
-    ratio: float = 0.8
-    cross_check: bool = True
-    matcher: str = "bf"
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.ratio <= 1.0:
-            raise ConfigError(f"ratio={self.ratio} must be in (0, 1]")
-        if self.matcher not in ("bf", "flann"):
-            raise ConfigError(f"matcher={self.matcher!r} must be 'bf' or 'flann'")
-        if self.nfeatures < 0:
-            raise ConfigError(f"nfeatures={self.nfeatures} must be >= 0")
 
 
 def _gray(image: npt.NDArray[np.uint8], name: str) -> npt.NDArray[np.uint8]:

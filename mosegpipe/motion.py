@@ -45,117 +45,12 @@ tracks' motions, so that a pipeline's masks carry motion labels as the other mas
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
-
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import ConfigError
-from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, pixel_grid
-
-
-@dataclass(frozen=True)
-class MotionMaskConfig:
-    """Settings of the motion masks, one line each; how each value was chosen and what it bought on the
-    DAVIS dev clips is in docs/HISTORY.md ("How the motion masks work, and what each step bought" and the
-    sections after it).
-
-    Attributes:
-        flow: dense flow and camera fit (DIS medium, patch stride 4, 3 refinement iterations).
-        work_scale: the mask steps run on images resized by this factor; masks are resized back (nearest).
-        eps_px: residuals are compared as log(residual + eps_px), full-resolution pixels.
-        min_residual_px: a pixel whose residual is below this (full-resolution pixels) is never moving.
-        noise_factor: nor one whose residual is below this many times the frame's median residual.
-        fb_weight: the score loses this times the local mean of log(1 + forward-backward error).
-        fb_box_px: side of the box (work-scale pixels) averaging the forward-backward error and the spread.
-        spread_weight: the score loses this times log(1 + the flow's local spread).
-        guided_radius: radius of the guided filter of the score, grey frame as guide (0 = off).
-        guided_eps: the guided filter's regulariser, (intensity / 255)^2.
-        temporal_weight: weight of the neighbours' scores carried along the flow (0 = off).
-        temporal_passes: how often that averaging is repeated (each pass reaches one frame further).
-        colour_weight: weight of the colour model's log ratio (0 = off).
-        colour_bins: histogram bins per RGB channel of the colour model.
-        colour_margin: pixels this far (log units) above / below the threshold train the colour model.
-        local_colour_weight: weight of the local colour contrast (`_local_colour_contrast`; 0 = off).
-        local_colour_box_px: side of the box (work-scale pixels) of the local colour means.
-        smooth_lambda: strength of the fast global smoother after the guided filter (0 = off).
-        smooth_sigma: its colour scale (0-255 units): colours farther apart than this are an edge.
-        colour_memory: whole videos: decay of the colour counts of the windows before (0 = each window alone).
-        superpixels: approximate number of SLIC superpixels the score is averaged over (0 = off).
-        compactness: SLIC compactness (colour vs distance).
-        superpixel_iterations: SLIC's k-means iterations.
-        min_component: moving regions weaker than this share of the frame's strongest are dropped.
-        component_power: a region's strength is its area times its mean residual to this power.
-        anchor_tracks: whole videos: a motion the frame before showed keeps a region step 5 would drop
-            when at least this many of its tracks lie in it (0 = off).
-    """
-
-    flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=3))
-    work_scale: float = 0.75
-    eps_px: float = 1.0
-    min_residual_px: float = 0.5
-    noise_factor: float = 3.0
-    fb_weight: float = 0.75
-    fb_box_px: int = 7
-    spread_weight: float = 0.5
-    guided_radius: int = 2
-    guided_eps: float = 0.001
-    temporal_weight: float = 1.0
-    temporal_passes: int = 2
-    colour_weight: float = 0.75
-    colour_bins: int = 32
-    colour_margin: float = 0.5
-    colour_memory: float = 0.9
-    local_colour_weight: float = 1.5
-    local_colour_box_px: int = 61
-    superpixels: int = 0
-    compactness: float = 10.0
-    superpixel_iterations: int = 4
-    min_component: float = 0.3
-    component_power: float = 2.0
-    anchor_tracks: int = 3
-    smooth_lambda: float = 16.0
-    smooth_sigma: float = 5.0
-
-    def __post_init__(self) -> None:
-        for name, ok, want in _MOTION_CHECKS:
-            value = getattr(self, name)
-            # NaN and infinity are settings.check_settings' to name, with the setting's whole path
-            if isinstance(value, float) and not np.isfinite(value):
-                continue
-            if not ok(value):
-                raise ConfigError(f"{name}={value} must be {want}")
-
-
-_MOTION_CHECKS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
-    ("work_scale", lambda v: 0 < v <= 1, "in (0, 1]"),
-    ("noise_factor", lambda v: v >= 0, ">= 0"),
-    ("eps_px", lambda v: v > 0, "> 0"),
-    ("min_residual_px", lambda v: v >= 0, ">= 0"),
-    ("colour_memory", lambda v: 0 <= v < 1, "in [0, 1)"),
-    ("local_colour_weight", lambda v: v >= 0, ">= 0"),
-    ("local_colour_box_px", lambda v: v >= 3, ">= 3"),
-    ("colour_weight", lambda v: v >= 0, ">= 0"),
-    ("colour_bins", lambda v: 2 <= v <= 64, "in 2..64"),
-    ("temporal_weight", lambda v: v >= 0, ">= 0"),
-    ("temporal_passes", lambda v: v >= 0, ">= 0"),
-    ("superpixel_iterations", lambda v: v >= 1, ">= 1"),
-    ("fb_weight", lambda v: v >= 0, ">= 0"),
-    ("fb_box_px", lambda v: v >= 1, ">= 1"),
-    ("spread_weight", lambda v: v >= 0, ">= 0"),
-    ("guided_radius", lambda v: v >= 0, ">= 0"),
-    ("guided_eps", lambda v: v > 0, "> 0"),
-    ("smooth_lambda", lambda v: v >= 0, ">= 0"),
-    ("smooth_sigma", lambda v: v > 0, "> 0"),
-    ("anchor_tracks", lambda v: v >= 0, ">= 0"),
-    ("superpixels", lambda v: v >= 0, ">= 0"),
-    ("min_component", lambda v: 0 <= v <= 1, "in [0, 1]"),
-    ("component_power", lambda v: v >= 0, ">= 0"),
-)
-"""MotionMaskConfig's checks, one field each: (field, test, what it must be)."""
+from mosegpipe.configs.masks import MotionMaskConfig
+from mosegpipe.flow import FrameMotion, frame_motion, pixel_grid
 
 
 def _resize(x: npt.NDArray[np.float32], hw: tuple[int, int]) -> npt.NDArray[np.float32]:

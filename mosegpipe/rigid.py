@@ -56,67 +56,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mosegpipe.cluster import relabel_by_size
-from mosegpipe.errors import ConfigError
+from mosegpipe.configs.grouping import RigidCheckConfig
 
 _MIN_FUNDAMENTAL = 15  # fewer points: only the homography is fitted (8 would do, but barely constrain it)
-
-
-@dataclass(frozen=True)
-class RigidCheckConfig:
-    """Settings of `split_by_rigid_motion` (see the module docstring for what each one does).
-
-    Attributes:
-        enabled: run the check (clips, whole videos and tracks with automatic K).
-        residual_px: a point further than this from its cluster's rigid model (pixels, in either of
-            the two frame pairs) is a candidate for a motion of its own.
-        min_tracks: the smallest group split off ...
-        min_share: ... and at least this share of the points checked: with a dense grid of points
-            (`PipelineConfig.tracker` "flow") a group of 10 is a sliver along an object's border.
-        min_host: a split must leave at least this many points in the cluster (so only clusters
-            of min_host + min_tracks points or more are checked).
-        neighbour_frac: candidates within this fraction of the image diagonal of each other in
-            frame 0 may belong to one group.
-        motion_px, motion_frac: two candidates move alike when their displacements from frame 0
-            differ by at most motion_px + motion_frac * the larger displacement, in every frame.
-        consistency: a group is split off only when one rigid model of its own explains at least
-            this fraction of it (to residual_px).
-        homography_ratio: the homography is the model when it keeps at least this fraction of the
-            fundamental matrix's RANSAC inliers.
-        merge_consistency: two groups split off one cluster are merged when one rigid model
-            explains at least this fraction of their union (None: never merged).
-        separate: step 5 of the module docstring (pieces of an object's cluster that move apart).
-        max_angle_deg: step 5: touching pieces whose displacements (to the last frame) differ in
-            direction by more than this are not one deep object.
-    """
-
-    enabled: bool = True
-    residual_px: float = 1.5
-    min_tracks: int = 10
-    min_share: float = 0.01
-    min_host: int = 30
-    neighbour_frac: float = 0.05
-    motion_px: float = 2.0
-    motion_frac: float = 0.15
-    consistency: float = 0.5
-    homography_ratio: float = 0.95
-    merge_consistency: float | None = 0.8
-    separate: bool = True
-    max_angle_deg: float = 30.0
-
-    def __post_init__(self) -> None:
-        for name in ("residual_px", "neighbour_frac", "motion_px"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"rigid check: {name}={getattr(self, name)} must be positive")
-        if self.merge_consistency is not None and not 0 <= self.merge_consistency <= 1:
-            raise ConfigError(f"rigid check: merge_consistency={self.merge_consistency} must lie in [0, 1] (or None)")
-        for name in ("motion_frac", "consistency", "homography_ratio", "min_share"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ConfigError(f"rigid check: {name}={getattr(self, name)} must lie in [0, 1]")
-        if not 0 <= self.max_angle_deg <= 180:
-            raise ConfigError(f"rigid check: max_angle_deg={self.max_angle_deg} must lie in [0, 180]")
-        for name in ("min_tracks", "min_host"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"rigid check: {name}={getattr(self, name)} must be at least 1")
 
 
 def _sampson_px(

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from mosegpipe.errors import ConfigError
@@ -51,7 +51,6 @@ BOUNDS: dict[str, tuple[float, float | None]] = {
     "k": (1, MAX_FORCED_K),
     "min_tracks": (1, None),
     "outlier_inlier_ratio": (0, 1),
-    "mask.motion.flow.workers": (1, MAX_THREADS),
 }
 """Inclusive bounds (low, high; None = no upper bound) of the settings of a PipelineConfig that their
 own config classes do not bound, by dotted path; a None value (an optional setting left out) passes."""
@@ -102,6 +101,28 @@ def check_setting(path: str, value: Any, bounds: dict[str, tuple[float, float | 
         if not low <= value or (high is not None and not value <= high):
             span = f"lie in {low!r}..{high!r}" if high is not None else f"be at least {low!r}"
             raise SettingError(path, f"{value!r} must {span}")
+
+
+Check = tuple[str, Callable[[Any], bool], str]
+"""One check of a config class's field: (field, test of its value, what the value must do: "lie in (0, 1]", "be > 0")."""
+
+
+def check_fields(config: Any, checks: Sequence[Check]) -> None:
+    """A config class's own checks of its fields (its `__post_init__`), each failure a SettingError naming
+    the field: a NaN or infinite number is named as such, a value that fails its test by what it must be.
+    None (an optional setting left out) is not tested.
+
+    Raises:
+        SettingError: the first field whose value fails, e.g. `scale: 0.0 must lie in (0, 1]`.
+    """
+    for name, ok, want in checks:
+        value = getattr(config, name)
+        if value is None:
+            continue
+        if isinstance(value, float) and not math.isfinite(value):
+            raise SettingError(name, f"{value!r} is not a finite number")
+        if not ok(value):
+            raise SettingError(name, f"{value!r} must {want}")
 
 
 def _settings(config: Any, prefix: str) -> Iterator[tuple[str, Any]]:

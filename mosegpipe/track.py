@@ -9,80 +9,17 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import ConfigError, InputError
-from mosegpipe.settings import MAX_CORNERS, MAX_MIN_DISTANCE_PX, MAX_WIN_SIZE_PX
+from mosegpipe.configs.tracking import TrackConfig
+from mosegpipe.errors import InputError
 from mosegpipe.types import Frames, Tracks
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class TrackConfig:
-    """Settings of the KLT tracker.
-
-    Attributes:
-        max_corners: corners detected in the first frame; SubspaceNet works on a few hundred to
-            a thousand trajectories (KT3DMoSeg clips hold 158-1018).
-        quality_level: Shi-Tomasi threshold relative to the strongest corner; 0.01 keeps weakly
-            textured areas (road, walls) that still track well over a few frames.
-        min_distance_px: minimum spacing between corners, so points cover the whole image rather
-            than clustering on the most textured object.
-        block_size: neighbourhood of the corner response; 7 px is robust to JPEG noise.
-        win_size_px: Lucas-Kanade window; 21 px tolerates the small blur and noise of real video.
-        max_level: pyramid levels above the full image; 3 levels (1/8 scale) handle motions up to
-            about 8 * win_size_px / 2 px per frame.
-        fb_threshold_px: forward-backward check: a point tracked to the next frame and back must
-            land within this distance of where it started, else it is dropped (occlusions,
-            drift on edges). None disables the check and roughly halves the cost.
-        min_eig: minimum eigenvalue of the LK structure tensor (OpenCV's minEigThreshold);
-            rejects points that became textureless (e.g. moved onto sky).
-        max_iter: Lucas-Kanade iterations per pyramid level.
-        epsilon_px: Lucas-Kanade stops when an update is smaller than this.
-        border_px: a point closer than this to the image border counts as having left the image.
-            About win_size_px / 2: nearer the border the LK window reads padded pixels; on a
-            translated texture the error there reached ~1 px, against < 0.002 px inside.
-        reseed: KLTTracker only: detect new corners in areas without live tracks, for long videos.
-        reseed_every: re-seed every this many frames (detection, ~6 ms at 640x480, costs about
-            half a tracking step).
-    """
-
-    max_corners: int = 1000
-    quality_level: float = 0.01
-    min_distance_px: float = 7.0
-    block_size: int = 7
-    win_size_px: int = 21
-    max_level: int = 3
-    fb_threshold_px: float | None = 1.0
-    min_eig: float = 1e-4
-    max_iter: int = 30
-    epsilon_px: float = 0.01
-    border_px: float = 10.0
-    reseed: bool = False
-    reseed_every: int = 5
-
-    def __post_init__(self) -> None:
-        # Upper bounds: past them OpenCV crashes (min_distance 1e308: SIGSEGV in goodFeaturesToTrack)
-        # or overflows its int arguments (max_corners 3e9, win_size 100001); the CLI's options hold the same.
-        if not 1 <= self.max_corners <= MAX_CORNERS:
-            raise ConfigError(f"max_corners={self.max_corners} must lie in 1..{MAX_CORNERS}")
-        if not 3 <= self.win_size_px <= MAX_WIN_SIZE_PX:
-            raise ConfigError(f"win_size_px={self.win_size_px} must lie in 3..{MAX_WIN_SIZE_PX}")
-        if not 0 <= self.min_distance_px <= MAX_MIN_DISTANCE_PX:
-            raise ConfigError(f"min_distance_px={self.min_distance_px} must lie in [0, {MAX_MIN_DISTANCE_PX:g}]")
-        if not 0 < self.quality_level <= 1:
-            raise ConfigError(f"quality_level={self.quality_level} must lie in (0, 1]")
-        if self.max_level < 0:
-            raise ConfigError(f"max_level={self.max_level} must be >= 0")
-        if self.fb_threshold_px is not None and self.fb_threshold_px <= 0:
-            raise ConfigError(f"fb_threshold_px={self.fb_threshold_px} must be > 0 (or None to disable)")
-        if self.reseed_every < 1:
-            raise ConfigError(f"reseed_every={self.reseed_every} must be >= 1")
 
 
 def _inside(xy: npt.NDArray[np.float32], size_hw: tuple[int, int], border_px: float) -> npt.NDArray[np.bool_]:

@@ -41,6 +41,34 @@ library's defaults; "balanced" and "fast" set the dense flow and the mask steps'
 more frames/s at a measured cost in DAVIS J (docs/RESULTS.md, "Speed")."""
 PRESET_NAMES: tuple[PresetName, ...] = get_args(PresetName)
 
+DisPreset = Literal["ultrafast", "fast", "medium"]
+"""OpenCV DIS presets of the dense flow (FlowConfig.preset; mosegpipe.flow maps them to OpenCV's)."""
+DIS_PRESET_NAMES: tuple[DisPreset, ...] = get_args(DisPreset)
+
+CameraFit = Literal["ransac", "magsac"]
+"""Robust fits of the camera's homography to the flow (FlowConfig.camera_fit; mosegpipe.flow maps them to
+OpenCV's RANSAC and USAC MAGSAC)."""
+CAMERA_FIT_NAMES: tuple[CameraFit, ...] = get_args(CameraFit)
+
+Matcher = Literal["bf", "flann"]
+"""SIFT descriptor matchers (MatchConfig.matcher): exact brute force or FLANN's approximate KD-trees."""
+MATCHERS: tuple[Matcher, ...] = get_args(Matcher)
+
+RecipeName = Literal[
+    "clip-f5", "clip-f5-rendered", "clip-f5-davis", "base-f5", "synthetic-f5", "pair-f2", "synthetic-f2", "lce"
+]
+"""Named training recipes (`mosegpipe.training.recipes.RECIPES`, `moseg train --preset`); the first is the
+shipped 5-frame model's."""
+RECIPE_NAMES: tuple[RecipeName, ...] = get_args(RecipeName)
+
+LossName = Literal["mimi", "l2", "l2-balanced", "ce", "triplet", "lifted", "facility", "mimi-point", "mimi-mean"]
+"""Training losses (`mosegpipe.training.losses.LOSSES`, `--loss`)."""
+LOSS_NAMES: tuple[LossName, ...] = get_args(LossName)
+
+BaselineName = Literal["kmeans-raw", "spectral-raw", "ssc"]
+"""Clustering baselines of the benchmark protocols (`mosegpipe.evaluation.baselines.BASELINES`, `--baselines`)."""
+BASELINE_NAMES: tuple[BaselineName, ...] = get_args(BaselineName)
+
 BatchEngine = Literal["process", "ray", "inline"]
 """Where `run_batch` runs its clips (mosegpipe.batch): a local process pool, Ray tasks, or this process."""
 ENGINES: tuple[BatchEngine, ...] = get_args(BatchEngine)

@@ -25,60 +25,15 @@ here by where its tracks are, not how many there are:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from mosegpipe.colours import WORLD
-from mosegpipe.errors import ConfigError
+from mosegpipe.configs.grouping import WorldConfig
 from mosegpipe.flow import FrameMotion
 from mosegpipe.geometry_select import gric
-
-
-@dataclass(frozen=True)
-class WorldConfig:
-    """How the world's motion is told from the others (`world_cluster`).
-
-    Attributes:
-        enabled: tell the world by this evidence (False: the motion with the most tracks is the world,
-            as summaries written before this step segmented).
-        grid: cells per side of the area vote (grid x grid cells over the frame).
-        border_weight: extra weight of a border cell (a border cell counts 1 + border_weight).
-        continuity: whole videos: weight of the window before's world (0 = each window alone).
-        static_px: a track lies where the camera's motion explains the flow when the camera residual
-            there is at most this, pixels of the frame.
-        static_floor: a motion's area is weighted by this plus its tracks' share on such pixels.
-        parallax: where the world's tracks need a fundamental matrix (3D structure near a moving
-            camera), a pixel whose nearest labelled track is the world's is static when its flow lies on
-            the world's epipolar line (`explain_parallax`).
-        parallax_sigma_px: the noise of a track's position, pixels (GRIC and RANSAC thresholds).
-        parallax_min_points: fewest world tracks to fit a fundamental matrix from.
-    """
-
-    enabled: bool = True
-    grid: int = 16
-    border_weight: float = 1.0
-    continuity: float = 2.0
-    static_px: float = 1.0
-    static_floor: float = 0.1
-    parallax: bool = True
-    parallax_sigma_px: float = 1.0
-    parallax_min_points: int = 30
-
-    def __post_init__(self) -> None:
-        if not 2 <= self.grid <= 64:
-            raise ConfigError(f"world.grid={self.grid} must be in 2..64")
-        if self.parallax_min_points < 8:
-            raise ConfigError(f"world.parallax_min_points={self.parallax_min_points} must be at least 8")
-        if not (np.isfinite(self.parallax_sigma_px) and self.parallax_sigma_px > 0):
-            raise ConfigError(f"world.parallax_sigma_px={self.parallax_sigma_px} must be a finite number > 0")
-        for name in ("border_weight", "continuity", "static_px", "static_floor"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ConfigError(f"world.{name}={value} must be a finite number >= 0")
 
 
 def world_scores(

@@ -605,20 +605,18 @@ def test_numeric_options_have_upper_bounds(args: list[str], expected: str) -> No
     assert code == 2 and expected in line and "less than or equal to" in line and out == ""
 
 
-def test_option_bounds_are_the_libraries() -> None:
-    from mosegpipe import cluster, track
-    from mosegpipe.cli import options
+def test_the_library_refuses_what_the_option_bounds_refuse() -> None:
+    """The options' bounds are mosegpipe.settings' (imported by both); the config classes refuse the same
+    values, naming the field."""
+    from mosegpipe.settings import SettingError
+    from mosegpipe.track import TrackConfig
 
-    assert options.MAX_CORNERS == track.MAX_CORNERS
-    assert options.MAX_WIN_SIZE_PX == track.MAX_WIN_SIZE_PX
-    assert options.MAX_MIN_DISTANCE_PX == track.MAX_MIN_DISTANCE_PX
-    assert options.MAX_K == cluster.MAX_K
     for bad in ({"max_corners": 3_000_000_000}, {"win_size_px": 100_001}, {"min_distance_px": 1e308}):
-        with pytest.raises(ValueError, match="must lie in"):
-            track.TrackConfig(**bad)  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="quality_level=0"):
-        track.TrackConfig(quality_level=0.0)
-    with pytest.raises(InputError, match="k_max=65 is larger than 64"):
+        with pytest.raises(SettingError, match=f"^{next(iter(bad))}: .* must lie in"):
+            TrackConfig(**bad)  # type: ignore[arg-type]
+    with pytest.raises(SettingError, match=r"^quality_level: 0.0 must lie in \(0, 1\]"):
+        TrackConfig(quality_level=0.0)
+    with pytest.raises(InputError, match="^k_max: 65 must be at most 64"):
         ClusterConfig(k_max=65)
 
 

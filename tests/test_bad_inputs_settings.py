@@ -84,7 +84,7 @@ def test_the_api_door_is_the_same_check() -> None:
     from dataclasses import replace
 
     base = PipelineConfig()
-    with pytest.raises(ConfigError, match=r"^mask\.motion\.fb_weight: nan is not a finite number$"):
+    with pytest.raises(ConfigError, match=r"^fb_weight: nan is not a finite number$"):
         replace(base, mask=replace(base.mask, motion=replace(base.mask.motion, fb_weight=float("nan"))))
     with pytest.raises(ConfigError, match=r"^frames: 0 must lie in 2\.\.10000$"):
         PipelineConfig(frames=0)
@@ -99,7 +99,7 @@ def test_a_motion_mask_setting_names_itself_alone() -> None:
     # the check of colour_bins named colour_weight=0.75 as well (issue 40, item 10)
     with pytest.raises(ConfigError) as caught:
         PipelineConfig().with_settings(["mask.motion.colour_bins=0"])
-    assert str(caught.value) == "--set mask.motion: colour_bins=0 must be in 2..64"
+    assert str(caught.value) == "--set mask.motion.colour_bins: 0 must lie in 2..64"
 
 
 def test_unknown_setting_is_refused_by_name() -> None:

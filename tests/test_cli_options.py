@@ -32,7 +32,6 @@ from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_video
 from mosegpipe.provenance import source_identity
 from mosegpipe.rigid import RigidCheckConfig
-from mosegpipe.track import TrackConfig
 from mosegpipe.types import MASK_METHODS
 
 from helpers import moseg, motion_checkpoint, one_error_line, render_scene, write_avi, write_frames
@@ -214,7 +213,7 @@ def test_replay_refuses_what_it_cannot_replay(tmp_path: Path, long_avi: Path, mo
         (_edited(summary, lambda d: d["model"].update(recipe="other")), "the run used a model with recipe 'other'"),
         (_edited(summary, lambda d: d["config"]["track"].update(max_corners="many")), "config.track.max_corners: expected an integer"),
         (_edited(summary, lambda d: d["config"].update(colour=1)), "config.colour: unknown setting"),
-        (_edited(summary, lambda d: d["config"]["mask"].update(median_px=2)), "config.mask: median_px=2 must be 0, 1 or an odd"),
+        (_edited(summary, lambda d: d["config"]["mask"].update(median_px=2)), "config.mask.median_px: 2 must be 0, 1 (off) or an odd"),
     ]  # fmt: skip
     before = sorted(p.name for p in tmp_path.iterdir())
     for path, expected in cases:
@@ -387,14 +386,14 @@ def test_rigid_check_switch_reaches_the_pipeline(tmp_path: Path, long_avi: Path,
 @pytest.mark.parametrize(
     ("option", "value", "code", "expected"),
     [
-        ("--quality", "0", 1, "--quality 0: must be in (0, 1]"),
+        ("--quality", "0", 1, "--quality: 0.0 must lie in (0, 1]"),
         ("--quality", "1.5", 2, "--quality 1.5: "),
         ("--max-corners", "0", 2, "--max-corners 0: "),
         ("--win-size", "2", 2, "--win-size 2: "),
-        ("--mask-max-distance", "0", 1, "--mask-max-distance 0: must be > 0"),
-        ("--mask-median", "4", 1, "--mask-median 4: must be 0 (off) or an odd number >= 3"),
-        ("--mask-min-agree", "6", 1, "--mask-min-agree 6: must be in 1..5 (the nearest tracks consulted)"),
-        ("--mask-scale", "0", 1, "--mask-scale 0: must be in (0, 1]"),
+        ("--mask-max-distance", "0", 1, "--mask-max-distance: 0.0 must be > 0"),
+        ("--mask-median", "4", 1, "--mask-median: 4 must be 0, 1 (off) or an odd number >= 3"),
+        ("--mask-min-agree", "6", 1, "--mask-min-agree: 6 must lie in 1..vote_k (5)"),
+        ("--mask-scale", "0", 1, "--mask-scale: 0.0 must lie in (0, 1]"),
         ("--start", "-1", 2, "--start -1: "),
     ],
 )
@@ -406,20 +405,28 @@ def test_bad_tracker_and_mask_values(
     assert not (tmp_path / "o").exists()
 
 
-def test_cli_defaults_are_the_library_defaults() -> None:
-    """The tracker and mask defaults are written out in the CLI (no OpenCV import for --help): the same values."""
-    assert cli_options.TRACKER_DEFAULTS == {name: getattr(TrackConfig(), name) for name in cli_options.TRACKER_DEFAULTS}
-    assert cli_options.MASK_DEFAULTS == {name: getattr(MaskConfig(), name) for name in cli_options.MASK_DEFAULTS}
-    options = {"max_corners": "max_corners", "min_distance_px": "min_distance", "quality_level": "quality"}
-    options |= {"win_size_px": "win_size", "method": "mask_method", "max_distance_px": "mask_max_distance"}
-    options |= {"min_agree": "mask_min_agree", "median_px": "mask_median", "scale": "mask_scale"}
+def test_every_option_default_is_its_config_fields_default() -> None:
+    """Every option that sets a setting (SETTING_OPTIONS) defaults to that setting's default, in every command
+    that has it; the defaults are read from the config classes, not written out."""
+    from mosegpipe.pipeline import PipelineConfig
+
+    defaults = PipelineConfig(frames=5)
     group = typer.main.get_command(app)
-    for command in ("run", "batch"):
-        defaults = {p.name: p.default for p in group.commands[command].params}
-        for field, option in options.items():
-            expected = {**cli_options.TRACKER_DEFAULTS, **cli_options.MASK_DEFAULTS}[field]
-            assert cli_options._value(defaults[option]) == expected, (command, option)
-        assert defaults["mask_extra_tracks"] == MaskConfig().extra_tracks, command
+    checked = 0
+    for command in ("run", "pair", "tracks", "batch", "live", "eval"):
+        options = {p.opts[0]: p for p in group.commands[command].params if p.param_type_name == "option"}
+        for path, option in cli_options.SETTING_OPTIONS.items():
+            # --frames, --k: no library default (F is the command's; K automatic); None: the protocol's own
+            if option not in options or option in ("--frames", "--k") or options[option].default is None:
+                continue
+            value: object = defaults
+            for key in path.split("."):
+                value = getattr(value, key)
+            assert cli_options._value(options[option].default) == value, (command, option, path)
+            checked += 1
+    assert checked > 40
+    rigid = {p.name: p.default for p in group.commands["run"].params}["rigid_check"]
+    assert rigid == PipelineConfig().rigid.enabled
 
 
 # ---------------------------------------------------------------------------------------------
@@ -457,8 +464,7 @@ def test_every_option_has_help_and_every_choice_is_an_enum() -> None:
 
 def test_choices_come_from_the_library() -> None:
     """Each choice is the library's vocabulary or registry itself, its default the library's default (the
-    first of the vocabulary); only the recipes, losses and baselines are copies (their modules import torch
-    or scikit-learn, which --help must not)."""
+    first of the vocabulary); the registries of recipes, losses and baselines hold their vocabularies."""
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
@@ -466,7 +472,7 @@ def test_choices_come_from_the_library() -> None:
     from mosegpipe.studies import STUDIES, Budget
     from mosegpipe.training.losses import LOSSES
     from mosegpipe.training.recipes import RECIPES
-    from mosegpipe.types import ENGINES, K_METHODS, SEGMENT_METHODS, TRACKERS
+    from mosegpipe.types import BASELINE_NAMES, ENGINES, K_METHODS, LOSS_NAMES, RECIPE_NAMES, SEGMENT_METHODS, TRACKERS
 
     vocabularies = {
         cli_options.KMethodChoice: K_METHODS,
@@ -478,18 +484,18 @@ def test_choices_come_from_the_library() -> None:
         cli_evaluate.StudyChoice: tuple(STUDIES),
         cli_evaluate.VariantChoice: typing.get_args(Variant),
         cli_evaluate.BudgetChoice: typing.get_args(Budget),
+        cli_evaluate.PresetChoice: RECIPE_NAMES,
+        cli_evaluate.LossChoice: LOSS_NAMES,
     }
     for choice, names in vocabularies.items():
         assert tuple(c.value for c in choice) == tuple(names), choice
+    assert (tuple(RECIPES), tuple(LOSSES), tuple(BASELINES)) == (RECIPE_NAMES, LOSS_NAMES, BASELINE_NAMES)
     defaults = (ClusterConfig().method, MaskConfig().method, PipelineConfig().method, PipelineConfig().tracker)
     assert defaults == (K_METHODS[0], MASK_METHODS[0], SEGMENT_METHODS[0], TRACKERS[0])
     group = typer.main.get_command(app)
     for command in ("run", "batch"):
         given = {p.name: cli_options._value(p.default) for p in group.commands[command].params}
         assert (given["k_method"], given["mask_method"], given["method"], given["points"]) == defaults, command
-    assert [c.value for c in cli_evaluate.PresetChoice] == list(RECIPES)
-    assert [c.value for c in cli_evaluate.LossChoice] == list(LOSSES)
-    assert list(cli_evaluate.BASELINE_NAMES) == list(BASELINES)
 
 
 def test_train_help_lists_every_loss_and_recipe() -> None:

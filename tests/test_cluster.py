@@ -30,14 +30,14 @@ def sphere_blobs(
     ("kwargs", "message"),
     [
         ({"method": "gap"}, "'gap'"),
-        ({"k_min": 0}, "k_min=0"),
-        ({"k_min": 4, "k_max": 3}, "k_max=3"),
-        ({"n_init": 0}, "n_init=0"),
+        ({"k_min": 0}, "^k_min: 0 must"),
+        ({"k_min": 4, "k_max": 3}, "^k_max: 3 must"),
+        ({"n_init": 0}, "^n_init: 0 must"),
         ({"num_threads": 0}, "num_threads: 0 must lie in 1..256"),
         ({"num_threads": 100_000}, "num_threads: 100000 must lie in 1..256"),
-        ({"min_elbow": 2.0}, "min_elbow=2.0"),
-        ({"min_spread": -1.0}, "min_spread=-1.0"),
-        ({"one_motion_spread": 1.5}, "one_motion_spread=1.5"),
+        ({"min_elbow": 2.0}, "^min_elbow: 2.0 must"),
+        ({"min_spread": -1.0}, "^min_spread: -1.0 must"),
+        ({"one_motion_spread": 1.5}, "^one_motion_spread: 1.5 must"),
     ],
 )
 def test_config_rejects_bad_values(kwargs: dict, message: str) -> None:

@@ -90,7 +90,7 @@ def test_extra_tracks_fill_in_an_object_with_few_tracks() -> None:
     assert j["with"] > j["without"] + 0.05, j
     scores = mask_scores(with_extra, scene.masks, background=0, unknown=UNKNOWN)
     assert scores.j >= mask_scores(without, scene.masks, background=0, unknown=UNKNOWN).j
-    with pytest.raises(ValueError, match="extra_tracks=-1"):
+    with pytest.raises(ValueError, match="^extra_tracks: -1 must be >= 0"):
         MaskConfig(extra_tracks=-1)
 
 
@@ -149,7 +149,7 @@ def test_settings_by_dotted_path_change_only_those_fields() -> None:
     ("setting", "message"),
     [
         ("mask.motion.fb_weight=high", "--set mask.motion.fb_weight: expected a number, got 'high'"),
-        ("mask.motion.fb_weight=-1", "--set mask.motion: fb_weight=-1.0 must be >= 0"),
+        ("mask.motion.fb_weight=-1", "--set mask.motion.fb_weight: -1.0 must be >= 0"),
         ("mask.motion.nope=1", "--set mask.motion.nope: unknown setting"),
         ("mask.method.x=1", "--set mask.method: not a group of settings"),
         ("fb_weight", "expected dotted.field=value"),

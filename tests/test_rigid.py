@@ -219,13 +219,13 @@ def test_the_result_is_deterministic() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"residual_px": 0.0}, "residual_px=0.0"),
-        ({"neighbour_frac": -0.1}, "neighbour_frac=-0.1"),
-        ({"consistency": 1.5}, "consistency=1.5"),
-        ({"min_tracks": 0}, "min_tracks=0"),
-        ({"merge_consistency": 2.0}, "merge_consistency=2.0"),
-        ({"min_share": 1.5}, "min_share=1.5"),
-        ({"max_angle_deg": 200.0}, "max_angle_deg=200.0"),
+        ({"residual_px": 0.0}, "^residual_px: 0.0 must"),
+        ({"neighbour_frac": -0.1}, "^neighbour_frac: -0.1 must"),
+        ({"consistency": 1.5}, "^consistency: 1.5 must"),
+        ({"min_tracks": 0}, "^min_tracks: 0 must"),
+        ({"merge_consistency": 2.0}, "^merge_consistency: 2.0 must"),
+        ({"min_share": 1.5}, "^min_share: 1.5 must"),
+        ({"max_angle_deg": 200.0}, "^max_angle_deg: 200.0 must"),
     ],
 )
 def test_bad_settings_are_refused(kwargs: dict[str, float], message: str) -> None:

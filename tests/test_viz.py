@@ -634,5 +634,5 @@ def test_video_recorder_failure_at_close_leaves_nothing(tmp_path: Path, monkeypa
 
 
 def test_viz_config_rejects_an_unknown_video_mode() -> None:
-    with pytest.raises(ValueError, match="video_frames='png' must be 'h264' or 'jpeg'"):
+    with pytest.raises(ValueError, match="^video_frames: 'png' must be h264 or jpeg$"):
         VizConfig(video_frames="png")  # type: ignore[arg-type]

@@ -100,7 +100,7 @@ def test_world_first_renumbers_hand_computed() -> None:
 
 def test_world_config_refuses_bad_values() -> None:
     for bad in ({"grid": 1}, {"border_weight": float("nan")}, {"continuity": -1.0}):
-        with pytest.raises(ConfigError, match="world"):
+        with pytest.raises(ConfigError, match=f"^{next(iter(bad))}: "):
             WorldConfig(**bad)  # type: ignore[arg-type]
 
 

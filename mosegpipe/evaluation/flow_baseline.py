@@ -11,6 +11,7 @@ import numpy.typing as npt
 
 from mosegpipe.errors import check_choice
 from mosegpipe.flow import DenseFlow, FlowConfig, camera_residual, fit_camera, to_gray
+from mosegpipe.types import CameraFit, DisPreset
 
 # ---------------------------------------------------------------------------------------------
 # Methods
@@ -37,10 +38,10 @@ class FlowHomographyConfig:
         close_px: side of the square closing that fills small holes, pixels (0 = none).
     """
 
-    preset: str = "medium"
+    preset: DisPreset = "medium"
     grid_step_px: int = 8
     ransac_px: float = 1.0
-    camera_fit: str = "magsac"
+    camera_fit: CameraFit = "magsac"
     threshold_px: float = 1.5
     noise_factor: float = 3.0
     open_px: int = 5

@@ -3,15 +3,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.configs.masks import MaskConfig
 from mosegpipe.errors import InputError
-from mosegpipe.motion import MotionMaskConfig
-from mosegpipe.types import MASK_METHODS, Tracks
+from mosegpipe.types import Tracks
 
 MAX_LABEL = 254
 """Largest motion label a uint8 mask can hold (the mask value is the label)."""
@@ -22,97 +20,6 @@ UNKNOWN = 255
 
 MOVING_UNCLUSTERED = MAX_LABEL
 """"motion" masks: moving pixels with no track of a moving motion in their frame."""
-
-
-@dataclass(frozen=True)
-class MaskConfig:
-    """Settings for densifying track labels.
-
-    Attributes:
-        max_distance_px: pixels farther than this from every labelled track are unknown (255).
-            40 px covers the gaps between ~1000 tracks on 640x480 (mean spacing ~18 px) while
-            leaving textureless areas without tracks (sky, blank walls) unknown.
-        method: "watershed", "nearest", "vote" or "motion" (see the module docstring).
-        vote_k: tracks consulted per pixel by "vote".
-        vote_downsample: "vote" labels a grid of every n-th pixel and upsamples (nearest), to
-            keep the k-nearest-neighbour query fast.
-        median_px: odd size of a median filter applied to the label image to smooth jagged
-            borders and remove specks (0 or 1 = off). A median of label values can produce a
-            label absent from the window only where three or more labels meet.
-        min_agree: "watershed": a track seeds the flood only when at least this many of its
-            `vote_k` nearest tracks carry its label (itself included); isolated mislabelled
-            tracks would otherwise flood a region of their own. 1 = every track seeds (the
-            default: on the rendered clips 2 lowered J from 0.521 to 0.515 with the pipeline's
-            labels and from 0.805 to 0.764 with the true ones, as it also drops the few tracks of
-            small objects).
-        blur_px: "watershed": odd Gaussian kernel applied to the image before flooding (0 or 1 =
-            off). Off by default: on the rendered clips a 3 px blur lowered boundary F from 0.367
-            to 0.331 (it blurs the very edges the flood should stop at).
-        scale: "watershed" floods an image resized by this factor (0 < scale <= 1) and resizes the
-            labels back (nearest); 0.5 costs a quarter of the time.
-        extra_tracks: clips (not whole videos, not pairs): up to this many more corners, spread over
-            the image away from the clustered tracks (`track.spread_corners`), are tracked through
-            the clip and labelled by motion (`rigid.label_by_rigid_motion`), for the masks only: a
-            weakly textured object that got few of the tracker's corners gets more evidence.
-            0 = off. Not used by "motion" (it does not need more tracks).
-        motion: "motion": the flow and mask settings (mosegpipe.motion).
-        unexplained_px: "motion", clips: moving pixels whose flow to the next frame (the previous, for
-            the last) misses, by more than this many pixels, the homography of the tracks of the motion
-            they were labelled with (or twice that motion's own tracks' 90th-percentile miss, if more),
-            and that no other moving motion's homography explains either, take MOVING_UNCLUSTERED
-            when they form a region of at least `unexplained_area` of the frame that one homography of
-            its own explains (`unexplained_rigid`): an object the tracker left without corners would
-            otherwise take the label of the nearest other object (`split_unexplained`). 0 = off.
-            Chosen on the rendered dev clips (seeds 100-123, per-object J with the pipeline's labels; no
-            protocol scores them) and the DAVIS dev clips' first 5 frames (foreground J cannot change, only
-            labels do: best-label J and labels per clip), with unexplained_rigid 0.8: off 0.623, 2 px 0.646,
-            4 px 0.649, 6 px 0.632 (with `--points flow`: off 0.650, 2 px 0.658, 4 px 0.667); DAVIS best-label
-            J 0.666 / 0.666 / 0.665 (off / 2 / 4 px), labels per clip 2.65 / 2.85 / 2.90. Without the rigid
-            test, 2 / 4 / 8 px: rendered 0.662 / 0.659 / 0.638, DAVIS best-label J 0.625 / 0.639 / 0.650.
-        unexplained_area: smallest such region, as a share of the frame's pixels.
-        unexplained_rigid: ... and the share of its pixels (sampled) that the region's own homography
-            (RANSAC, 1 px) must explain: an object's fragment that its label's homography misses (flow
-            smoothed over a border, a limb) is rarely rigid on its own. At 2 px, rendered dev 0.6 / 0.7 / 0.8 /
-            0.95: J 0.656 / 0.653 / 0.646 / 0.621; DAVIS dev best-label J 0.661 / 0.665 / 0.666 / 0.665,
-            labels per clip 3.15 / 2.90 / 2.85 / 2.80 (none: 0.662, 0.625, 3.25). 0 = no such test.
-    """
-
-    max_distance_px: float = 40.0
-    method: str = "motion"
-    vote_k: int = 5
-    vote_downsample: int = 4
-    median_px: int = 0
-    min_agree: int = 1
-    blur_px: int = 0
-    scale: float = 1.0
-    extra_tracks: int = 1000
-    unexplained_px: float = 4.0
-    unexplained_area: float = 0.002
-    unexplained_rigid: float = 0.8
-    motion: MotionMaskConfig = field(default_factory=MotionMaskConfig)
-
-    def __post_init__(self) -> None:
-        if self.method not in MASK_METHODS:
-            raise ValueError(f"method={self.method!r} must be one of {', '.join(MASK_METHODS)}")
-        if not self.max_distance_px > 0:
-            raise ValueError(f"max_distance_px={self.max_distance_px} must be > 0")
-        if self.vote_k < 1 or self.vote_downsample < 1:
-            raise ValueError(f"vote_k={self.vote_k} and vote_downsample={self.vote_downsample} must be >= 1")
-        for name in ("median_px", "blur_px"):
-            v = getattr(self, name)
-            if v not in (0, 1) and (v < 3 or v % 2 == 0):
-                raise ValueError(f"{name}={v} must be 0, 1 or an odd number >= 3")
-        if not 0 < self.scale <= 1:
-            raise ValueError(f"scale={self.scale} must be in (0, 1]")
-        if self.extra_tracks < 0:
-            raise ValueError(f"extra_tracks={self.extra_tracks} must be >= 0 (0 = off)")
-        if self.unexplained_px < 0 or not 0 < self.unexplained_area <= 1 or not 0 <= self.unexplained_rigid <= 1:
-            raise ValueError(
-                f"unexplained_px={self.unexplained_px} must be >= 0, unexplained_area={self.unexplained_area} "
-                f"in (0, 1], unexplained_rigid={self.unexplained_rigid} in [0, 1]"
-            )
-        if not 1 <= self.min_agree <= self.vote_k:
-            raise ValueError(f"min_agree={self.min_agree} must be in 1..vote_k ({self.vote_k})")
 
 
 def _distance_and_cells(

@@ -107,20 +107,20 @@ def group_tracks(
 
 
 def _uses_flow_points(frames: Frames, cfg: PipelineConfig) -> bool:
-    return cfg.tracker != "klt" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.mask.motion.flow)
+    return cfg.tracker != "klt" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.flow)
 
 
 def _uses_motion_masks(frames: Frames, cfg: PipelineConfig) -> bool:
-    return cfg.mask.method == "motion" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.mask.motion.flow)
+    return cfg.mask.method == "motion" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.flow)
 
 
 def clip_tracks(frames: Frames, cfg: PipelineConfig, motion: FrameMotion | None = None) -> Tracks:
-    """A clip's point tracks by cfg.tracker: KLT corners, a grid carried along the dense flow (the flow
-    of the motion masks' settings; `motion`: those flows, if already computed), or both. One frame, or
+    """A clip's point tracks by cfg.tracker: KLT corners, a grid carried along the dense flow (cfg.flow,
+    shared with the motion masks; `motion`: those flows, if already computed), or both. One frame, or
     frames too small for the flow: KLT."""
     if not _uses_flow_points(frames, cfg):
         return track_klt(frames, cfg.track)
-    dense = track_flow(frames.images, cfg.flow_tracks, cfg.mask.motion.flow, motion)
+    dense = track_flow(frames.images, cfg.flow_tracks, cfg.flow, motion)
     if cfg.tracker == "flow":
         return dense
     return combine_tracks(track_klt(frames, cfg.track), dense, cfg.flow_tracks.klt_distance_px)
@@ -222,7 +222,7 @@ def clip_masks(
     Returns:
         (T, H, W) uint8 masks, 255 = unknown.
     """
-    if cfg.mask.method == "motion" and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.mask.motion.flow):
+    if cfg.mask.method == "motion" and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.flow):
         if motion is not None:  # the world's 3D structure: its parallax is not motion
             motion = explain_parallax(motion, tracks.xy[track_ids], labels, cfg.world)
         return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion)
@@ -251,7 +251,7 @@ def _with_context(path: str | Path, cfg: PipelineConfig) -> Frames | None:
     Frames.before / after (evidence for the motion masks), read in one pass; None when the masks do
     not use them, or the clip with its neighbours cannot be read (the caller then reads the clip alone,
     and reports what is wrong with it)."""
-    if cfg.mask.method != "motion" or not cfg.mask.motion.flow.both_directions:
+    if cfg.mask.method != "motion" or not cfg.flow.both_directions:
         return None
     lead = 1 if cfg.start > 0 else 0
     try:

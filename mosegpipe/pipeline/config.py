@@ -14,20 +14,23 @@ import json
 import types
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
-from typing import Any, Literal, Union, cast, get_args, get_origin, get_type_hints
+from typing import Any, Literal, Union, get_args, get_origin, get_type_hints
 
-from mosegpipe.cluster import ClusterConfig
+from mosegpipe.configs import (
+    ClusterConfig,
+    FlowConfig,
+    FlowTrackConfig,
+    GeometricConfig,
+    JointConfig,
+    MaskConfig,
+    MatchConfig,
+    RigidCheckConfig,
+    TrackConfig,
+    WorldConfig,
+)
 from mosegpipe.errors import ConfigError, check_choice
-from mosegpipe.flow_tracks import FlowTrackConfig
-from mosegpipe.geometry_select import JointConfig
-from mosegpipe.grouping import GeometricConfig
-from mosegpipe.masks import MaskConfig
-from mosegpipe.match import MatchConfig
-from mosegpipe.rigid import RigidCheckConfig
-from mosegpipe.settings import SettingError, check_setting, check_settings
-from mosegpipe.track import TrackConfig
-from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS, KMethodName
-from mosegpipe.world import WorldConfig
+from mosegpipe.settings import Check, SettingError, check_fields, check_setting, check_settings
+from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
 PRESETS: dict[str, tuple[str, ...]] = {
     "best": (),
@@ -51,6 +54,26 @@ half of a frame's CPU, the mask steps a fifth) and measured on the 20 DAVIS dev 
   pixels) and the mask steps at half size: half of best's CPU, J 0.04 lower. DIS's "fast" preset at full
   size cost as much J (its finest scale is half the image's) for less speed.
 """
+
+
+OLDER_SUMMARIES: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("rigid", {"rigid.enabled": False}),  # before the rigid-motion check
+    ("world", {"world.enabled": False, "world.parallax": False}),  # before the world was told by where its tracks are
+    ("video_cut_survival", {"video_cut_survival": None}),  # before the shot-cut test
+    ("mask.extra_tracks", {"mask.extra_tracks": 0}),  # before the extra mask tracks
+    ("mask.unexplained_px", {"mask.unexplained_px": 0.0}),  # before the unexplained moving regions' own label
+    (  # before the motion masks' spread, guided filter and colour memory
+        "mask.motion.spread_weight",
+        {"mask.motion.spread_weight": 0.0, "mask.motion.guided_radius": 0, "mask.motion.colour_memory": 0.0},
+    ),
+    ("mask.motion.anchor_tracks", {"mask.motion.anchor_tracks": 0}),  # before their regions kept by tracks
+    ("mask.motion.local_colour_weight", {"mask.motion.local_colour_weight": 0.0}),  # before their local colour contrast
+    ("mask.motion.smooth_lambda", {"mask.motion.smooth_lambda": 0.0}),  # before their global smoother
+    ("mask.motion.flow.camera_fit", {"mask.motion.flow.camera_fit": "magsac"}),  # before the camera's fit by RANSAC
+)
+"""The compatibility of `PipelineConfig.from_dict` with summaries written before a step existed, in one table:
+(a field whose absence marks such a summary, the settings it then replays with: the step off, or the choice of
+the time). A marker applies when the table holding it is in the summary but the field is not."""
 
 
 @dataclass(frozen=True)
@@ -115,15 +138,15 @@ class PipelineConfig:
     video_cut_survival: float | None = 0.25
 
     def __post_init__(self) -> None:
-        check_choice("method", self.method, SEGMENT_METHODS)
-        check_choice("tracker", self.tracker, TRACKERS)
+        check_fields(self, _PIPELINE_CHECKS)
         check_settings(self)
-        if self.video_k_step is not None and self.video_k_step < 1:
-            raise SettingError("video_k_step", f"{self.video_k_step} must be at least 1 (or None: no limit)")
-        if self.video_cut_survival is not None and not 0 < self.video_cut_survival < 1:
-            raise SettingError(
-                "video_cut_survival", f"{self.video_cut_survival} must lie in (0, 1) (or None: no cut detection)"
-            )
+
+    @property
+    def flow(self) -> FlowConfig:
+        """The dense flow of a clip or window, computed once and used by the flow tracker (`tracker` "flow",
+        "klt+flow") and the motion masks alike. Its settings are stored (and named in summary.json and
+        `--set`) as `mask.motion.flow`, where the motion masks, which came first, hold them."""
+        return self.mask.motion.flow
 
     @classmethod
     def from_options(
@@ -166,18 +189,11 @@ class PipelineConfig:
             ConfigError: a value that is not allowed, named.
         """
         defaults = cls()
-        cluster, geometric = defaults.cluster, defaults.geometric
-        if k_method is not None:
-            cluster = replace(cluster, method=cast(KMethodName, k_method))  # ClusterConfig checks it
-        if k_max is not None:
-            cluster, geometric = replace(cluster, k_max=k_max), replace(geometric, k_max=k_max)
-        try:
-            track_cfg = replace(defaults.track, **(track or {}))
-            mask_cfg = replace(defaults.mask, **(mask or {}))
-        except ConfigError:
-            raise
-        except ValueError as exc:  # MaskConfig's own checks raise ValueError: one line, not a traceback
-            raise ConfigError(" ".join(str(exc).split())) from exc
+        given = {"method": k_method, "k_max": k_max}
+        cluster = _changed("cluster", defaults.cluster, **{key: v for key, v in given.items() if v is not None})
+        geometric = _changed("geometric", defaults.geometric, **({"k_max": k_max} if k_max is not None else {}))
+        track_cfg = _changed("track", defaults.track, **(track or {}))
+        mask_cfg = _changed("mask", defaults.mask, **(mask or {}))
         config = cls(
             frames=frames,
             start=start,
@@ -235,16 +251,12 @@ class PipelineConfig:
     def from_dict(cls, data: Any, where: str = "config") -> PipelineConfig:
         """The settings from their `dataclasses.asdict` form (summary.json `config`), checked field by field.
 
-        A field left out takes its default (a summary written before the field existed), except
-        `rigid`, `world`, `video_cut_survival`, `mask.extra_tracks`, `mask.unexplained_px`, `mask.motion.spread_weight`,
-        `mask.motion.anchor_tracks`, `mask.motion.local_colour_weight`, `mask.motion.smooth_lambda` and
-        `mask.motion.flow.camera_fit`: a summary without them was made before the rigid-motion check (the
-        shot-cut test, the extra mask tracks, the unexplained moving regions' own label, the motion masks'
-        spread, guided filter and colour memory, their regions kept by tracks, their local colour contrast,
-        their global smoother) existed, or before the world was told by where its tracks are, so it stays off, or before the camera's fit by RANSAC, so it fits by
-        MAGSAC; a replay segments as that run did (but for whole videos' motion masks, whose windows' first
-        frames take the flow back to the frame before since `local_colour_weight` came in). An unknown
-        field, a value of the wrong type or one the config classes refuse is an error.
+        A field left out takes its default (a summary written before the field existed), except the markers
+        of OLDER_SUMMARIES: a summary without one was made before a step existed, and replays with that step
+        off (or the choice of the time), so that a replay segments as that run did (but for whole videos'
+        motion masks, whose windows' first frames take the flow back to the frame before since
+        `local_colour_weight` came in). An unknown field, a value of the wrong type or one the config classes
+        refuse is an error.
 
         Args:
             data: a dict as `asdict(cfg)` gives it (nested dicts for track, match, cluster, mask).
@@ -256,32 +268,39 @@ class PipelineConfig:
         """
         config = _dataclass_from_dict(cls, data, where, "")
         assert isinstance(config, cls)
-        if isinstance(data, Mapping) and "rigid" not in data:
-            config = replace(config, rigid=RigidCheckConfig(enabled=False))
-        if isinstance(data, Mapping) and "world" not in data:
-            config = replace(config, world=WorldConfig(enabled=False, parallax=False))
-        if isinstance(data, Mapping) and "video_cut_survival" not in data:
-            config = replace(config, video_cut_survival=None)
-        if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "extra_tracks" not in data["mask"]:
-            config = replace(config, mask=replace(config.mask, extra_tracks=0))
-        if isinstance(data, Mapping) and isinstance(data.get("mask"), Mapping) and "unexplained_px" not in data["mask"]:
-            config = replace(config, mask=replace(config.mask, unexplained_px=0.0))
-        motion = data.get("mask", {}).get("motion") if isinstance(data, Mapping) else None
-        if isinstance(motion, Mapping):
-            older: dict[str, Any] = {}  # the motion masks' settings of a summary written before a step existed
-            if "spread_weight" not in motion:
-                older.update(spread_weight=0.0, guided_radius=0, colour_memory=0.0)
-            if "anchor_tracks" not in motion:
-                older["anchor_tracks"] = 0
-            if "local_colour_weight" not in motion:
-                older["local_colour_weight"] = 0.0
-            if "smooth_lambda" not in motion:
-                older["smooth_lambda"] = 0.0
-            if isinstance(motion.get("flow"), Mapping) and "camera_fit" not in motion["flow"]:
-                older["flow"] = replace(config.mask.motion.flow, camera_fit="magsac")
-            if older:
-                config = replace(config, mask=replace(config.mask, motion=replace(config.mask.motion, **older)))
+        for marker, older in OLDER_SUMMARIES:
+            *parents, key = marker.split(".")
+            node = data
+            for name in parents:
+                node = node.get(name) if isinstance(node, Mapping) else None
+            if isinstance(node, Mapping) and key not in node:
+                for path, value in older.items():
+                    config = _replaced(config, path.split("."), value)
         return config
+
+
+_PIPELINE_CHECKS: tuple[Check, ...] = (
+    ("method", lambda v: v in SEGMENT_METHODS, f"be one of {', '.join(SEGMENT_METHODS)}"),
+    ("tracker", lambda v: v in TRACKERS, f"be one of {', '.join(TRACKERS)}"),
+    ("video_k_step", lambda v: v >= 1, "be at least 1 (or None: no limit)"),
+    ("video_cut_survival", lambda v: 0 < v < 1, "lie in (0, 1) (or None: no cut detection)"),
+)
+"""PipelineConfig's checks of its own choices and switches (its numbers' bounds: settings.BOUNDS)."""
+
+
+def _changed(name: str, config: Any, **changes: Any) -> Any:
+    """`config` (the field `name` of a PipelineConfig) with the fields in `changes` changed; an error names the
+    setting by its path in the PipelineConfig (`mask.scale`)."""
+    try:
+        return replace(config, **changes)
+    except SettingError as exc:
+        raise SettingError(f"{name}.{exc.path}", exc.reason) from exc
+
+
+def _replaced(config: Any, keys: list[str], value: Any) -> Any:
+    """`config` with the nested field named by `keys` set to `value`."""
+    head, *rest = keys
+    return replace(config, **{head: _replaced(getattr(config, head), rest, value) if rest else value})
 
 
 def _dataclass_from_dict(cls: type, data: Any, where: str, path: str) -> Any:
@@ -303,8 +322,6 @@ def _dataclass_from_dict(cls: type, data: Any, where: str, path: str) -> Any:
         return cls(**values)
     except SettingError as exc:  # the field is known: named by its path
         raise ConfigError(f"{where}.{exc.path.removeprefix(path)}: {exc.reason}") from exc
-    except ValueError as exc:  # a config class's own check (ConfigError, or ValueError in masks, motion, flow)
-        raise ConfigError(f"{where}: {' '.join(str(exc).split())}") from exc
 
 
 _TYPE_NAMES = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}

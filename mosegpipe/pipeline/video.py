@@ -157,7 +157,7 @@ def segment_video(
     with contextlib.ExitStack() as stack:
         # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
-        stream = stack.enter_context(FlowStream(cfg.mask.motion.flow)) if cfg.mask.method == "motion" else None
+        stream = stack.enter_context(FlowStream(cfg.flow)) if cfg.mask.method == "motion" else None
         windows = stack.enter_context(
             contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
         )

@@ -13,6 +13,7 @@ import numpy.typing as npt
 
 from mosegpipe.colours import UNKNOWN_RGB, mask_rgba, point_palette, value_names
 from mosegpipe.errors import InputError
+from mosegpipe.settings import Check, check_fields
 
 TIMELINE = "frame"
 """Name of the sequence timeline frames are logged on."""
@@ -81,14 +82,16 @@ class VizConfig:
     video_frames: Literal["h264", "jpeg"] = "h264"
 
     def __post_init__(self) -> None:
-        if not 0 <= self.jpeg_quality <= 100:
-            raise ValueError(f"jpeg_quality={self.jpeg_quality} must be in 0..100")
-        if self.trail_frames is not None and self.trail_frames < 1:
-            raise ValueError(f"trail_frames={self.trail_frames} must be >= 1 or None")
-        if self.max_side_px is not None and self.max_side_px < 16:
-            raise ValueError(f"max_side_px={self.max_side_px} must be >= 16 or None")
-        if self.video_frames not in ("h264", "jpeg"):
-            raise ValueError(f"video_frames={self.video_frames!r} must be 'h264' or 'jpeg'")
+        check_fields(self, _VIZ_CHECKS)
+
+
+_VIZ_CHECKS: tuple[Check, ...] = (
+    ("jpeg_quality", lambda v: 0 <= v <= 100, "lie in 0..100"),
+    ("trail_frames", lambda v: v >= 1, "be >= 1 (or None: all)"),
+    ("max_side_px", lambda v: v >= 16, "be >= 16 (or None: never downscaled)"),
+    ("video_frames", lambda v: v in ("h264", "jpeg"), "be h264 or jpeg"),
+)
+"""VizConfig's checks: (field, test, what the value must do)."""
 
 
 VIDEO_VIZ = VizConfig(trail_frames=10, max_side_px=960)

@@ -1,0 +1,25 @@
+"""The settings of the pipeline's stages, in modules that import no OpenCV, PyTorch or scikit-learn (the CLI
+reads its options' defaults from them for --help): tracking (TrackConfig, FlowConfig, FlowTrackConfig,
+MatchConfig), grouping (ClusterConfig, RigidCheckConfig, GeometricConfig, JointConfig, WorldConfig) and
+masks (MotionMaskConfig, MaskConfig). Each stage's module re-exports its own (`mosegpipe.track.TrackConfig`).
+"""
+
+from __future__ import annotations
+
+from mosegpipe.configs.grouping import ClusterConfig, GeometricConfig, JointConfig, RigidCheckConfig, WorldConfig
+from mosegpipe.configs.masks import MaskConfig, MotionMaskConfig
+from mosegpipe.configs.tracking import FlowConfig, FlowTrackConfig, MatchConfig, TrackConfig
+
+__all__ = [
+    "ClusterConfig",
+    "FlowConfig",
+    "FlowTrackConfig",
+    "GeometricConfig",
+    "JointConfig",
+    "MaskConfig",
+    "MatchConfig",
+    "MotionMaskConfig",
+    "RigidCheckConfig",
+    "TrackConfig",
+    "WorldConfig",
+]

@@ -1,0 +1,199 @@
+"""Settings of the dense masks: the motion masks (flow residuals) and the methods that densify track labels.
+
+Light on purpose (standard library and mosegpipe.settings / types only): the CLI takes its defaults from
+these classes without importing OpenCV. Re-exported by mosegpipe.motion and mosegpipe.masks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mosegpipe.configs.tracking import FlowConfig
+from mosegpipe.settings import Check, SettingError, check_fields
+from mosegpipe.types import MASK_METHODS
+
+
+@dataclass(frozen=True)
+class MotionMaskConfig:
+    """Settings of the motion masks, one line each; how each value was chosen and what it bought on the
+    DAVIS dev clips is in docs/HISTORY.md ("How the motion masks work, and what each step bought" and the
+    sections after it).
+
+    Attributes:
+        flow: dense flow and camera fit (DIS medium, patch stride 4, 3 refinement iterations).
+        work_scale: the mask steps run on images resized by this factor; masks are resized back (nearest).
+        eps_px: residuals are compared as log(residual + eps_px), full-resolution pixels.
+        min_residual_px: a pixel whose residual is below this (full-resolution pixels) is never moving.
+        noise_factor: nor one whose residual is below this many times the frame's median residual.
+        fb_weight: the score loses this times the local mean of log(1 + forward-backward error).
+        fb_box_px: side of the box (work-scale pixels) averaging the forward-backward error and the spread.
+        spread_weight: the score loses this times log(1 + the flow's local spread).
+        guided_radius: radius of the guided filter of the score, grey frame as guide (0 = off).
+        guided_eps: the guided filter's regulariser, (intensity / 255)^2.
+        temporal_weight: weight of the neighbours' scores carried along the flow (0 = off).
+        temporal_passes: how often that averaging is repeated (each pass reaches one frame further).
+        colour_weight: weight of the colour model's log ratio (0 = off).
+        colour_bins: histogram bins per RGB channel of the colour model.
+        colour_margin: pixels this far (log units) above / below the threshold train the colour model.
+        local_colour_weight: weight of the local colour contrast (`_local_colour_contrast`; 0 = off).
+        local_colour_box_px: side of the box (work-scale pixels) of the local colour means.
+        smooth_lambda: strength of the fast global smoother after the guided filter (0 = off).
+        smooth_sigma: its colour scale (0-255 units): colours farther apart than this are an edge.
+        colour_memory: whole videos: decay of the colour counts of the windows before (0 = each window alone).
+        superpixels: approximate number of SLIC superpixels the score is averaged over (0 = off).
+        compactness: SLIC compactness (colour vs distance).
+        superpixel_iterations: SLIC's k-means iterations.
+        min_component: moving regions weaker than this share of the frame's strongest are dropped.
+        component_power: a region's strength is its area times its mean residual to this power.
+        anchor_tracks: whole videos: a motion the frame before showed keeps a region step 5 would drop
+            when at least this many of its tracks lie in it (0 = off).
+    """
+
+    flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=3))
+    work_scale: float = 0.75
+    eps_px: float = 1.0
+    min_residual_px: float = 0.5
+    noise_factor: float = 3.0
+    fb_weight: float = 0.75
+    fb_box_px: int = 7
+    spread_weight: float = 0.5
+    guided_radius: int = 2
+    guided_eps: float = 0.001
+    temporal_weight: float = 1.0
+    temporal_passes: int = 2
+    colour_weight: float = 0.75
+    colour_bins: int = 32
+    colour_margin: float = 0.5
+    colour_memory: float = 0.9
+    local_colour_weight: float = 1.5
+    local_colour_box_px: int = 61
+    superpixels: int = 0
+    compactness: float = 10.0
+    superpixel_iterations: int = 4
+    min_component: float = 0.3
+    component_power: float = 2.0
+    anchor_tracks: int = 3
+    smooth_lambda: float = 16.0
+    smooth_sigma: float = 5.0
+
+    def __post_init__(self) -> None:
+        check_fields(self, _MOTION_CHECKS)
+
+
+_MOTION_CHECKS: tuple[Check, ...] = (
+    ("work_scale", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("noise_factor", lambda v: v >= 0, "be >= 0"),
+    ("eps_px", lambda v: v > 0, "be > 0"),
+    ("min_residual_px", lambda v: v >= 0, "be >= 0"),
+    ("colour_memory", lambda v: 0 <= v < 1, "lie in [0, 1)"),
+    ("local_colour_weight", lambda v: v >= 0, "be >= 0"),
+    ("local_colour_box_px", lambda v: v >= 3, "be >= 3"),
+    ("colour_weight", lambda v: v >= 0, "be >= 0"),
+    ("colour_bins", lambda v: 2 <= v <= 64, "lie in 2..64"),
+    ("temporal_weight", lambda v: v >= 0, "be >= 0"),
+    ("temporal_passes", lambda v: v >= 0, "be >= 0"),
+    ("superpixel_iterations", lambda v: v >= 1, "be >= 1"),
+    ("fb_weight", lambda v: v >= 0, "be >= 0"),
+    ("fb_box_px", lambda v: v >= 1, "be >= 1"),
+    ("spread_weight", lambda v: v >= 0, "be >= 0"),
+    ("guided_radius", lambda v: v >= 0, "be >= 0"),
+    ("guided_eps", lambda v: v > 0, "be > 0"),
+    ("smooth_lambda", lambda v: v >= 0, "be >= 0"),
+    ("smooth_sigma", lambda v: v > 0, "be > 0"),
+    ("anchor_tracks", lambda v: v >= 0, "be >= 0"),
+    ("superpixels", lambda v: v >= 0, "be >= 0"),
+    ("min_component", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("component_power", lambda v: v >= 0, "be >= 0"),
+)
+"""MotionMaskConfig's checks, one field each: (field, test, what it must be)."""
+
+
+@dataclass(frozen=True)
+class MaskConfig:
+    """Settings for densifying track labels.
+
+    Attributes:
+        max_distance_px: pixels farther than this from every labelled track are unknown (255).
+            40 px covers the gaps between ~1000 tracks on 640x480 (mean spacing ~18 px) while
+            leaving textureless areas without tracks (sky, blank walls) unknown.
+        method: "watershed", "nearest", "vote" or "motion" (see the module docstring).
+        vote_k: tracks consulted per pixel by "vote".
+        vote_downsample: "vote" labels a grid of every n-th pixel and upsamples (nearest), to
+            keep the k-nearest-neighbour query fast.
+        median_px: odd size of a median filter applied to the label image to smooth jagged
+            borders and remove specks (0 or 1 = off). A median of label values can produce a
+            label absent from the window only where three or more labels meet.
+        min_agree: "watershed": a track seeds the flood only when at least this many of its
+            `vote_k` nearest tracks carry its label (itself included); isolated mislabelled
+            tracks would otherwise flood a region of their own. 1 = every track seeds (the
+            default: on the rendered clips 2 lowered J from 0.521 to 0.515 with the pipeline's
+            labels and from 0.805 to 0.764 with the true ones, as it also drops the few tracks of
+            small objects).
+        blur_px: "watershed": odd Gaussian kernel applied to the image before flooding (0 or 1 =
+            off). Off by default: on the rendered clips a 3 px blur lowered boundary F from 0.367
+            to 0.331 (it blurs the very edges the flood should stop at).
+        scale: "watershed" floods an image resized by this factor (0 < scale <= 1) and resizes the
+            labels back (nearest); 0.5 costs a quarter of the time.
+        extra_tracks: clips (not whole videos, not pairs): up to this many more corners, spread over
+            the image away from the clustered tracks (`track.spread_corners`), are tracked through
+            the clip and labelled by motion (`rigid.label_by_rigid_motion`), for the masks only: a
+            weakly textured object that got few of the tracker's corners gets more evidence.
+            0 = off. Not used by "motion" (it does not need more tracks).
+        motion: "motion": the flow and mask settings (mosegpipe.motion).
+        unexplained_px: "motion", clips: moving pixels whose flow to the next frame (the previous, for
+            the last) misses, by more than this many pixels, the homography of the tracks of the motion
+            they were labelled with (or twice that motion's own tracks' 90th-percentile miss, if more),
+            and that no other moving motion's homography explains either, take MOVING_UNCLUSTERED
+            when they form a region of at least `unexplained_area` of the frame that one homography of
+            its own explains (`unexplained_rigid`): an object the tracker left without corners would
+            otherwise take the label of the nearest other object (`split_unexplained`). 0 = off.
+            Chosen on the rendered dev clips (seeds 100-123, per-object J with the pipeline's labels; no
+            protocol scores them) and the DAVIS dev clips' first 5 frames (foreground J cannot change, only
+            labels do: best-label J and labels per clip), with unexplained_rigid 0.8: off 0.623, 2 px 0.646,
+            4 px 0.649, 6 px 0.632 (with `--points flow`: off 0.650, 2 px 0.658, 4 px 0.667); DAVIS best-label
+            J 0.666 / 0.666 / 0.665 (off / 2 / 4 px), labels per clip 2.65 / 2.85 / 2.90. Without the rigid
+            test, 2 / 4 / 8 px: rendered 0.662 / 0.659 / 0.638, DAVIS best-label J 0.625 / 0.639 / 0.650.
+        unexplained_area: smallest such region, as a share of the frame's pixels.
+        unexplained_rigid: ... and the share of its pixels (sampled) that the region's own homography
+            (RANSAC, 1 px) must explain: an object's fragment that its label's homography misses (flow
+            smoothed over a border, a limb) is rarely rigid on its own. At 2 px, rendered dev 0.6 / 0.7 / 0.8 /
+            0.95: J 0.656 / 0.653 / 0.646 / 0.621; DAVIS dev best-label J 0.661 / 0.665 / 0.666 / 0.665,
+            labels per clip 3.15 / 2.90 / 2.85 / 2.80 (none: 0.662, 0.625, 3.25). 0 = no such test.
+    """
+
+    max_distance_px: float = 40.0
+    method: str = "motion"
+    vote_k: int = 5
+    vote_downsample: int = 4
+    median_px: int = 0
+    min_agree: int = 1
+    blur_px: int = 0
+    scale: float = 1.0
+    extra_tracks: int = 1000
+    unexplained_px: float = 4.0
+    unexplained_area: float = 0.002
+    unexplained_rigid: float = 0.8
+    motion: MotionMaskConfig = field(default_factory=MotionMaskConfig)
+
+    def __post_init__(self) -> None:
+        check_fields(self, _MASK_CHECKS)
+        if not self.min_agree <= self.vote_k:
+            raise SettingError("min_agree", f"{self.min_agree} must lie in 1..vote_k ({self.vote_k})")
+
+
+_MASK_CHECKS: tuple[Check, ...] = (
+    ("method", lambda v: v in MASK_METHODS, f"be one of {', '.join(MASK_METHODS)}"),
+    ("max_distance_px", lambda v: v > 0, "be > 0"),
+    ("vote_k", lambda v: v >= 1, "be >= 1"),
+    ("vote_downsample", lambda v: v >= 1, "be >= 1"),
+    *(
+        (name, lambda v: v in (0, 1) or (v >= 3 and v % 2 == 1), "be 0, 1 (off) or an odd number >= 3")
+        for name in ("median_px", "blur_px")
+    ),
+    ("scale", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("extra_tracks", lambda v: v >= 0, "be >= 0 (0 = off)"),
+    ("unexplained_px", lambda v: v >= 0, "be >= 0 (0 = off)"),
+    ("unexplained_area", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("unexplained_rigid", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+)
+"""MaskConfig's checks: (field, test, what it must be)."""
