@@ -16,55 +16,35 @@ from mosegpipe.types import K_METHODS, KMethodName
 
 @dataclass(frozen=True)
 class ClusterConfig:
-    """How :func:`cluster_auto_k` chooses K.
+    """How :func:`cluster_auto_k` chooses K, one line each; how the values were chosen is in docs/HISTORY.md
+    ("Where the defaults come from", "ClusterConfig"), how often K is right in docs/RESULTS.md ("The paper's benchmarks").
 
     Attributes:
-        method: "residual" (elbow of the K-means residual) or "silhouette".
+        method: the automatic-K rule (types.KMethodName): the silhouette, or the elbow of the K-means residual.
         k_min: smallest K considered; 1 allows the answer "a single motion".
-        k_max: largest K considered (capped at N - 1 for a clip of N points).
+        k_max: largest K considered (capped at N - 1 for N points).
         n_init: K-means restarts per K; the best residual of the restarts is kept.
         seed: random seed of K-means (same seed, same labels).
-        num_threads: BLAS/OpenMP threads for scikit-learn; 1 is fastest for these sizes.
-        min_elbow: "residual" answers K = 1 unless some K >= 2 scores above this (scores lie in
-            [-1, 1]; see cluster_auto_k for measured values).
+        num_threads: BLAS / OpenMP threads for scikit-learn; 1 is fastest for these sizes.
+        min_elbow: "residual" answers K = 1 unless some K >= 2 scores above this (scores lie in [-1, 1]).
         min_silhouette: "silhouette" answers K = 1 unless the best silhouette exceeds this.
-        one_motion_spread: K = 1 is considered only when the mean squared distance to the centroid
-            is at most this fraction of the mean squared norm.
-        min_spread: when the mean squared distance to the centroid is below this fraction of the
-            mean squared norm, the embeddings are one point up to noise and K = 1 outright.
+        min_spread: below this mean squared distance to the centroid (share of the mean squared norm): K = 1 outright.
+        one_motion_spread: K = 1 is a candidate only at most this mean squared distance to the centroid (same share).
+        static_residual_px: K = 1 without clustering when one affine motion explains the tracks this well (None: never).
+        ambiguity_margin: the K choice is reported as ambiguous when the runner-up scores within this of the winner.
     """
 
-    # Silhouette chose K better on KT3DMoSeg leave-one-out (correct K 64 % vs 45-59 %, docs/RESULTS.md);
-    # "residual" is about twice as fast (no O(N^2) distances).
     method: KMethodName = "silhouette"
     k_min: int = 1  # single-motion clips exist (static scene, camera motion only)
     k_max: int = 8  # benchmarks have at most 5 motions; 8 leaves headroom for real videos
     n_init: int = 3  # 10 restarts cost 3x the time; see docs/RESULTS.md for the accuracy check
     seed: int = 0  # fixed so that repeated runs give identical labels
     num_threads: int = 1  # see the timing note in kmeans(): 2 threads were 10-400x slower
-    # Measured on Gaussian blobs on the unit sphere: one blob with N >= 100 scores at most 0.15
-    # for E >= 3 (0.19-0.24 for E = 2, up to 0.48 for N = 10; 6 seeds each), while 2-6 groups
-    # of 300 points with E = 5 or 16 score 0.4-0.9 at noise 0.05 and 0.2-0.76 at noise 0.15.
     min_elbow: float = 0.2
-    # Same blobs: one blob reaches 0.20 (E=5) to 0.38 (E=3) for N >= 100, groups 0.56-0.92 at
-    # noise 0.05-0.15 with E = 5; 0.25 (Kaufman & Rousseeuw's "no structure") is too low for E=3.
     min_silhouette: float = 0.4
     min_spread: float = 1e-4  # RMS distance 0.01 on the unit sphere: identical up to noise
-    # K = 1 is a candidate only when the mean squared distance to the centroid is at most this
-    # fraction of the mean squared norm (RMS distance 0.32 on the unit sphere). Trained embeddings
-    # of several motions spread far wider; without this gate the K = 1 threshold score beat the
-    # elbow of loosely clustered multi-motion embeddings (zero-shot AdelaideRMF: K = 1 on 14 of 19
-    # pairs). Calibrated on synthetic one-body clips: docs/RESULTS.md.
     one_motion_spread: float = 0.1
-    # K = 1 without clustering when one affine motion explains the tracks to within this many
-    # pixels (99th percentile of the per-track RMS residual, see single_motion_residual_px): the
-    # residual flow is tracking noise. Calibrated on rendered synthetic clips (mosegpipe.synth.render,
-    # 6 seeds, pixel noise 0/5/10 grey levels, static camera): with nothing moving the percentile
-    # was at most 1.62 px, with 1-2 moving objects at least 3.05 px. None = never.
     static_residual_px: float | None = 2.0
-    # The K choice is reported as ambiguous (summary.json k_note, a warning) when the runner-up
-    # scores within this of the winner (tree.avi, where nothing moves, had 0.003 between K = 3 and 2
-    # before the no-motion rule; a clean rendered three-motion clip 0.020). Reporting only: no K changes.
     ambiguity_margin: float = 0.01
 
     def __post_init__(self) -> None:
@@ -91,30 +71,24 @@ _CLUSTER_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class RigidCheckConfig:
-    """Settings of `split_by_rigid_motion` (see the module docstring for what each one does).
+    """Settings of `split_by_rigid_motion`, one line each (the steps: the module docstring); how they were chosen
+    is in docs/HISTORY.md ("The rigid-motion check: small objects split off after automatic K", "Step 5"), what the
+    check gives in docs/RESULTS.md ("The rigid-motion check").
 
     Attributes:
         enabled: run the check (clips, whole videos and tracks with automatic K).
-        residual_px: a point further than this from its cluster's rigid model (pixels, in either of
-            the two frame pairs) is a candidate for a motion of its own.
+        residual_px: a point further than this from its cluster's rigid model (either frame pair) is a candidate.
         min_tracks: the smallest group split off ...
-        min_share: ... and at least this share of the points checked: with a dense grid of points
-            (`PipelineConfig.tracker` "flow") a group of 10 is a sliver along an object's border.
-        min_host: a split must leave at least this many points in the cluster (so only clusters
-            of min_host + min_tracks points or more are checked).
-        neighbour_frac: candidates within this fraction of the image diagonal of each other in
-            frame 0 may belong to one group.
-        motion_px, motion_frac: two candidates move alike when their displacements from frame 0
-            differ by at most motion_px + motion_frac * the larger displacement, in every frame.
-        consistency: a group is split off only when one rigid model of its own explains at least
-            this fraction of it (to residual_px).
-        homography_ratio: the homography is the model when it keeps at least this fraction of the
-            fundamental matrix's RANSAC inliers.
-        merge_consistency: two groups split off one cluster are merged when one rigid model
-            explains at least this fraction of their union (None: never merged).
-        separate: step 5 of the module docstring (pieces of an object's cluster that move apart).
-        max_angle_deg: step 5: touching pieces whose displacements (to the last frame) differ in
-            direction by more than this are not one deep object.
+        min_share: ... and at least this share of the points checked (a dense grid's sliver along a border is not one).
+        min_host: a split must leave at least this many points in the cluster.
+        neighbour_frac: candidates within this fraction of the image diagonal of each other may form one group.
+        motion_px: two candidates move alike when their displacements differ by at most motion_px + motion_frac * ...
+        motion_frac: ... the larger displacement, in every frame.
+        consistency: a group is split off only when one rigid model of its own explains this share of it.
+        homography_ratio: the homography is the model when it keeps this share of the fundamental matrix's inliers.
+        merge_consistency: two groups split off one cluster merge when one rigid model explains this share (None: never).
+        separate: step 5: pieces of an object's cluster that move apart become motions of their own.
+        max_angle_deg: step 5: touching pieces whose displacements differ in direction by more are not one object.
     """
 
     enabled: bool = True
@@ -150,20 +124,16 @@ _RIGID_CHECK_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class GeometricConfig:
-    """Settings of `group_geometric` (see the module docstring for what each one does).
+    """Settings of `group_geometric` (`--method geometric`), one line each; measured in docs/RESULTS.md
+    ("Geometric grouping alone"), chosen as docs/HISTORY.md ("Geometric grouping alone") tells.
 
     Attributes:
-        residual_px: a track within this many pixels of a model (in every frame pair) is its inlier;
-            also RANSAC's inlier distance.
-        min_group: with automatic K, the smallest group, in tracks.
-        min_share: with automatic K, the smallest group as a share of all tracks, in [0, 1); the
-            larger of the two minimums applies.
+        residual_px: a track within this many pixels of a model in every frame pair is its inlier (RANSAC's too).
+        min_group: with automatic K, the smallest group, in tracks ...
+        min_share: ... and as a share of all tracks, in [0, 1); the larger applies.
         k_max: with automatic K, the most groups fitted.
-        homography_ratio: the homography is the group's model when it keeps at least this fraction
-            of the fundamental matrix's inliers, in (0, 1].
-        planar_share: the tracks that only the fundamental matrix explains are one planar motion of
-            their own (and the homography stays the model) when one homography explains at least
-            this share of them, in (0, 1].
+        homography_ratio: the homography is the model when it keeps this share of the fundamental matrix's inliers.
+        planar_share: tracks only the fundamental matrix explains are a planar motion when one homography explains this share.
         ransac_iters: RANSAC iterations per model.
         confidence: RANSAC's confidence, in (0, 1).
         seed: OpenCV's random seed, set before each grouping (same seed, same labels).
@@ -197,23 +167,21 @@ _GEOMETRIC_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class JointConfig:
-    """Settings of `select_models` (method "joint"; see the module docstring for what each one does).
+    """Settings of `select_models` (`--method joint`), one line each (the steps: the module docstring); measured
+    in docs/RESULTS.md ("Several movers: composites in real textures").
 
     Attributes:
         sigma_px: the noise of a track's position, pixels (GRIC's sigma).
         residual_px: a track within this many pixels of a model is its inlier (RANSAC's distance too).
-        outlier_px: a track further than this from its group's model in most frame pairs is not
-            explained by it (step 4); None: no track is moved or left out.
-        rigid_share: a group is one rigid motion when its model explains at least this share of it.
+        outlier_px: a track further than this from its group's model in most frame pairs is not explained (None: off).
+        rigid_share: a group is one rigid motion when its model explains this share of it.
         planar_share: a split's second part must be one motion: a homography explains this share of it.
         merge_share: two groups merge only when the union's model explains this share of each.
-        reassign: a track its group's model does not explain may go to a group whose model does (else
-            it is left out).
+        reassign: a track its group's model does not explain may go to a group whose model does.
         leave_out: a track that no model explains is left out (-1); else it keeps its group.
-        merge_3d: two groups that both need a fundamental matrix may merge under one (off: an object
-            moving along the camera's direction fits the world's matrix, the motion degeneracy).
+        merge_3d: two groups that both need a fundamental matrix may merge under one.
         split_largest: the largest group (usually the world) may be split too.
-        rigid_first: the rigid-motion check (mosegpipe.rigid) splits the groups first (the caller's rule).
+        rigid_first: the rigid-motion check (mosegpipe.rigid) splits the groups first.
         min_group: the smallest group a split makes, in tracks ...
         min_share: ... and as a share of all tracks; the larger applies.
         max_pairs: at most this many frame pairs (0, t), spread evenly over the window, are fitted.
@@ -254,20 +222,17 @@ _JOINT_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class WorldConfig:
-    """How the world's motion is told from the others (`world_cluster`).
+    """How the world's motion is told from the others (`world_cluster`), one line each; how it was chosen and
+    measured is in docs/HISTORY.md ("The world is label 0 in every frame, and the masks are scored as written").
 
     Attributes:
-        enabled: tell the world by this evidence (False: the motion with the most tracks is the world,
-            as summaries written before this step segmented).
-        grid: cells per side of the area vote (grid x grid cells over the frame).
-        border_weight: extra weight of a border cell (a border cell counts 1 + border_weight).
+        enabled: tell the world by this evidence (False: the motion with the most tracks, as older summaries did).
+        grid: cells per side of the area vote.
+        border_weight: extra weight of a border cell (it counts 1 + border_weight).
         continuity: whole videos: weight of the window before's world (0 = each window alone).
-        static_px: a track lies where the camera's motion explains the flow when the camera residual
-            there is at most this, pixels of the frame.
+        static_px: a track lies where the camera explains the flow when the camera residual there is at most this, pixels.
         static_floor: a motion's area is weighted by this plus its tracks' share on such pixels.
-        parallax: where the world's tracks need a fundamental matrix (3D structure near a moving
-            camera), a pixel whose nearest labelled track is the world's is static when its flow lies on
-            the world's epipolar line (`explain_parallax`).
+        parallax: a pixel nearest a world track is static when its flow lies on the world's epipolar line.
         parallax_sigma_px: the noise of a track's position, pixels (GRIC and RANSAC thresholds).
         parallax_min_points: fewest world tracks to fit a fundamental matrix from.
     """

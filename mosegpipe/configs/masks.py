@@ -35,18 +35,17 @@ class MotionMaskConfig:
         colour_weight: weight of the colour model's log ratio (0 = off).
         colour_bins: histogram bins per RGB channel of the colour model.
         colour_margin: pixels this far (log units) above / below the threshold train the colour model.
+        colour_memory: whole videos: decay of the colour counts of the windows before (0 = each window alone).
         local_colour_weight: weight of the local colour contrast (`_local_colour_contrast`; 0 = off).
         local_colour_box_px: side of the box (work-scale pixels) of the local colour means.
-        smooth_lambda: strength of the fast global smoother after the guided filter (0 = off).
-        smooth_sigma: its colour scale (0-255 units): colours farther apart than this are an edge.
-        colour_memory: whole videos: decay of the colour counts of the windows before (0 = each window alone).
         superpixels: approximate number of SLIC superpixels the score is averaged over (0 = off).
         compactness: SLIC compactness (colour vs distance).
         superpixel_iterations: SLIC's k-means iterations.
         min_component: moving regions weaker than this share of the frame's strongest are dropped.
         component_power: a region's strength is its area times its mean residual to this power.
-        anchor_tracks: whole videos: a motion the frame before showed keeps a region step 5 would drop
-            when at least this many of its tracks lie in it (0 = off).
+        anchor_tracks: whole videos: a region step 5 would drop stays when this many tracks of a motion shown before lie in it.
+        smooth_lambda: strength of the fast global smoother after the guided filter (0 = off).
+        smooth_sigma: its colour scale (0-255 units): colours farther apart than this are an edge.
     """
 
     flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=3))
@@ -110,55 +109,24 @@ _MOTION_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class MaskConfig:
-    """Settings for densifying track labels.
+    """Settings of densifying track labels, one line each (the methods: mosegpipe.masks); how the values were
+    chosen is in docs/HISTORY.md ("Dense masks: densifiers compared", "Moving regions that no clustered motion
+    explains", "Where the defaults come from"), what they give in docs/RESULTS.md ("Dense masks on rendered clips").
 
     Attributes:
         max_distance_px: pixels farther than this from every labelled track are unknown (255).
-            40 px covers the gaps between ~1000 tracks on 640x480 (mean spacing ~18 px) while
-            leaving textureless areas without tracks (sky, blank walls) unknown.
-        method: "watershed", "nearest", "vote" or "motion" (see the module docstring).
-        vote_k: tracks consulted per pixel by "vote".
-        vote_downsample: "vote" labels a grid of every n-th pixel and upsamples (nearest), to
-            keep the k-nearest-neighbour query fast.
-        median_px: odd size of a median filter applied to the label image to smooth jagged
-            borders and remove specks (0 or 1 = off). A median of label values can produce a
-            label absent from the window only where three or more labels meet.
-        min_agree: "watershed": a track seeds the flood only when at least this many of its
-            `vote_k` nearest tracks carry its label (itself included); isolated mislabelled
-            tracks would otherwise flood a region of their own. 1 = every track seeds (the
-            default: on the rendered clips 2 lowered J from 0.521 to 0.515 with the pipeline's
-            labels and from 0.805 to 0.764 with the true ones, as it also drops the few tracks of
-            small objects).
-        blur_px: "watershed": odd Gaussian kernel applied to the image before flooding (0 or 1 =
-            off). Off by default: on the rendered clips a 3 px blur lowered boundary F from 0.367
-            to 0.331 (it blurs the very edges the flood should stop at).
-        scale: "watershed" floods an image resized by this factor (0 < scale <= 1) and resizes the
-            labels back (nearest); 0.5 costs a quarter of the time.
-        extra_tracks: clips (not whole videos, not pairs): up to this many more corners, spread over
-            the image away from the clustered tracks (`track.spread_corners`), are tracked through
-            the clip and labelled by motion (`rigid.label_by_rigid_motion`), for the masks only: a
-            weakly textured object that got few of the tracker's corners gets more evidence.
-            0 = off. Not used by "motion" (it does not need more tracks).
-        motion: "motion": the flow and mask settings (mosegpipe.motion).
-        unexplained_px: "motion", clips: moving pixels whose flow to the next frame (the previous, for
-            the last) misses, by more than this many pixels, the homography of the tracks of the motion
-            they were labelled with (or twice that motion's own tracks' 90th-percentile miss, if more),
-            and that no other moving motion's homography explains either, take MOVING_UNCLUSTERED
-            when they form a region of at least `unexplained_area` of the frame that one homography of
-            its own explains (`unexplained_rigid`): an object the tracker left without corners would
-            otherwise take the label of the nearest other object (`split_unexplained`). 0 = off.
-            Chosen on the rendered dev clips (seeds 100-123, per-object J with the pipeline's labels; no
-            protocol scores them) and the DAVIS dev clips' first 5 frames (foreground J cannot change, only
-            labels do: best-label J and labels per clip), with unexplained_rigid 0.8: off 0.623, 2 px 0.646,
-            4 px 0.649, 6 px 0.632 (with `--points flow`: off 0.650, 2 px 0.658, 4 px 0.667); DAVIS best-label
-            J 0.666 / 0.666 / 0.665 (off / 2 / 4 px), labels per clip 2.65 / 2.85 / 2.90. Without the rigid
-            test, 2 / 4 / 8 px: rendered 0.662 / 0.659 / 0.638, DAVIS best-label J 0.625 / 0.639 / 0.650.
+        method: types.MaskMethod: "motion", "watershed", "nearest" or "vote".
+        vote_k: tracks consulted per pixel by "vote" (and by min_agree).
+        vote_downsample: "vote" labels every n-th pixel and upsamples (nearest).
+        median_px: odd size of a median filter over the label image (0 or 1 = off).
+        min_agree: "watershed": a track seeds only when this many of its vote_k nearest tracks carry its label.
+        blur_px: "watershed": odd Gaussian kernel applied to the image before flooding (0 or 1 = off).
+        scale: "watershed" floods the image resized by this (0 < scale <= 1).
+        extra_tracks: clips: up to this many more corners, tracked and labelled by motion for the masks only (0 = off).
+        unexplained_px: "motion", clips: regions missing their motion's homography by more take 254 (`split_unexplained`; 0 = off).
         unexplained_area: smallest such region, as a share of the frame's pixels.
-        unexplained_rigid: ... and the share of its pixels (sampled) that the region's own homography
-            (RANSAC, 1 px) must explain: an object's fragment that its label's homography misses (flow
-            smoothed over a border, a limb) is rarely rigid on its own. At 2 px, rendered dev 0.6 / 0.7 / 0.8 /
-            0.95: J 0.656 / 0.653 / 0.646 / 0.621; DAVIS dev best-label J 0.661 / 0.665 / 0.666 / 0.665,
-            labels per clip 3.15 / 2.90 / 2.85 / 2.80 (none: 0.662, 0.625, 3.25). 0 = no such test.
+        unexplained_rigid: ... and the share of its pixels its own homography must explain (0 = no such test).
+        motion: "motion": the flow and mask settings (mosegpipe.motion).
     """
 
     max_distance_px: float = 40.0

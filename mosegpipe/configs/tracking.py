@@ -15,32 +15,23 @@ from mosegpipe.types import CAMERA_FIT_NAMES, DIS_PRESET_NAMES, MATCHERS, Camera
 
 @dataclass(frozen=True)
 class TrackConfig:
-    """Settings of the KLT tracker.
+    """Settings of the KLT tracker, one line each; how the values were chosen is in docs/HISTORY.md ("Where the
+    defaults come from", "TrackConfig"), what they give end to end in docs/RESULTS.md ("End to end on our own tracks").
 
     Attributes:
-        max_corners: corners detected in the first frame; SubspaceNet works on a few hundred to
-            a thousand trajectories (KT3DMoSeg clips hold 158-1018).
-        quality_level: Shi-Tomasi threshold relative to the strongest corner; 0.01 keeps weakly
-            textured areas (road, walls) that still track well over a few frames.
-        min_distance_px: minimum spacing between corners, so points cover the whole image rather
-            than clustering on the most textured object.
-        block_size: neighbourhood of the corner response; 7 px is robust to JPEG noise.
-        win_size_px: Lucas-Kanade window; 21 px tolerates the small blur and noise of real video.
-        max_level: pyramid levels above the full image; 3 levels (1/8 scale) handle motions up to
-            about 8 * win_size_px / 2 px per frame.
-        fb_threshold_px: forward-backward check: a point tracked to the next frame and back must
-            land within this distance of where it started, else it is dropped (occlusions,
-            drift on edges). None disables the check and roughly halves the cost.
-        min_eig: minimum eigenvalue of the LK structure tensor (OpenCV's minEigThreshold);
-            rejects points that became textureless (e.g. moved onto sky).
+        max_corners: corners detected in the first frame (SubspaceNet works on a few hundred to a thousand).
+        quality_level: Shi-Tomasi threshold relative to the strongest corner; low keeps weakly textured areas.
+        min_distance_px: minimum spacing between corners, so that points cover the whole image.
+        block_size: neighbourhood of the corner response, pixels.
+        win_size_px: Lucas-Kanade window, pixels.
+        max_level: pyramid levels above the full image (3: motions up to about 4 * win_size_px per frame).
+        fb_threshold_px: forward-backward check: a point tracked there and back must land this near its start (None: off).
+        min_eig: minimum eigenvalue of the LK structure tensor (OpenCV's minEigThreshold).
         max_iter: Lucas-Kanade iterations per pyramid level.
         epsilon_px: Lucas-Kanade stops when an update is smaller than this.
-        border_px: a point closer than this to the image border counts as having left the image.
-            About win_size_px / 2: nearer the border the LK window reads padded pixels; on a
-            translated texture the error there reached ~1 px, against < 0.002 px inside.
-        reseed: KLTTracker only: detect new corners in areas without live tracks, for long videos.
-        reseed_every: re-seed every this many frames (detection, ~6 ms at 640x480, costs about
-            half a tracking step).
+        border_px: a point closer than this to the image border has left the image.
+        reseed: KLTTracker only: detect new corners in areas without live tracks (long videos).
+        reseed_every: re-seed every this many frames.
     """
 
     max_corners: int = 1000
@@ -75,38 +66,21 @@ _TRACK_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class FlowConfig:
-    """Settings of the dense flow and the camera fit.
+    """Settings of the dense flow and the camera fit, one line each; how the values were chosen is in
+    docs/HISTORY.md ("How the motion masks work, and what each step bought", "The camera's homography by RANSAC
+    instead of MAGSAC", "Where the defaults come from"), their speed in docs/RESULTS.md ("Presets").
 
     Attributes:
-        preset: DIS preset ("ultrafast", "fast" or "medium"); medium is the most accurate of the three.
-        scale: flow is computed on images resized by this factor (0 < scale <= 1); residuals are
-            returned at full resolution in full-resolution pixels.
-        grid_step_px: the camera fit samples one pixel every this many pixels (at the flow's scale);
-            8 fits as well as 4 (DAVIS dev J 0.646 either way) at a quarter of the fit's time.
-        fb_max_px: a sample whose forward flow and the backward flow at its end point disagree by
-            more than this (pixels, at the flow's scale) is left out of the camera fit (occlusions,
-            flow failures).
-        ransac_px: RANSAC inlier threshold of the homography, in pixels at the flow's scale.
-        camera_fit: the robust fit of the camera's homography (CAMERA_FITS): "ransac" (OpenCV's RANSAC,
-            the inliers' fit refined by Levenberg-Marquardt) or "magsac" (OpenCV's USAC MAGSAC, the
-            choice before). MAGSAC weighs samples by a soft score up to its threshold and beyond: an
-            object moving 2-3 px against the camera, over a third of the frame, pulls its fit off the
-            background (median background residual 0.2-0.7 px where a least-squares fit of the true
-            background leaves 0.05-0.08; rendered clips, seeds 12 and 17), and the noise floor then hides
-            slow movers. RANSAC leaves 0.04 there, in half MAGSAC's time (2.5 against 4.9 ms for 5 400
-            samples). DAVIS dev, whole video J / F 0.750 / 0.714 -> 0.759 / 0.726 (elephant 0.67 -> 0.81;
-            ransac_px 0.5 0.751, 2.0 0.754), first 5 frames 0.707 / 0.672 -> 0.718 / 0.683.
-        workers: threads that compute the flows and fits of a stack (`frame_motion`); OpenCV releases
-            the GIL, so two threads use both cores of a small machine (each thread has its own DIS).
-        patch_stride: DIS patch stride in pixels (None = the preset's: 3 for medium).
-        refinement_iterations: DIS variational refinement iterations (None = the preset's: 5 for medium).
-        both_directions: a frame between two others takes, per pixel, the smaller camera residual and
-            the smaller forward-backward error of its flow to the next frame and its flow to the one
-            before (each with its own camera fit). A band beside a moving object is occluded in one
-            of its neighbours only, so one of the two flows is right there: the band's residual (the
-            flow smoothed across the object's border) drops out, the object's own stays (it moves
-            in both). DAVIS dev J of the moving masks (25 frames pooled) 0.676 -> 0.713; False =
-            the next frame's flow only.
+        preset: DIS preset (types.DisPreset); medium is the most accurate of the three.
+        scale: the flow is computed on images resized by this (0 < scale <= 1); residuals come back at full size.
+        grid_step_px: the camera fit samples one pixel every this many (at the flow's scale).
+        fb_max_px: samples whose forward and backward flows disagree by more (flow-scale pixels) are left out of the fit.
+        ransac_px: inlier threshold of the camera's homography, pixels at the flow's scale.
+        camera_fit: the robust fit of the camera's homography (types.CameraFit): OpenCV's RANSAC or USAC MAGSAC.
+        workers: threads computing a stack's flows and fits (OpenCV releases the GIL; each thread has its own DIS).
+        patch_stride: DIS patch stride, pixels (None: the preset's, 3 for medium).
+        refinement_iterations: DIS variational refinement iterations (None: the preset's, 5 for medium).
+        both_directions: a frame between two others takes, per pixel, the smaller residual of its flows forward and back.
     """
 
     preset: DisPreset = "medium"
@@ -140,24 +114,20 @@ _FLOW_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class FlowTrackConfig:
-    """Settings of `track_flow`.
+    """Settings of `track_flow`, one line each (the checks: the module docstring); how they were chosen is in
+    docs/HISTORY.md ("Points from the dense flow").
 
     Attributes:
-        max_points: the grid holds about this many seeds (its step is sqrt(H * W / max_points) pixels,
-            at least `min_step_px`).
+        max_points: the grid holds about this many seeds (step sqrt(H * W / max_points) px, at least min_step_px).
         min_step_px: the grid's smallest step, pixels.
         border_px: a point closer than this to the image border is lost.
-        fb_rel: forward-backward check, relative part (see the module docstring).
+        fb_rel: forward-backward check, relative part.
         fb_abs_px: forward-backward check, absolute part, pixels.
-        boundary_rel: motion-boundary check: a point is lost where |grad u|^2 + |grad v|^2 exceeds
-            boundary_rel |w|^2 + boundary_abs (a negative boundary_rel = no check).
-        boundary_abs: absolute part of the motion-boundary check (flow gradient squared, per pixel).
-        max_brightness: brightness check, grey levels (0-255) of the images smoothed by a Gaussian of
-            sigma 1 px (0 = no check).
-        min_texture: seeds whose smallest structure-tensor eigenvalue is below this share of the
-            frame's mean are left out (0 = every grid point is seeded).
-        klt_distance_px: "klt+flow": flow points nearer than this to a KLT corner in the first
-            frame are dropped.
+        boundary_rel: motion-boundary check, relative part (a negative value: no check).
+        boundary_abs: motion-boundary check, absolute part (flow gradient squared, per pixel).
+        max_brightness: brightness check, grey levels of the images smoothed by a 1 px Gaussian (0: no check).
+        min_texture: seeds whose smallest structure-tensor eigenvalue is below this share of the frame's mean are left out.
+        klt_distance_px: "klt+flow": flow points nearer than this to a KLT corner in the first frame are dropped.
     """
 
     max_points: int = 2000
@@ -190,24 +160,18 @@ _FLOW_TRACK_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class MatchConfig:
-    """Settings of SIFT detection and matching.
+    """Settings of SIFT detection and matching (image pairs), one line each; how the values were chosen is in
+    docs/HISTORY.md ("Where the defaults come from", "MatchConfig").
 
     Attributes:
-        nfeatures: keypoints kept per image, strongest first (0 = all). Caps the quadratic
-            matching cost: ~2.5k keypoints per 640x480 image took 180 ms to detect and 250 ms
-            to brute-force match both ways on one core.
+        nfeatures: keypoints kept per image, strongest first (0 = all); caps the quadratic matching cost.
         n_octave_layers: SIFT layers per octave (Lowe's 3).
-        contrast_threshold: SIFT's DoG contrast threshold (OpenCV default 0.04); lower finds
-            more keypoints in low-contrast images at the cost of weaker ones.
-        edge_threshold: SIFT's edge-response threshold (OpenCV default 10).
+        contrast_threshold: SIFT's DoG contrast threshold (OpenCV's default).
+        edge_threshold: SIFT's edge-response threshold (OpenCV's default).
         sigma: Gaussian blur of the base octave (Lowe's 1.6).
-        ratio: Lowe's ratio test: keep a match when best distance < ratio * second best; 0.8
-            is Lowe's value, rejecting ~90 % of false matches and ~5 % of true ones.
-        cross_check: keep a match only if it is also the best match from image 2 back to
-            image 1 (mutual nearest neighbours); otherwise only the best-ratio match per
-            keypoint of image 2 survives.
-        matcher: "bf" (exact brute force, deterministic) or "flann" (approximate KD-trees;
-            measured ~3x faster matching at 2.5k keypoints, with the same matches to within 0.5 %).
+        ratio: Lowe's ratio test: keep a match when best distance < ratio * second best.
+        cross_check: keep only mutual nearest neighbours (else the best-ratio match per keypoint of image 2).
+        matcher: types.Matcher: "bf" (exact, deterministic) or "flann" (approximate KD-trees, faster).
     """
 
     nfeatures: int = 4000

@@ -78,44 +78,28 @@ the time). A marker applies when the table holding it is in the summary but the 
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """Settings of one segmentation run.
+    """Settings of one segmentation run, one line each; what the defaults give is in docs/RESULTS.md (the
+    benchmark of each setting's stage; "Speed" for video_k_step), how they were chosen in docs/HISTORY.md.
 
     Attributes:
         frames: F, the number of frames segmented (the paper's clips are 5 frames).
-        start: index of the first frame read from a video or frame folder (0-based, in the source);
-            segment_clip reads frames start .. start + F - 1, segment_video starts its first window
-            there. Not used by segment_frames / segment_pair (they are given their images).
+        start: index of the first frame read from a video or frame folder (0-based; not used for given images).
         k: force this many motions (None = automatic K).
-        method: how tracks become motions (SEGMENT_METHODS): "subspacenet" embeds them and clusters
-            the embeddings (cluster, rigid); "geometric" fits rigid motions to them one after another
-            (mosegpipe.grouping.group_geometric with `geometric`; no embedding, no rigid-motion check);
-            "joint" clusters the embeddings (cluster), then splits, merges and moves tracks by the
-            model each group selects (mosegpipe.geometry_select with `joint`, after the rigid-motion check).
-            Pairs are always segmented with the embedding.
+        method: how tracks become motions (types.SegmentMethod); pairs are always segmented with the embedding.
         min_tracks: fewer surviving tracks / matches than this is an error (too little texture).
-        tracker: where a clip's points come from (`mosegpipe.flow_tracks.TRACKERS`): "klt" corners,
-            "flow" (a grid carried along the dense flow) or "klt+flow" (both). Whole videos track
-            with KLT whatever this says.
+        tracker: where a clip's points come from (types.PointSource); whole videos track KLT corners.
         track: KLT settings.
-        flow_tracks: the settings of the flow tracker.
+        flow_tracks: the settings of the flow tracker (its dense flow: `flow`).
         match: SIFT matching settings (pairs).
         cluster: automatic-K settings.
-        rigid: the rigid-motion check after automatic K (clips, whole videos, tracks; not pairs, not
-            with k given): groups of tracks that their cluster's rigid motion does not explain
-            become clusters of their own (mosegpipe.rigid).
+        rigid: the rigid-motion check after automatic K (clips, whole videos, tracks; not pairs, not with k given).
         geometric: the settings of method "geometric".
         joint: the settings of method "joint".
-        mask: dense-mask settings.
+        mask: dense-mask settings (and, as mask.motion.flow, the dense flow: the property `flow`).
         world: how the world's motion (label 0) is told from the moving ones (mosegpipe.world).
-        outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix RANSAC fit explains less
-            than this fraction of its points is labelled as outliers.
-        video_k_step: whole videos: a window tries K up to the previous window's K plus this (and at
-            most cluster.k_max), so K rises by at most this much every F - 1 frames; None = the full
-            sweep in every window. The sweep's larger K cost the most K-means time; on the long
-            rendered clips the limit changed no segmentation (docs/RESULTS.md, "Speed").
-        video_cut_survival: whole videos: a frame into which fewer than this fraction of the previous
-            frame's tracks survive (of at least 2 * min_tracks) is a shot cut: the window ends on the
-            frame before it, and tracking and clustering start afresh on it. None = no cut detection.
+        outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix fit explains less of it is outliers.
+        video_k_step: whole videos: a window tries K up to the previous window's K plus this (None = the full sweep).
+        video_cut_survival: whole videos: fewer surviving tracks than this share is a shot cut (None = no cut detection).
     """
 
     frames: int = 5

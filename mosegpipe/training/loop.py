@@ -29,15 +29,16 @@ Sampler = Callable[[np.random.Generator], LabeledClip]
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Hyper-parameters of one training run.
+    """Hyper-parameters of one training run, one line each; the loss and the schedule were chosen as
+    docs/HISTORY.md tells ("Losses (the paper's Table 2)", "What made the difference, and how it was chosen").
 
     Attributes:
         frames: trajectory length F the model is trained for (input dimension 2F).
-        loss: a name in losses.LOSSES ("l2", "mimi", "ce", ...).
+        loss: a name in types.LossName; "l2" scored best in the losses study.
         alpha: MaxInterMinIntra weight of the inter-cluster term.
         steps: optimiser steps.
         batch_size: clips per step (padded batch).
-        lr: peak Adam learning rate; cosine decay to lr * lr_min_ratio, after `warmup` linear steps.
+        lr: peak Adam learning rate; cosine decay to lr * lr_min_ratio after `warmup` linear steps.
         lr_min_ratio: final learning rate as a fraction of lr.
         warmup: linear warm-up steps.
         max_points: clips with more points are randomly subsampled to this many per step (speed).
@@ -49,9 +50,6 @@ class TrainConfig:
     """
 
     frames: int = 5
-    # L2 is the default: in the losses study (docs/RESULTS.md, 600 steps, two folds) it scores 11.58 / 7.37 %
-    # on KT3DMoSeg / AdelaideRMF against 12.58 / 9.79 % for the paper's MaxInterMinIntra ("mimi") and
-    # 30.42 / 10.64 % for the worst-point form ("mimi-point"), whose intra gradient reaches one point per clip.
     loss: str = "l2"
     alpha: float = 0.5
     steps: int = 2000

@@ -51,25 +51,18 @@ def class_ids_of(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.uint16]:
 
 @dataclass(frozen=True)
 class VizConfig:
-    """Settings of the Rerun recording.
+    """Settings of the Rerun recording, one line each; sizes measured by benchmarks/output_size.py
+    (docs/OUTPUTS.md, "recording.rrd").
 
     Attributes:
-        jpeg_quality: frames are stored as JPEG of this quality (1-100), 0 = raw RGB. Measured on
-            5 frames of vtest.avi at 640x480 with masks and ~440 tracks: 0.52 MB at 85 against
-            4.3 MB raw, written in about the same time (40-90 ms).
+        jpeg_quality: frames are stored as JPEG of this quality (1-100), 0 = raw RGB.
         mask_opacity: opacity of the segmentation over the frame, 0..1.
         point_radius_px: radius of the track points, pixels (UI points would scale with zoom).
         line_radius_px: half-width of the track history lines, pixels.
-        trail_frames: frames of history drawn per track (None = all since the first frame);
-            long videos get cluttered otherwise.
-        embedding_radius: radius of the embedding points, in units of the display cube
-            (half-size EMBEDDING_BOX = 1).
-        max_side_px: frames (and masks, points) larger than this on their longer side are
-            downscaled before logging (None = never); keeps whole-video recordings small.
-        video_frames: how a VideoRecorder stores the frames: "h264" one H.264 MP4 (AssetVideo, no
-            B-frames) and a VideoFrameReference per frame, "jpeg" an image per frame as for clips
-            (the whole recording of vtest.avi 1.8x larger: benchmarks/output_size.py). Clips
-            always log images.
+        trail_frames: frames of history drawn per track (None = all since the first frame).
+        embedding_radius: radius of the embedding points, in units of the display cube (half-size EMBEDDING_BOX = 1).
+        max_side_px: frames (masks, points) larger than this on their longer side are downscaled first (None = never).
+        video_frames: whole videos: "h264" one MP4 and a frame reference per frame, or "jpeg" an image per frame.
     """
 
     jpeg_quality: int = 85
