@@ -33,18 +33,21 @@ from mosegpipe.cli.options import (
 from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
+from mosegpipe.learned import MASKNET_PRESET
 from mosegpipe.studies import STUDIES, Budget
-from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, RECIPE_NAMES
+from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, RECIPE_NAMES, TRAIN_PRESETS
 
 if TYPE_CHECKING:
     PresetChoice: TypeAlias = StrEnum
+    TrainPresetChoice: TypeAlias = StrEnum
     LossChoice: TypeAlias = StrEnum
     ProtocolChoice: TypeAlias = StrEnum
     VariantChoice: TypeAlias = StrEnum
     StudyChoice: TypeAlias = StrEnum
     BudgetChoice: TypeAlias = StrEnum
 else:  # the registries and vocabularies of the library (light modules: they import nothing heavy)
-    PresetChoice = _choices("PresetChoice", RECIPE_NAMES)  # train --preset, eval --recipe
+    PresetChoice = _choices("PresetChoice", RECIPE_NAMES)  # eval --recipe
+    TrainPresetChoice = _choices("TrainPresetChoice", TRAIN_PRESETS)  # train --preset
     LossChoice = _choices("LossChoice", LOSS_NAMES)  # --loss
     ProtocolChoice = _choices("ProtocolChoice", list(PROTOCOLS))  # eval PROTOCOL
     VariantChoice = _choices("VariantChoice", get_args(Variant))  # eval --variant
@@ -62,13 +65,14 @@ def _protocol_help() -> str:
 @_friendly
 def train(
     preset: Annotated[
-        PresetChoice,
+        TrainPresetChoice,
         typer.Option(
             "--preset",
             help="Named recipe: clip-f5 (the shipped 5-frame model), base-f5 (its starting point), synthetic-f5, "
-            "pair-f2 (the shipped two-view model), synthetic-f2, lce (the paper's LCE study).",
+            "pair-f2 (the shipped two-view model), synthetic-f2, lce (the paper's LCE study); masknet (the shipped "
+            "mask network of --mask-method learned; --steps, --batch-size, --lr, --seed apply).",
         ),
-    ] = PresetChoice(RECIPE_NAMES[0]),
+    ] = TrainPresetChoice(TRAIN_PRESETS[0]),
     out: Annotated[Path, typer.Option("--out", "-o", help="Checkpoint file to write.")] = Path("runs/model.pt"),
     steps: Annotated[int | None, typer.Option("--steps", min=1, help="Override the recipe's step count.")] = None,
     batch_size: Annotated[
@@ -103,6 +107,9 @@ def train(
     synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
     """
     _setup(threads, verbose)
+    if _value(preset) == MASKNET_PRESET:
+        _train_masknet(out, _data_root(data_root), steps, batch_size, lr, seed, (loss, init, exclude, time_budget))
+        return
     from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
 
@@ -129,6 +136,46 @@ def train(
         ),
     )
     typer.echo(f"wrote {out} ({result.steps_done} steps, {result.seconds:.0f} s)")
+
+
+def _train_masknet(
+    out: Path,
+    root: Path,
+    steps: int | None,
+    batch_size: int | None,
+    lr: float | None,
+    seed: int | None,
+    unused: tuple[object, ...],
+) -> None:
+    """train --preset masknet: the mask network's recipe (mosegpipe.learned.train), with the overrides given."""
+    if any(u is not None for u in unused):
+        raise InputError("train --preset masknet: --loss, --init, --exclude and --time-budget do not apply")
+    from dataclasses import replace
+
+    from mosegpipe.learned.train import MaskTrainConfig, train_masknet
+
+    base = MaskTrainConfig()
+    cfg = replace(
+        base,
+        steps=base.steps if steps is None else steps,
+        batch_size=base.batch_size if batch_size is None else batch_size,
+        lr=base.lr if lr is None else lr,
+        seed=base.seed if seed is None else seed,
+    )
+    typer.echo(f"training masknet: {cfg.steps} steps × {cfg.batch_size} crops, sources {dict(cfg.sources)}")
+    record = train_masknet(
+        out,
+        root,
+        cfg,
+        command=" ".join(["moseg", *sys.argv[1:]]),
+        on_log=lambda e: typer.echo(
+            f"step {int(e['step']):>6}  loss {e['loss']:.4f}  held-out J {e['held_out_j']:.3f} "
+            f"(threshold {e['threshold']})  {e['cpu_s']:.0f} CPU s"
+        ),
+    )
+    typer.echo(
+        f"wrote {out} (step {record['chosen_step']}, threshold {record['threshold']}, held-out J {record['held_out_j']})"
+    )
 
 
 @_friendly

@@ -235,7 +235,8 @@ MaskMethod = Annotated[
     MaskMethodChoice,
     typer.Option(
         "--mask-method",
-        help="Dense masks: motion (default: pixels whose optical flow the camera's motion does not explain, labelled by the tracks), watershed (track labels flooded along image edges), nearest (nearest track) or vote.",
+        help="Dense masks: motion (default: pixels whose optical flow the camera's motion does not explain, labelled by the tracks), watershed (track labels flooded along image edges), nearest (nearest track), vote, or learned (the moving pixels "
+        "from a small network instead of the hand-made steps, mosegpipe/weights/masknet.pt).",
         rich_help_panel=_MASKS,
     ),
 ]

@@ -31,8 +31,11 @@ PointSource = Literal["klt", "flow", "klt+flow"]
 carried along the dense flow (`flow_tracks.track_flow`), or both (`flow_tracks.combine_tracks`)."""
 TRACKERS: tuple[PointSource, ...] = get_args(PointSource)
 
-MaskMethod = Literal["motion", "watershed", "nearest", "vote"]
-"""How sparse labels become dense masks (MaskConfig.method, mosegpipe.masks)."""
+MaskMethod = Literal["motion", "watershed", "nearest", "vote", "learned"]
+"""How sparse labels become dense masks (MaskConfig.method, mosegpipe.masks); "learned" is "motion" with the
+moving pixels found by a small network (mosegpipe.learned) instead of the hand-made chain."""
+FLOW_MASK_METHODS: tuple[MaskMethod, ...] = ("motion", "learned")
+"""The mask methods that find moving pixels in the dense flow of a clip or window (the rest use tracks only)."""
 MASK_METHODS: tuple[MaskMethod, ...] = get_args(MaskMethod)
 
 PresetName = Literal["best", "balanced", "fast"]
@@ -60,6 +63,10 @@ RecipeName = Literal[
 """Named training recipes (`mosegpipe.training.recipes.RECIPES`, `moseg train --preset`); the first is the
 shipped 5-frame model's."""
 RECIPE_NAMES: tuple[RecipeName, ...] = get_args(RecipeName)
+
+TrainPreset = Literal[RecipeName, "masknet"]
+"""`moseg train --preset`: the recipes, then the mask network's (`mosegpipe.learned.train`, mask method "learned")."""
+TRAIN_PRESETS: tuple[TrainPreset, ...] = get_args(TrainPreset)
 
 LossName = Literal["mimi", "l2", "l2-balanced", "ce", "triplet", "lifted", "facility", "mimi-point", "mimi-mean"]
 """Training losses (`mosegpipe.training.losses.LOSSES`, `--loss`)."""

@@ -468,11 +468,21 @@ def test_choices_come_from_the_library() -> None:
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
+    from mosegpipe.learned import MASKNET_PRESET
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.studies import STUDIES, Budget
     from mosegpipe.training.losses import LOSSES
     from mosegpipe.training.recipes import RECIPES
-    from mosegpipe.types import BASELINE_NAMES, ENGINES, K_METHODS, LOSS_NAMES, RECIPE_NAMES, SEGMENT_METHODS, TRACKERS
+    from mosegpipe.types import (
+        BASELINE_NAMES,
+        ENGINES,
+        K_METHODS,
+        LOSS_NAMES,
+        RECIPE_NAMES,
+        SEGMENT_METHODS,
+        TRACKERS,
+        TRAIN_PRESETS,
+    )
 
     vocabularies = {
         cli_options.KMethodChoice: K_METHODS,
@@ -485,11 +495,13 @@ def test_choices_come_from_the_library() -> None:
         cli_evaluate.VariantChoice: typing.get_args(Variant),
         cli_evaluate.BudgetChoice: typing.get_args(Budget),
         cli_evaluate.PresetChoice: RECIPE_NAMES,
+        cli_evaluate.TrainPresetChoice: TRAIN_PRESETS,
         cli_evaluate.LossChoice: LOSS_NAMES,
     }
     for choice, names in vocabularies.items():
         assert tuple(c.value for c in choice) == tuple(names), choice
     assert (tuple(RECIPES), tuple(LOSSES), tuple(BASELINES)) == (RECIPE_NAMES, LOSS_NAMES, BASELINE_NAMES)
+    assert TRAIN_PRESETS == (*RECIPE_NAMES, MASKNET_PRESET)
     defaults = (ClusterConfig().method, MaskConfig().method, PipelineConfig().method, PipelineConfig().tracker)
     assert defaults == (K_METHODS[0], MASK_METHODS[0], SEGMENT_METHODS[0], TRACKERS[0])
     group = typer.main.get_command(app)
@@ -504,7 +516,7 @@ def test_train_help_lists_every_loss_and_recipe() -> None:
 
     code, out, _ = moseg("train", "--help")
     assert code == 0
-    for name in [*LOSSES, *RECIPES]:
+    for name in [*LOSSES, *RECIPES, "masknet"]:
         assert name in out, name
     # A short choice list stays in the type column; a long one that the help text names shows as <name>.
     for command, listed in [("study", "cpu|full"), ("eval", "vanilla|augment")]:

@@ -7,7 +7,7 @@ masks (MotionMaskConfig, MaskConfig). Each stage's module re-exports its own (`m
 from __future__ import annotations
 
 from mosegpipe.configs.grouping import ClusterConfig, GeometricConfig, JointConfig, RigidCheckConfig, WorldConfig
-from mosegpipe.configs.masks import MaskConfig, MotionMaskConfig
+from mosegpipe.configs.masks import LearnedMaskConfig, MaskConfig, MotionMaskConfig
 from mosegpipe.configs.tracking import FlowConfig, FlowTrackConfig, MatchConfig, TrackConfig
 
 __all__ = [
@@ -16,6 +16,7 @@ __all__ = [
     "FlowTrackConfig",
     "GeometricConfig",
     "JointConfig",
+    "LearnedMaskConfig",
     "MaskConfig",
     "MatchConfig",
     "MotionMaskConfig",

@@ -108,6 +108,32 @@ _MOTION_CHECKS: tuple[Check, ...] = (
 
 
 @dataclass(frozen=True)
+class LearnedMaskConfig:
+    """Settings of the "learned" masks (`MaskConfig.learned`, mosegpipe.learned); the threshold is the masknet
+    recipe's choice on the held-out development clips (docs/HISTORY.md, "Learned masks").
+
+    Attributes:
+        threshold: a pixel is moving where the network's probability of "not the world" is above this.
+        scale: the network's input is the frame resized by this; its probability is resized back (linear).
+        weights: checkpoint of the mask network ("" = the shipped one, mosegpipe/weights/masknet.pt).
+    """
+
+    threshold: float = 0.7
+    scale: float = 0.25
+    weights: str = ""
+
+    def __post_init__(self) -> None:
+        check_fields(self, _LEARNED_CHECKS)
+
+
+_LEARNED_CHECKS: tuple[Check, ...] = (
+    ("threshold", lambda v: 0 < v < 1, "lie in (0, 1)"),
+    ("scale", lambda v: 0.05 <= v <= 1, "lie in [0.05, 1]"),
+)
+"""LearnedMaskConfig's checks: (field, test, what it must be)."""
+
+
+@dataclass(frozen=True)
 class MaskConfig:
     """Settings of densifying track labels, one line each (the methods: mosegpipe.masks); how the values were
     chosen is in docs/HISTORY.md ("Dense masks: densifiers compared", "Moving regions that no clustered motion
@@ -115,7 +141,7 @@ class MaskConfig:
 
     Attributes:
         max_distance_px: pixels farther than this from every labelled track are unknown (255).
-        method: types.MaskMethod: "motion", "watershed", "nearest" or "vote".
+        method: types.MaskMethod: "motion", "watershed", "nearest", "vote" or "learned".
         vote_k: tracks consulted per pixel by "vote" (and by min_agree).
         vote_downsample: "vote" labels every n-th pixel and upsamples (nearest).
         median_px: odd size of a median filter over the label image (0 or 1 = off).
@@ -126,7 +152,8 @@ class MaskConfig:
         unexplained_px: "motion", clips: regions missing their motion's homography by more take 254 (`split_unexplained`; 0 = off).
         unexplained_area: smallest such region, as a share of the frame's pixels.
         unexplained_rigid: ... and the share of its pixels its own homography must explain (0 = no such test).
-        motion: "motion": the flow and mask settings (mosegpipe.motion).
+        motion: "motion": the flow and mask settings (mosegpipe.motion); "learned": its flow settings.
+        learned: "learned": the mask network's settings (mosegpipe.learned).
     """
 
     max_distance_px: float = 40.0
@@ -142,6 +169,7 @@ class MaskConfig:
     unexplained_area: float = 0.002
     unexplained_rigid: float = 0.8
     motion: MotionMaskConfig = field(default_factory=MotionMaskConfig)
+    learned: LearnedMaskConfig = field(default_factory=LearnedMaskConfig)
 
     def __post_init__(self) -> None:
         check_fields(self, _MASK_CHECKS)

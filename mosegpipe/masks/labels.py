@@ -9,7 +9,7 @@ import numpy.typing as npt
 
 from mosegpipe.configs.masks import MaskConfig
 from mosegpipe.errors import InputError
-from mosegpipe.types import Tracks
+from mosegpipe.types import FLOW_MASK_METHODS, Tracks
 
 MAX_LABEL = 254
 """Largest motion label a uint8 mask can hold (the mask value is the label)."""
@@ -182,7 +182,7 @@ def labels_to_mask(
     if not inside.any():
         return np.full((height, width), UNKNOWN, dtype=np.uint8)
     values = labels[inside].astype(np.uint8)
-    if cfg.method in ("watershed", "motion") and image is not None:
+    if (cfg.method == "watershed" or cfg.method in FLOW_MASK_METHODS) and image is not None:
         mask = _watershed(image, xy[inside], xy_int[inside], values, cfg)  # type: ignore[arg-type]
     elif cfg.method == "vote":
         mask = _vote(xy[inside], values, (height, width), cfg)  # type: ignore[arg-type]

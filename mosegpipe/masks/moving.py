@@ -12,6 +12,7 @@ import numpy.typing as npt
 
 from mosegpipe.colours import WORLD
 from mosegpipe.flow import FrameMotion
+from mosegpipe.learned.moving import learned_moving
 from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, _nearest, labels_to_mask
 from mosegpipe.motion import moving_masks, stack_motion
 from mosegpipe.types import Tracks
@@ -153,23 +154,27 @@ def motion_masks(
     after: npt.NDArray[np.uint8] | None = None,
     motion: FrameMotion | None = None,
 ) -> npt.NDArray[np.uint8]:
-    """The "motion" masks of a clip: moving pixels from the dense flow, labelled by the clip's tracks.
+    """The "motion" (or "learned") masks of a clip: moving pixels from the dense flow, labelled by the clip's tracks.
 
     Args:
         images: (T, H, W, 3) uint8 RGB, T >= 2.
         tracks: the clip's tracks.
         track_ids: (M,) int64 rows of `tracks` that carry labels.
         labels: (M,) int64 their labels; 0 is the world (WORLD, `mosegpipe.world`).
-        cfg: mask settings (cfg.motion; the watershed's for the borders between moving motions).
+        cfg: mask settings (cfg.motion; cfg.learned when cfg.method is "learned"; the watershed's for the
+            borders between moving motions).
         before, after: the source's frames next to the clip, as evidence (`motion.moving_masks`).
         motion: `motion.stack_motion` of the clip, if already computed (None = computed here).
 
     Returns:
         (T, H, W) uint8 masks.
     """
-    if motion is None and cfg.unexplained_px > 0:
+    if motion is None and (cfg.unexplained_px > 0 or cfg.method == "learned"):
         motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
-    moving = moving_masks(images, cfg.motion, before=before, after=after, motion=motion)
+    if cfg.method == "learned" and motion is not None:  # the mask network in place of the hand-made chain
+        moving = learned_moving(images, motion, cfg.learned)
+    else:
+        moving = moving_masks(images, cfg.motion, before=before, after=after, motion=motion)
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     background = WORLD
     out = np.empty(moving.shape, dtype=np.uint8)

@@ -34,7 +34,7 @@ from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import label_by_rigid_motion
 from mosegpipe.track import spread_corners, track_klt, track_points
 from mosegpipe.trajectories import build_trajectories
-from mosegpipe.types import Clustering, Frames, Tracks, Trajectories
+from mosegpipe.types import FLOW_MASK_METHODS, Clustering, Frames, Tracks, Trajectories
 from mosegpipe.world import explain_parallax
 
 
@@ -111,7 +111,7 @@ def _uses_flow_points(frames: Frames, cfg: PipelineConfig) -> bool:
 
 
 def _uses_motion_masks(frames: Frames, cfg: PipelineConfig) -> bool:
-    return cfg.mask.method == "motion" and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.flow)
+    return cfg.mask.method in FLOW_MASK_METHODS and frames.num_frames >= 2 and flow_fits(frames.size_hw, cfg.flow)
 
 
 def clip_tracks(frames: Frames, cfg: PipelineConfig, motion: FrameMotion | None = None) -> Tracks:
@@ -222,8 +222,10 @@ def clip_masks(
     Returns:
         (T, H, W) uint8 masks, 255 = unknown.
     """
-    if cfg.mask.method == "motion" and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.flow):
-        if motion is not None:  # the world's 3D structure: its parallax is not motion
+    if cfg.mask.method in FLOW_MASK_METHODS and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.flow):
+        # the world's 3D structure: its parallax is not motion (the mask network takes the camera residual
+        # as it was trained on it, before this step)
+        if motion is not None and cfg.mask.method == "motion":
             motion = explain_parallax(motion, tracks.xy[track_ids], labels, cfg.world)
         return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion)
     budget = cfg.mask.extra_tracks
@@ -251,7 +253,7 @@ def _with_context(path: str | Path, cfg: PipelineConfig) -> Frames | None:
     Frames.before / after (evidence for the motion masks), read in one pass; None when the masks do
     not use them, or the clip with its neighbours cannot be read (the caller then reads the clip alone,
     and reports what is wrong with it)."""
-    if cfg.mask.method != "motion" or not cfg.flow.both_directions:
+    if cfg.mask.method not in FLOW_MASK_METHODS or not cfg.flow.both_directions:
         return None
     lead = 1 if cfg.start > 0 else 0
     try:

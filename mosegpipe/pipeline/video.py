@@ -33,6 +33,7 @@ from mosegpipe.flow import FlowStream, FrameMotion, flow_fits
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
+from mosegpipe.learned.moving import learned_moving
 from mosegpipe.masks import (
     MOVING_UNCLUSTERED,
     UNKNOWN,
@@ -48,7 +49,7 @@ from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_ma
 from mosegpipe.runtime import run_ahead
 from mosegpipe.track import KLTTracker, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories
-from mosegpipe.types import Trajectories
+from mosegpipe.types import FLOW_MASK_METHODS, Trajectories
 from mosegpipe.world import explain_parallax
 
 log = logging.getLogger("mosegpipe.pipeline.video")
@@ -157,7 +158,7 @@ def segment_video(
     with contextlib.ExitStack() as stack:
         # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
-        stream = stack.enter_context(FlowStream(cfg.flow)) if cfg.mask.method == "motion" else None
+        stream = stack.enter_context(FlowStream(cfg.flow)) if cfg.mask.method in FLOW_MASK_METHODS else None
         windows = stack.enter_context(
             contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
         )
@@ -410,13 +411,17 @@ def _label_window(
     ]
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
     if stream is not None and motion is not None:
-        if found.track_ids.size:  # the world's 3D structure: its parallax is not motion
+        if found.track_ids.size and cfg.mask.method == "motion":  # the world's 3D structure: its parallax is not motion
             motion = explain_parallax(motion, found.xy, found.labels, cfg.world)
         indices = [t for t, _, _, _ in window]
         images = np.stack([img for _, img, _, _ in window])
         shown = _shown_motions(run.last_mask)
         anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
-        moving = moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
+        moving = (
+            learned_moving(images, motion, cfg.mask.learned, first=skip)
+            if cfg.mask.method == "learned"
+            else moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
+        )
         stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
         run.frame_before = indices[-2]
     labelled = []

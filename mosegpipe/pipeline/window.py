@@ -14,6 +14,7 @@ from mosegpipe.masks import (
     labels_to_mask,
     moving_to_labels,
 )
+from mosegpipe.types import FLOW_MASK_METHODS
 
 AMBIGUOUS_K_NOTE = "the K choice is ambiguous"
 """How cluster_auto_k's note (and warning) for an ambiguous K choice starts."""
@@ -35,7 +36,7 @@ class VideoFrame:
             the label the window before gave it.
         mask: (H, W) uint8, label = motion, 255 = unknown; None when segment_video was asked for
             no masks (see `frame_mask`).
-        moving: (H, W) bool moving pixels from the window's dense flow (mask method "motion"); None
+        moving: (H, W) bool moving pixels from the window's dense flow (mask methods "motion", "learned"); None
             with the other methods and in windows of one frame.
     """
 
@@ -56,7 +57,7 @@ def frame_mask(frame: VideoFrame, cfg: MaskConfig = MaskConfig()) -> npt.NDArray
     """
     if frame.mask is not None:
         return frame.mask
-    if cfg.method == "motion" and frame.moving is not None:
+    if cfg.method in FLOW_MASK_METHODS and frame.moving is not None:
         return moving_to_labels(frame.moving, frame.xy, frame.labels, image=frame.image, cfg=cfg)
     keep = frame.labels >= 0
     return labels_to_mask(frame.xy[keep], frame.labels[keep], frame.image.shape[:2], cfg, frame.image)

@@ -1,0 +1,59 @@
+"""The mask step alone at 640x480, one thread: the "learned" masks (features + network + threshold) against the
+"motion" chain (`moving_from_motion`), on the same frames and the same flow evidence, in the same run; CPU ms
+per frame (process time), alternating the two so that the machine's load hits both alike. The flow (shared by
+both, and by the tracks) is computed once beforehand and not counted.
+
+Frames: 5-frame windows of DAVIS development clips resized to 640x480 (with the frame after as evidence, as a
+clip run has it). Usage: python benchmarks/learned_masks.py [DATA_ROOT] [ROUNDS]
+"""
+
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mosegpipe.data.davis import read_davis_clip
+from mosegpipe.learned.features import LearnedMaskConfig, clip_features
+from mosegpipe.learned.moving import learned_moving
+from mosegpipe.learned.net import load_masknet, predict
+from mosegpipe.motion import MotionMaskConfig, moving_from_motion, stack_motion
+from mosegpipe.runtime import set_threads
+
+set_threads(1)
+root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1].parent / "shared" / "data"
+rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 3
+motion_cfg, learned_cfg = MotionMaskConfig(), LearnedMaskConfig()
+stacks = []
+for name in ("bear", "dance-jump", "hockey", "soccerball"):
+    clip = read_davis_clip(root, name, max_frames=6)
+    images = np.stack([cv2.resize(im, (640, 480), interpolation=cv2.INTER_AREA) for im in clip.images])
+    stacks.append((images[:5], stack_motion(images[:5], motion_cfg, after=images[5])))
+net = load_masknet()
+learned_moving(*stacks[0], learned_cfg)  # torch's first call
+cpu = {"motion": 0.0, "learned": 0.0, "features": 0.0, "network": 0.0}
+frames = 0
+for _ in range(rounds):
+    for images, motion in stacks:
+        c0 = time.process_time()
+        moving_from_motion(images, motion, motion_cfg)
+        c1 = time.process_time()
+        learned_moving(images, motion, learned_cfg)
+        c2 = time.process_time()
+        feats = clip_features(images, motion, learned_cfg.scale)
+        c3 = time.process_time()
+        predict(net, feats)
+        c4 = time.process_time()
+        cpu["motion"] += c1 - c0
+        cpu["learned"] += c2 - c1
+        cpu["features"] += c3 - c2
+        cpu["network"] += c4 - c3
+        frames += len(images)
+print("| mask step, 640x480, one thread | CPU ms / frame |")
+print("|---|---|")
+print(f"| motion chain (`moving_from_motion`) | {1000 * cpu['motion'] / frames:.1f} |")
+print(f"| learned (`learned_moving`) | {1000 * cpu['learned'] / frames:.1f} |")
+print(f"| of which features | {1000 * cpu['features'] / frames:.1f} |")
+print(f"| of which network | {1000 * cpu['network'] / frames:.1f} |")
+print(f"({frames} frames per method; load {open('/proc/loadavg').read().split()[0]})")

@@ -1,0 +1,154 @@
+"""MaskNet: a small convolutional encoder-decoder from the flow evidence to "not the world" per pixel.
+
+A U-Net of four levels (the input's size, 1/2, 1/4, 1/8 of it), each one or two 3x3 convolutions (`CONVS`)
+with batch norm and ReLU, the decoder upsampling (bilinear) and joining the encoder's level of the same size.
+Input: `features.NUM_CHANNELS` channels at 1/4 of the frame size (`features.clip_features`); output:
+one logit per pixel of the same size. About 190 thousand parameters (0.8 MB of float32).
+
+Inference runs in torch on the CPU with the process's thread count (`runtime.set_threads`; one by
+default). The shipped weights (mosegpipe/weights/masknet.pt) are a plain dict of tensors and settings,
+read with `torch.load(weights_only=True)`, offline.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from mosegpipe.architecture import weights_dir
+from mosegpipe.errors import CheckpointError
+from mosegpipe.learned.features import NUM_CHANNELS
+
+WIDTHS = (8, 24, 48, 64)
+"""Channels per level of the encoder (and, mirrored, of the decoder)."""
+
+CONVS = (1, 1, 2, 2)
+"""3x3 convolutions per level (the decoder's too): one at the two largest sizes, where they cost most."""
+
+WEIGHTS_FILE = "masknet.pt"
+"""The shipped checkpoint's file name in mosegpipe/weights/."""
+
+
+def _block(cin: int, cout: int, convs: int = 2) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(convs):
+        layers += [nn.Conv2d(cin if i == 0 else cout, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout)]
+        layers.append(nn.ReLU(inplace=True))
+    return nn.Sequential(*layers)
+
+
+class MaskNet(nn.Module):
+    """(B, C, h, w) features -> (B, 1, h, w) logits of "not the world"; any h, w >= 8."""
+
+    def __init__(self, in_channels: int = NUM_CHANNELS, widths: tuple[int, ...] = WIDTHS) -> None:
+        super().__init__()
+        self.in_channels = in_channels
+        self.widths = tuple(widths)
+        self.down = nn.ModuleList()
+        cin = in_channels
+        for i, w in enumerate(widths):
+            self.down.append(_block(cin, w, CONVS[i]))
+            cin = w
+        self.up = nn.ModuleList(_block(widths[i + 1] + widths[i], widths[i], CONVS[i]) for i in range(len(widths) - 1))
+        self.head = nn.Conv2d(widths[0], 1, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for i, block in enumerate(self.down):
+            if i > 0:
+                x = F.max_pool2d(x, 2, ceil_mode=True)
+            x = block(x)
+            skips.append(x)
+        for i in range(len(self.up) - 1, -1, -1):
+            skip = skips[i]
+            x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            x = self.up[i](torch.cat([x, skip], dim=1))
+        out: torch.Tensor = self.head(x)
+        return out
+
+    def fused(self) -> MaskNet:
+        """This network, in eval mode, with each batch norm folded into the convolution before it (the same
+        function in fewer passes over the image: inference only)."""
+        from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+        self.eval()
+        for seq in [*self.down, *self.up]:
+            for i in range(0, len(seq), 3):  # (Conv2d, BatchNorm2d, ReLU) per convolution
+                conv, bn = seq[i], seq[i + 1]
+                if isinstance(conv, nn.Conv2d) and isinstance(bn, nn.BatchNorm2d):
+                    seq[i], seq[i + 1] = fuse_conv_bn_eval(conv, bn), nn.Identity()
+        return self
+
+    def num_params(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+    def checkpoint(self, recipe: dict[str, Any] | None = None) -> dict[str, Any]:
+        """A `torch.load(weights_only=True)`-loadable dict: the weights, the architecture, the recipe."""
+        return {
+            "kind": "masknet",
+            "in_channels": self.in_channels,
+            "widths": list(self.widths),
+            "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
+            "recipe": recipe or {},
+        }
+
+    def save(self, path: str | Path, recipe: dict[str, Any] | None = None) -> None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save(self.checkpoint(recipe), tmp)
+        tmp.replace(path)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path) -> MaskNet:
+        """The network of a checkpoint written by `save`, in eval mode.
+
+        Raises:
+            CheckpointError: the file is missing, unreadable or not a mask network's.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise CheckpointError(f"{path}: no mask network checkpoint there")
+        try:
+            ckpt = torch.load(path, weights_only=True, map_location="cpu")
+        except Exception as exc:  # noqa: BLE001 - any unreadable file is one kind of error
+            raise CheckpointError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})") from exc
+        if not isinstance(ckpt, dict) or ckpt.get("kind") != "masknet":
+            raise CheckpointError(f"{path}: not a mask network checkpoint")
+        try:
+            net = cls(int(ckpt["in_channels"]), tuple(int(w) for w in ckpt["widths"]))
+            net.load_state_dict(ckpt["state_dict"])
+        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+            raise CheckpointError(f"{path}: mask network checkpoint does not fit ({exc})") from exc
+        net.recipe = dict(ckpt.get("recipe") or {})  # type: ignore[assignment]
+        return net.eval()
+
+
+def shipped_path() -> Path:
+    return weights_dir() / WEIGHTS_FILE
+
+
+@functools.lru_cache(maxsize=4)
+def load_masknet(path: str = "") -> MaskNet:
+    """The mask network of checkpoint `path` ("" = the shipped one), loaded once per process."""
+    net = MaskNet.from_checkpoint(Path(path) if path else shipped_path()).fused()
+    # channels last: oneDNN's convolutions without reordering, about half the time on one thread (640x480: 7 ms
+    # against 13 per frame)
+    return net.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+
+
+def predict(net: MaskNet, features: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """(T, h, w) float32 probabilities of "not the world" from (T, C, h, w) features."""
+    if features.shape[1] != net.in_channels:
+        raise CheckpointError(f"mask network expects {net.in_channels} input channels, got {features.shape[1]}")
+    with torch.inference_mode():
+        x = torch.from_numpy(np.ascontiguousarray(features)).contiguous(memory_format=torch.channels_last)
+        logits = net(x)
+        return torch.sigmoid(logits[:, 0]).numpy().astype(np.float32)
