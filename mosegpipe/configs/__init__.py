@@ -1,12 +1,19 @@
 """The settings of the pipeline's stages, in modules that import no OpenCV, PyTorch or scikit-learn (the CLI
 reads its options' defaults from them for --help): tracking (TrackConfig, FlowConfig, FlowTrackConfig,
-MatchConfig), grouping (ClusterConfig, RigidCheckConfig, GeometricConfig, JointConfig, WorldConfig) and
-masks (MotionMaskConfig, MaskConfig). Each stage's module re-exports its own (`mosegpipe.track.TrackConfig`).
+MatchConfig), grouping (ClusterConfig, RigidCheckConfig, GeometricConfig, JointConfig, WorldConfig,
+LabelConfig) and masks (MotionMaskConfig, MaskConfig, LearnedMaskConfig). Each stage's module re-exports its own (`mosegpipe.track.TrackConfig`).
 """
 
 from __future__ import annotations
 
-from mosegpipe.configs.grouping import ClusterConfig, GeometricConfig, JointConfig, RigidCheckConfig, WorldConfig
+from mosegpipe.configs.grouping import (
+    ClusterConfig,
+    GeometricConfig,
+    JointConfig,
+    LabelConfig,
+    RigidCheckConfig,
+    WorldConfig,
+)
 from mosegpipe.configs.masks import LearnedMaskConfig, MaskConfig, MotionMaskConfig
 from mosegpipe.configs.tracking import FlowConfig, FlowTrackConfig, MatchConfig, TrackConfig
 
@@ -16,6 +23,7 @@ __all__ = [
     "FlowTrackConfig",
     "GeometricConfig",
     "JointConfig",
+    "LabelConfig",
     "LearnedMaskConfig",
     "MaskConfig",
     "MatchConfig",

@@ -1,5 +1,5 @@
 """Settings of the stages that group tracks into motions: automatic K, the rigid-motion check, the
-geometric and joint model fits, and the world's motion.
+geometric and joint model fits, the world's motion, and whole videos' labels across windows.
 
 Light on purpose (standard library and mosegpipe.settings / types only): the CLI takes its defaults from
 these classes without importing OpenCV or scikit-learn. Re-exported by the modules that use them
@@ -258,3 +258,36 @@ _WORLD_CHECKS: tuple[Check, ...] = (
     *((name, lambda v: v >= 0, "be >= 0") for name in ("border_weight", "continuity", "static_px", "static_floor")),
 )
 """WorldConfig's checks: (field, test, what it must be)."""
+
+
+@dataclass(frozen=True)
+class LabelConfig:
+    """How a whole video's motions keep their labels through the windows they are missing from
+    (`mosegpipe.pipeline.labels.match_labels`), one line each: a moving label no cluster continues is remembered
+    (its tracks, where it was, how it moved) and taken back by the cluster that holds most of its tracks or, for
+    new tracks, lies where its motion carried it; never the world (0). How it was chosen and measured is in
+    docs/HISTORY.md ("An object keeps its label: a memory of the labels missing from a window").
+
+    Attributes:
+        memory_windows: a label missing from more windows than this is forgotten (0 = no memory, a new label).
+        revive_share: a cluster takes a label back when at least this share of its tracks held it lately.
+        gate: new tracks take a label back within this many radii of its predicted centre (0 = by tracks only).
+        min_radius_px: the smallest radius of a remembered label (twice its tracks' RMS spread), pixels.
+    """
+
+    memory_windows: int = 4
+    revive_share: float = 0.5
+    gate: float = 1.0
+    min_radius_px: float = 16.0
+
+    def __post_init__(self) -> None:
+        check_fields(self, _LABEL_CHECKS)
+
+
+_LABEL_CHECKS: tuple[Check, ...] = (
+    ("memory_windows", lambda v: 0 <= v <= 10_000, "lie in 0..10000"),
+    ("revive_share", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("gate", lambda v: 0 <= v <= 100, "lie in 0..100"),
+    ("min_radius_px", lambda v: 0 <= v <= 100_000, "lie in 0..100000"),
+)
+"""LabelConfig's checks: (field, test, what it must be)."""

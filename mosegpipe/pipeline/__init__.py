@@ -17,7 +17,7 @@ from mosegpipe.inference import load_model
 from mosegpipe.pipeline.clip import ClipResult, clip_masks, segment_clip, segment_frames
 from mosegpipe.pipeline.common import check_rigid, decode_errors, embed_at_model_frames, model_info
 from mosegpipe.pipeline.config import PRESETS, PipelineConfig
-from mosegpipe.pipeline.labels import LabelBook, match_labels
+from mosegpipe.pipeline.labels import LabelBook, LabelConfig, match_labels
 from mosegpipe.pipeline.pair import PairResult, segment_pair
 from mosegpipe.pipeline.tracks import TracksResult, segment_tracks, tracks_clip
 from mosegpipe.pipeline.video import (
@@ -32,6 +32,7 @@ __all__ = [
     "PRESETS",
     "ClipResult",
     "LabelBook",
+    "LabelConfig",
     "PairResult",
     "PipelineConfig",
     "TracksResult",

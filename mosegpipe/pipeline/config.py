@@ -22,6 +22,7 @@ from mosegpipe.configs import (
     FlowTrackConfig,
     GeometricConfig,
     JointConfig,
+    LabelConfig,
     MaskConfig,
     MatchConfig,
     RigidCheckConfig,
@@ -97,6 +98,7 @@ class PipelineConfig:
         joint: the settings of method "joint".
         mask: dense-mask settings (and, as mask.motion.flow, the dense flow: the property `flow`).
         world: how the world's motion (label 0) is told from the moving ones (mosegpipe.world).
+        labels: whole videos: how a motion keeps its label through the windows it is missing from (pipeline.labels).
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix fit explains less of it is outliers.
         video_k_step: whole videos: a window tries K up to the previous window's K plus this (None = the full sweep).
         video_cut_survival: whole videos: fewer surviving tracks than this share is a shot cut (None = no cut detection).
@@ -117,6 +119,7 @@ class PipelineConfig:
     joint: JointConfig = field(default_factory=JointConfig)
     mask: MaskConfig = field(default_factory=MaskConfig)
     world: WorldConfig = field(default_factory=WorldConfig)
+    labels: LabelConfig = field(default_factory=LabelConfig)
     outlier_inlier_ratio: float = 0.5
     video_k_step: int | None = 2
     video_cut_survival: float | None = 0.25

@@ -1,6 +1,7 @@
-"""Motion labels kept across the windows of a whole video: `LabelBook` (the global labels handed out)
-and `match_labels` (a window's clusters -> global labels through the tracks it shares with the window
-before; Hungarian matching on the overlap counts, splits confirmed over two windows)."""
+"""Motion labels kept across the windows of a whole video: `LabelBook` (the global labels handed out, and a
+memory of the labels seen lately) and `match_labels` (a window's clusters -> global labels through the tracks
+it shares with the window before; Hungarian matching on the overlap counts, splits confirmed over two windows;
+a motion that was missing for a few windows takes its label back: `LabelConfig`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
+from mosegpipe.configs import LabelConfig
 from mosegpipe.errors import InputError
 from mosegpipe.masks import MAX_LABEL
 
@@ -18,6 +20,27 @@ _MIN_NEW_TRACKS = 15  # a cluster with fewer tracks (and fewer than _MIN_NEW_SHA
 _MIN_NEW_SHARE = 0.05  # trusted as a new motion: it joins the label most of its shared tracks carried, or
 # stays unlabelled. On the long rendered clips 15 tracks gave 2.39 labels per object, 5 % alone 2.49.
 _MIN_CONTINUED = 0.25  # a cluster continues a label only if this share of its tracks carried labels before
+
+
+@dataclass
+class LabelTrace:
+    """What is remembered of a moving label (LabelBook.memory).
+
+    Attributes:
+        tracks: track id -> the last window in which it held the label.
+        window: the last window in which the label was given.
+        frame: the last frame of that window (source index).
+        centre_xy: (2,) float64 mean position of its tracks in that frame, pixels.
+        velocity_xy: (2,) float64 their mean motion per frame over that window, pixels.
+        radius_px: twice the RMS distance of its tracks from their centre in that frame, pixels.
+    """
+
+    tracks: dict[int, int]
+    window: int
+    frame: int
+    centre_xy: npt.NDArray[np.float64]
+    velocity_xy: npt.NDArray[np.float64]
+    radius_px: float
 
 
 @dataclass
@@ -31,6 +54,8 @@ class LabelBook:
         max_label: largest label a mask can hold (mask value = label <= 254; 255 = unknown).
         pending: track id -> split candidate of the last window: the tracks of a cluster that
             split off a known motion, which kept that motion's label (see match_labels).
+        cfg: how labels are remembered.
+        memory: moving label -> what is remembered of it (the labels of the last cfg.memory_windows windows).
     """
 
     next_label: int = 0
@@ -38,6 +63,13 @@ class LabelBook:
     num_reused: int = 0
     max_label: int = MAX_LABEL
     pending: dict[int, int] = field(default_factory=dict)
+    cfg: LabelConfig = field(default_factory=LabelConfig)
+    memory: dict[int, LabelTrace] = field(default_factory=dict)
+
+    def forget(self) -> None:
+        """Forgets every remembered label (a shot cut: no motion of the new shot continues one before it)."""
+        self.memory.clear()
+        self.pending.clear()
 
     def new_label(self, busy: set[int]) -> int:
         """A label for a motion that continues none seen before: the next unused one, else the least
@@ -49,7 +81,9 @@ class LabelBook:
         if not free:
             raise InputError(f"more than {self.max_label + 1} motions live at once; masks cannot hold them")
         self.num_reused += 1
-        return min(free, key=lambda lab: self.last_window[lab])
+        label = min(free, key=lambda lab: self.last_window[lab])
+        self.memory.pop(label, None)
+        return label
 
 
 def match_labels(
@@ -60,6 +94,8 @@ def match_labels(
     book: LabelBook,
     window: int = 0,
     world: bool = False,
+    xy: npt.NDArray[np.float32] | None = None,
+    frame: int = 0,
 ) -> npt.NDArray[np.int64]:
     """Maps this window's clusters to global labels through the tracks shared with the previous window.
 
@@ -78,7 +114,12 @@ def match_labels(
     were the world is a piece of it, step 2: it stays 0 until it splits off twice). Without it, the
     cluster that continues label 0 is the world, and after a shot cut cluster 0 takes 0.
 
-    3. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
+    3. A cluster that would start a new label (steps 2 and 4), a leftover piece of a known motion or new
+       tracks, takes back a moving label that this window does not continue but `book` remembers
+       (`LabelConfig`): the one most of its tracks held lately, else (new tracks only) the one whose last
+       motion carries it to where the cluster lies (`xy`). A motion that merged into another for a window
+       and splits off again, or that was hidden, keeps its label.
+    4. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
        unless the cluster is too small to trust (fewer than _MIN_NEW_TRACKS tracks and under
        _MIN_NEW_SHARE of the window's), which stays unlabelled (-1).
 
@@ -88,8 +129,11 @@ def match_labels(
         clusters: (N,) int64 cluster of each, in 0..k-1.
         k: number of clusters in this window.
         book: the global label state (updated, its split candidates included).
-        window: index of this window (for least-recently-used label reuse).
+        window: index of this window (for least-recently-used label reuse and the label memory).
         world: cluster 0 is the world's motion and takes label 0.
+        xy: (N, T, 2) float32 positions of the tracks in this window's frames, pixels (None: the memory
+            matches by shared tracks only, and remembers no position).
+        frame: the source index of this window's first frame.
 
     Returns:
         (N,) int64 global labels.
@@ -99,13 +143,31 @@ def match_labels(
     sizes = np.bincount(clusters, minlength=k)
     small = max(min(_MIN_NEW_TRACKS, 0.25 * clusters.size), _MIN_NEW_SHARE * clusters.size)
     mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world)
+    takes_zero = world or (0 not in mapping and 0 not in mapping.values())
+    reopen = [c for c in range(k) if (c not in mapping or c in splits) and sizes[c] >= small and (c or not takes_zero)]
+    for c, lab in _revived_labels(book, ids, clusters, old, reopen, set(mapping.values()), window, xy, frame).items():
+        mapping[c] = lab
+        splits.pop(c, None)
     book.pending = {int(i): int(c) for i, c in zip(ids, clusters) if int(c) in splits}
     # The world takes label 0 (with `world`: cluster 0, always); without it, the dominant motion takes 0
     # when no cluster carries 0 on, e.g. after a camera cut.
     if world or (0 not in mapping and 0 not in mapping.values() and book.next_label > 0):
         mapping[0] = 0
         book.next_label = max(book.next_label, 1)
-    busy = set(mapping.values()) | set(prev.values())
+    _new_labels(mapping, sizes, small, book, set(mapping.values()) | set(prev.values()))
+    for lab in mapping.values():
+        if lab >= 0:
+            book.last_window[lab] = window
+    labels = np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
+    _remember(book, ids, labels, window, xy, frame)
+    return labels
+
+
+def _new_labels(
+    mapping: dict[int, int], sizes: npt.NDArray[np.int64], small: float, book: LabelBook, busy: set[int]
+) -> None:
+    """Step 4 of match_labels: a new label for each cluster not in `mapping` (-1 for one too small to trust)."""
+    k = sizes.size
     for c in range(k):
         if c in mapping:
             continue
@@ -115,10 +177,89 @@ def match_labels(
             continue
         mapping[c] = book.new_label(busy)
         busy.add(mapping[c])
-    for lab in mapping.values():
-        if lab >= 0:
-            book.last_window[lab] = window
-    return np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
+
+
+def _revived_labels(
+    book: LabelBook,
+    ids: npt.NDArray[np.int64],
+    clusters: npt.NDArray[np.int64],
+    old: npt.NDArray[np.int64],
+    reopen: list[int],
+    used: set[int],
+    window: int,
+    xy: npt.NDArray[np.float32] | None,
+    frame: int,
+) -> dict[int, int]:
+    """Step 3 of match_labels: cluster -> the remembered label it takes back, for the clusters `reopen` (those
+    of new tracks, few of which carried a label `old`, also by position), among the labels not `used` here."""
+    cfg = book.cfg
+    absent = [lab for lab, tr in book.memory.items() if lab not in used and window - tr.window <= cfg.memory_windows]
+    if not absent or not reopen:
+        return {}
+    share = np.zeros((len(reopen), len(absent)))
+    for j, lab in enumerate(absent):
+        held = np.isin(ids, np.fromiter(book.memory[lab].tracks, np.int64))
+        share[:, j] = [np.count_nonzero(held & (clusters == c)) / np.count_nonzero(clusters == c) for c in reopen]
+    share[share < cfg.revive_share] = 0
+    out: dict[int, int] = {}
+    rows, cols = linear_sum_assignment(-share)
+    for r, j in zip(rows, cols):
+        if share[r, j] > 0:
+            out[reopen[r]] = absent[j]
+    placed = [
+        c
+        for c in reopen
+        if c not in out
+        and np.count_nonzero((clusters == c) & (old >= 0)) < _MIN_CONTINUED * np.count_nonzero(clusters == c)
+    ]
+    left = [lab for lab in absent if lab not in out.values() and np.isfinite(book.memory[lab].radius_px)]
+    if cfg.gate <= 0 or xy is None or not placed or not left:
+        return out
+    dist = np.full((len(placed), len(left)), np.inf)
+    for j, lab in enumerate(left):
+        tr = book.memory[lab]
+        there = tr.centre_xy + tr.velocity_xy * (frame - tr.frame)
+        for r, c in enumerate(placed):
+            dist[r, j] = np.linalg.norm(xy[clusters == c, 0].mean(axis=0) - there) / tr.radius_px
+    dist[dist > cfg.gate] = np.inf
+    if not np.isfinite(dist).any():
+        return out
+    rows, cols = linear_sum_assignment(np.where(np.isfinite(dist), dist, 1e9))
+    for r, j in zip(rows, cols):
+        if np.isfinite(dist[r, j]):
+            out[placed[r]] = left[j]
+    return out
+
+
+def _remember(
+    book: LabelBook,
+    ids: npt.NDArray[np.int64],
+    labels: npt.NDArray[np.int64],
+    window: int,
+    xy: npt.NDArray[np.float32] | None,
+    frame: int,
+) -> None:
+    """Updates the memory of the moving labels given in this window, and forgets those missing for too long."""
+    cfg = book.cfg
+    if cfg.memory_windows == 0:
+        return
+    for lab in np.unique(labels[labels > 0]).tolist():
+        mine = labels == lab
+        trace = book.memory.get(lab)
+        tracks = {} if trace is None else {i: w for i, w in trace.tracks.items() if window - w <= cfg.memory_windows}
+        tracks.update(dict.fromkeys(ids[mine].tolist(), window))
+        centre, velocity, radius = np.full(2, np.nan), np.zeros(2), np.nan
+        if xy is not None and xy.shape[1] > 0:
+            pts = xy[mine].astype(np.float64)
+            centre = pts[:, -1].mean(axis=0)
+            velocity = (centre - pts[:, 0].mean(axis=0)) / max(xy.shape[1] - 1, 1)
+            rms = np.sqrt(np.mean(np.sum((pts[:, -1] - centre) ** 2, axis=1)))
+            radius = max(2.0 * rms, cfg.min_radius_px)
+        book.memory[lab] = LabelTrace(
+            tracks, window, frame + (0 if xy is None else xy.shape[1] - 1), centre, velocity, radius
+        )
+    for lab in [lab for lab, tr in book.memory.items() if window - tr.window > cfg.memory_windows]:
+        del book.memory[lab]
 
 
 def _continued_labels(

@@ -154,7 +154,7 @@ def segment_video(
             f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
     memory = cfg.mask.motion.colour_memory
-    run = _VideoRun(colour=ColourMemory(memory) if memory > 0 else None)
+    run = _VideoRun(book=LabelBook(cfg=cfg.labels), colour=ColourMemory(memory) if memory > 0 else None)
     with contextlib.ExitStack() as stack:
         # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
@@ -356,6 +356,7 @@ def _cluster_window(
     clustering = world_to_zero(clustering, traj.data, tracks.size_hw, cfg, before == WORLD, before >= 0, motion)
     glob = np.full(common.size, -1, np.int64)
     kept = clustering.labels >= 0  # method "joint" leaves out the tracks no model explains (-1)
+    xy_all = traj.data.reshape(common.size, len(window), 2)
     glob[kept] = match_labels(
         run.prev,
         common[kept],
@@ -364,10 +365,13 @@ def _cluster_window(
         run.book,
         run.num_windows,
         world=cfg.world.enabled,
+        xy=xy_all[kept],
+        frame=window[0][0],
     )
     keep = glob >= 0
-    xy = traj.data[keep].reshape(int(keep.sum()), len(window), 2)
-    found = _WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[keep], glob[keep], xy)
+    found = _WindowLabels(
+        clustering.k, clustering.note, dict(clustering.scores), common[keep], glob[keep], xy_all[keep]
+    )
     run.prev, run.prev_k = found.by_id(), sweep_k
     run.num_labelled += 1
     return common, found
@@ -389,7 +393,8 @@ def _label_window(
     and those between its last frame and the frame `after` it (when not None).
     """
     before = run.prev  # the last labelled window's labels: tracks that end inside this window keep theirs
-    if not first_labelled:  # a shot starts here: no mask to carry over, and its colours are new
+    if not first_labelled:  # a shot starts here: no mask to carry over, its colours are new, no motion returns
+        run.book.forget()
         run.last_mask = None
         if run.colour is not None:
             run.colour.reset()
