@@ -261,7 +261,9 @@ marks["setup"] = time.time()
 from mosegpipe.outputs import write_clip_outputs
 from mosegpipe.inference import load_embedder
 from mosegpipe.pipeline import segment_clip
+from mosegpipe.cli.clip import _import_ahead
 cfg = _pipeline_cfg(5, ClusterOptions())
+_import_ahead(cfg)
 model = load_embedder(5)
 marks["model"] = time.time()
 result = segment_clip(sys.argv[1], cfg, model)
@@ -273,12 +275,12 @@ print(json.dumps({"marks": marks, "timings": result.timings, "rrd": summary["tim
 STARTUP_PHASES = (
     ("interpreter", "Python itself, up to the first line"),
     ("CLI import", "mosegpipe.cli.main: Typer, NumPy"),
-    ("imports + setup", "OpenCV, scikit-learn, SciPy, mosegpipe; thread settings"),
+    ("imports + setup", "OpenCV, mosegpipe; thread settings (scikit-learn, SciPy, PyAV: on a thread of their own)"),
     ("model", "the shipped weights (their NumPy copy; torch only on a checkpoint's first run)"),
     ("read", "5 frames"),
     ("track", "KLT"),
     ("embed", "SubspaceNet"),
-    ("cluster", "automatic K"),
+    ("cluster", "automatic K (with any wait for scikit-learn's import)"),
     ("masks", "dense masks"),
     ("files", "masks, overlays, labels, summary"),
     ("rrd", "the recording, Rerun's import included"),

@@ -140,6 +140,7 @@ def run(
     )
     out = out or _default_out(clip, "_moseg")
     check_output_dir(out, overwrite)
+    _import_ahead(cfg)
     net = load_embedder(frames, model)
     if whole:
         with _frames_progress(clip, cfg, max_frames, quiet) as on_window:
@@ -153,6 +154,15 @@ def run(
     summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
     _print_summary(summary, out)
     _print_total(started)
+
+
+def _import_ahead(cfg: Any) -> None:
+    """What only `run`'s later steps need loads on a thread of its own while the frames are read and tracked
+    (runtime.import_ahead). Not Rerun: it imports pyarrow, which scikit-learn looks for in sys.modules while
+    it clusters."""
+    from mosegpipe.runtime import LATER_IMPORTS, import_ahead
+
+    import_ahead(*LATER_IMPORTS, *(["skimage.filters"] if cfg.mask.method == "motion" else []), "av")
 
 
 @_friendly

@@ -18,6 +18,7 @@ from typing import Any
 
 from mosegpipe.batch_plan import BatchItem, _Job, _one_line, _row, process_clip
 from mosegpipe.model import SubspaceNet
+from mosegpipe.runtime import LATER_IMPORTS
 
 log = logging.getLogger("mosegpipe.batch")
 
@@ -89,13 +90,14 @@ def _watch_parent(lifeline: Any) -> None:
 
 def _init_worker(model: SubspaceNet, job: _Job, ready: Any, lifeline: Any) -> None:
     """Pool initializer: one thread, quiet decoders, Ctrl-C left to the parent, the model kept."""
-    from mosegpipe.runtime import quiet_native_logs, set_threads
+    from mosegpipe.runtime import import_now, quiet_native_logs, set_threads
 
     threading.Thread(target=_watch_parent, args=(lifeline,), name="moseg-lifeline", daemon=True).start()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the pool on Ctrl-C
     _keep_worker_logs()
     quiet_native_logs()
     set_threads(1)
+    import_now(*LATER_IMPORTS)  # before the first clip: --clip-timeout does not count them
     model.eval()
     _WORKER.update(model=model, job=job)
     ready.put(os.getpid())
@@ -115,7 +117,7 @@ def _mp_context() -> Any:
     if "forkserver" in mp.get_all_start_methods():
         ctx = mp.get_context("forkserver")
         # Workers fork from a server that imported torch and the pipeline once.
-        ctx.set_forkserver_preload(["mosegpipe.batch"])
+        ctx.set_forkserver_preload(["mosegpipe.batch", *LATER_IMPORTS])
         return ctx
     return mp.get_context("spawn")
 

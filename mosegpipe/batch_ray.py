@@ -46,11 +46,12 @@ def _ray_task(shared: list[Any], item: BatchItem) -> Iterator[Any]:
 
     key = shared[0]
     if key not in _RAY_CACHE:
-        from mosegpipe.runtime import quiet_native_logs, set_threads
+        from mosegpipe.runtime import LATER_IMPORTS, import_now, quiet_native_logs, set_threads
 
         _keep_worker_logs()
         quiet_native_logs()
         set_threads(1)
+        import_now(*LATER_IMPORTS)  # before the first clip: --clip-timeout does not count them
         model, job = ray.get(shared[1])
         _RAY_CACHE.clear()
         _RAY_CACHE[key] = (model.eval(), job)

@@ -21,12 +21,6 @@ from dataclasses import replace
 import numpy as np
 import numpy.typing as npt
 
-# Imported here rather than on first use: scikit-learn's first import costs 1-2 s, which belongs to
-# start-up, not to the first clip's clustering time.
-from sklearn.cluster import KMeans
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.metrics import pairwise_distances
-
 from mosegpipe.configs.grouping import ClusterConfig
 from mosegpipe.errors import InputError
 from mosegpipe.runtime import limited_threads
@@ -124,12 +118,25 @@ def kmeans(
     if k > n:
         raise InputError(f"k={k} is larger than the number of points ({n})")
     # Inside cluster_auto_k's sweep the pools are already limited: limited_threads enters nothing then.
+    # scikit-learn is imported on first use (a third of `moseg run`'s start-up): the CLI imports it on a
+    # thread of its own while the frames are read and tracked (runtime.import_ahead).
+    from sklearn.cluster import KMeans
+    from sklearn.exceptions import ConvergenceWarning
+
     with limited_threads(num_threads), warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConvergenceWarning)
         model = KMeans(n_clusters=k, n_init=n_init, random_state=seed).fit(x)
     for warning in caught:
         logger.debug("K-means K=%d: %s", k, warning.message)
     return relabel_by_size(model.labels_), float(model.inertia_)
+
+
+def pairwise_distances(x: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+    """(N, N) Euclidean distances between the rows of x (scikit-learn's `pairwise_distances`, imported on first use)."""
+    from sklearn.metrics import pairwise_distances as distances
+
+    out: npt.NDArray[np.float64] = distances(x)
+    return out
 
 
 def mean_silhouette(distances: npt.NDArray[np.float64], labels: npt.NDArray[np.int64]) -> float:

@@ -130,11 +130,12 @@ def fit_camera(
     """
     h, w = flow.shape[:2]
     step = cfg.grid_step_px
-    sel = np.zeros((h, w), bool)
-    sel[step // 2 :: step, step // 2 :: step] = True
-    if usable is not None:
-        sel &= usable
-    ys, xs = np.nonzero(sel)
+    rows, cols = np.arange(step // 2, h, step), np.arange(step // 2, w, step)
+    if usable is None:
+        at_row, at_col = np.divmod(np.arange(rows.size * cols.size), cols.size)
+    else:  # the grid's usable samples, row by row (no full-size temporaries)
+        at_row, at_col = np.nonzero(usable[step // 2 :: step, step // 2 :: step])
+    ys, xs = rows[at_row], cols[at_col]
     if xs.size < 8:
         return np.eye(3)
     p = np.stack([xs, ys], axis=1).astype(np.float32)

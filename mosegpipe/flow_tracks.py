@@ -29,7 +29,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 from mosegpipe.configs.tracking import FlowTrackConfig
 from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, to_gray
@@ -139,6 +138,8 @@ def combine_tracks(klt: Tracks, dense: Tracks, distance_px: float) -> Tracks:
     first = klt.xy[klt.visible[:, 0], 0]
     keep = np.ones(dense.num_tracks, bool)
     if len(first) and dense.num_tracks and distance_px > 0:
+        from scipy.spatial import cKDTree  # on first use: see runtime.import_ahead
+
         dist, _ = cKDTree(first).query(dense.xy[:, 0], k=1)
         keep = dist > distance_px
     return Tracks(

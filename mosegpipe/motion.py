@@ -50,7 +50,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.configs.masks import MotionMaskConfig
-from mosegpipe.flow import FrameMotion, frame_motion, pixel_grid
+from mosegpipe.flow import FrameMotion, frame_motion, pixel_points
 
 
 def _resize(x: npt.NDArray[np.float32], hw: tuple[int, int]) -> npt.NDArray[np.float32]:
@@ -186,12 +186,15 @@ def _keep_strong(
     if n <= 2 or share <= 0:
         return mask
     strength = stats[1:, cv2.CC_STAT_AREA].astype(np.float64)
+    inside = comp[mask]  # the regions' pixels only (a tenth of the frame or less), in the frame's order
     if power > 0:
-        mean = np.bincount(comp.ravel(), residual.ravel().astype(np.float64), minlength=n)[1:] / strength
+        mean = np.bincount(inside, residual[mask].astype(np.float64), minlength=n)[1:] / strength
         strength *= mean**power
     keep = np.zeros(n, bool)
     keep[1:] = strength >= share * strength.max()
-    return keep[comp]
+    kept = np.zeros_like(mask)
+    kept[mask] = keep[inside]
+    return kept
 
 
 def _region_motions(regions: npt.NDArray[np.int32], n: int, anchors: Anchors, min_points: int) -> npt.NDArray[np.int64]:
@@ -233,14 +236,15 @@ def _add_anchored(
     return added
 
 
-_Maps = list[tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]
-"""Per flow, the (x, y) remap coordinates of every work-scale pixel's end point."""
+_Maps = list[npt.NDArray[np.float32]]
+"""Per flow, the (h, w, 2) (x, y) remap coordinates of every work-scale pixel's end point."""
 
 
 def _flow_maps(flows: list[npt.NDArray[np.float32]]) -> _Maps:
-    """Remap coordinates of each (work-scale) flow's end points: built once, used by every pass."""
-    xs, ys = pixel_grid(*flows[0].shape[:2])
-    return [(xs + f[..., 0], ys + f[..., 1]) for f in flows]
+    """Remap coordinates of each (work-scale) flow's end points: built once, used by every pass (one
+    two-channel map per flow: one addition instead of two strided ones, the same remap)."""
+    points = pixel_points(*flows[0].shape[:2])
+    return [points + f for f in flows]
 
 
 def _carried_along_flow(
@@ -248,12 +252,8 @@ def _carried_along_flow(
 ) -> list[npt.NDArray[np.float32]]:
     """Each score averaged with the previous and next frames' scores at the pixels the flow leads to."""
 
-    def sample(
-        score: npt.NDArray[np.float32], to: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]
-    ) -> npt.NDArray[np.float32]:
-        moved: npt.NDArray[np.float32] = cv2.remap(
-            score, to[0], to[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-        )
+    def sample(score: npt.NDArray[np.float32], to: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        moved: npt.NDArray[np.float32] = cv2.remap(score, to, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return moved
 
     out = []

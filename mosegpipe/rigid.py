@@ -47,16 +47,17 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import numpy.typing as npt
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from mosegpipe.cluster import relabel_by_size
 from mosegpipe.configs.grouping import RigidCheckConfig
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 _MIN_FUNDAMENTAL = 15  # fewer points: only the homography is fitted (8 would do, but barely constrain it)
 
@@ -141,15 +142,30 @@ def _alike(
     return np.asarray(diff <= cfg.motion_px + cfg.motion_frac * size)
 
 
+def _kdtree(points: npt.NDArray[np.float64]) -> cKDTree:
+    """SciPy's k-d tree of (N, 2) points (SciPy imported on first use: see runtime.import_ahead)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(points)
+
+
+def _connected(n: int, i: npt.NDArray[np.int64], j: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """(n,) int64 connected component of each of n nodes joined by the edges i[e] - j[e]."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
+    return np.asarray(connected_components(graph, directed=False)[1], dtype=np.int64)
+
+
 def _coherent_groups(xy: npt.NDArray[np.float64], radius: float, cfg: RigidCheckConfig) -> npt.NDArray[np.int64]:
     """Connected groups of points that lie close in frame 0 and move alike: (N,) group index."""
     disp = xy - xy[:, :1]
-    pairs = cKDTree(xy[:, 0]).query_pairs(radius, output_type="ndarray")
+    pairs = _kdtree(xy[:, 0]).query_pairs(radius, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
     alike = _alike(disp[i], disp[j], cfg)
     n = len(xy)
-    graph = coo_matrix((np.ones(int(alike.sum())), (i[alike], j[alike])), shape=(n, n))
-    return np.asarray(connected_components(graph, directed=False)[1], dtype=np.int64)
+    return _connected(n, i[alike], j[alike])
 
 
 def _merge_rigid(
@@ -229,7 +245,7 @@ def _split(
             # lines) follow when they lie next to a member, move like it and fit the group better.
             still = out[host] == c
             rest, rest_res = host[still], res[still]  # the host's residuals, computed above
-            dist, near = cKDTree(xy[members, 0]).query(xy[rest, 0], distance_upper_bound=radius)
+            dist, near = _kdtree(xy[members, 0]).query(xy[rest, 0], distance_upper_bound=radius)
             ok = np.isfinite(dist)
             rest, rest_res, near = rest[ok], rest_res[ok], members[near[ok]]
             own_res = own(xy[rest])
@@ -270,7 +286,7 @@ def _follow(
         candidates = np.concatenate(kept) if kept else rows
         frontier = sample_xy[split.members]
         while candidates.size and frontier.size:
-            tree = cKDTree(frontier[:, 0])
+            tree = _kdtree(frontier[:, 0])
             joined = np.zeros(candidates.size, dtype=bool)
             for lo in range(0, candidates.size, _CHUNK):
                 block = candidates[lo : lo + _CHUNK]
@@ -342,15 +358,14 @@ def _separate(
         if big.size < 2:
             continue
         disp = np.stack([np.median(xy[rows[pieces == g]] - xy[rows[pieces == g], :1], axis=0) for g in big])
-        trees = [cKDTree(xy[rows[pieces == g], 0]) for g in big]
+        trees = [_kdtree(xy[rows[pieces == g], 0]) for g in big]
         pairs = [
             (i, j)
             for i, j in itertools.combinations(range(big.size), 2)
             if _together(xy[rows[np.isin(pieces, big[[i, j]])]], disp[[i, j]], trees[i], trees[j], radius, cfg)
         ]
         links = np.array(pairs, dtype=np.int64).reshape(-1, 2)
-        graph = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(big.size, big.size))
-        sets = connected_components(graph, directed=False)[1]
+        sets = _connected(big.size, links[:, 0], links[:, 1])
         for k in np.argsort(-np.bincount(sets, weights=sizes[big]), kind="stable")[1:]:  # the largest keeps c
             members = rows[np.isin(pieces, big[sets == k])]
             if found >= room:
@@ -420,7 +435,7 @@ def split_by_rigid_motion(
             members = np.flatnonzero(before == c)
             rows = np.flatnonzero((out == c) & ~sampled)
             if rows.size:
-                _, near = cKDTree(sample_xy[members, 0]).query(xy[rows, 0])
+                _, near = _kdtree(sample_xy[members, 0]).query(xy[rows, 0])
                 out[rows] = sample_out[members[near]]
     out[idx] = sample_out
     return relabel_by_size(out), len(splits) + separated
@@ -465,7 +480,7 @@ def label_by_rigid_motion(
             model = fit_rigid_motion(members, cfg)
             if model is not None:
                 residual[:, j] = model(new_xy)
-    _, near = cKDTree(old_xy[:, 0]).query(new_xy[:, 0], k=min(neighbours, len(old)))
+    _, near = _kdtree(old_xy[:, 0]).query(new_xy[:, 0], k=min(neighbours, len(old)))
     near = np.asarray(near).reshape(len(new), -1)
     columns = np.searchsorted(values, lab[near])  # (M, neighbours) candidate label columns
     candidate = np.take_along_axis(residual, columns, axis=1)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import gc
+import importlib
 import os
 import queue
 import sys
@@ -105,6 +106,45 @@ def collector_paused(marker: str) -> Iterator[None]:
         gc.freeze()
         gc.enable()
         atexit.register(gc.freeze)  # at exit: before the interpreter's last collection
+
+
+LATER_IMPORTS = ("sklearn.cluster", "sklearn.metrics", "scipy.spatial", "scipy.sparse.csgraph", "scipy.optimize")
+"""What the pipeline imports on first use (the clustering, the rigid-motion check, the world, label matching):
+`moseg run` imports them ahead (`import_ahead`), batch workers before their first clip (`import_now`)."""
+
+
+def import_now(*names: str) -> None:
+    """Imports the modules `names` here, with the collector paused (`collector_paused`): a batch worker's
+    set-up, so that a clip's time limit does not count them."""
+    with collector_paused(names[0] if names else "sys"):
+        for name in names:
+            importlib.import_module(name)
+
+
+def import_ahead(*names: str) -> threading.Thread | None:
+    """Imports the modules `names` (in order) on a background thread, with the collector paused as
+    `collector_paused` pauses it; returns the thread (None when all are imported already).
+
+    `moseg run` needs scikit-learn only to cluster, Rerun and PyAV only to write: imported on this
+    thread, they load while the main thread reads, tracks and computes the flow, whose OpenCV calls
+    release the GIL, so on two cores the imports and the first stages overlap instead of adding up
+    (benchmarks/speed.py, table (d)). A module the main thread asks for before this thread is done with
+    it waits for it (Python's per-module import locks). An import that fails here is ignored: the
+    main thread's own import of it then raises, where it is reported as ever.
+    """
+    missing = [name for name in names if name not in sys.modules]
+    if not missing:
+        return None
+
+    def run() -> None:
+        with collector_paused(missing[0]):
+            for name in missing:
+                with contextlib.suppress(Exception):
+                    importlib.import_module(name)
+
+    thread = threading.Thread(target=run, name="moseg-import", daemon=True)
+    thread.start()
+    return thread
 
 
 QUIET_OPENCV_LOG_LEVEL = "SILENT"

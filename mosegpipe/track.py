@@ -89,6 +89,12 @@ class KLTTracker:
         self._seeded_at = 0  # frame index the re-seeding period counts from
         self.frame_index = -1
 
+    @property
+    def gray(self) -> npt.NDArray[np.uint8] | None:
+        """(H, W) uint8 grey of the last frame stepped (None before the first): whole videos hand it to the
+        dense flow, which would convert the frame again (mosegpipe.flow.to_gray gives the same image)."""
+        return self._prev_gray
+
     def restart(self, frame: npt.NDArray[np.uint8]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
         """Forgets the live points and detects corners afresh in `frame`, the frame of the last step.
 

@@ -28,7 +28,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
 
 from mosegpipe.colours import WORLD
 from mosegpipe.configs.grouping import WorldConfig
@@ -76,6 +75,8 @@ def world_scores(
     use = labels >= 0
     scores = np.zeros(k, np.float64)
     if use.any() and k > 0:
+        from scipy.spatial import cKDTree  # on first use: see runtime.import_ahead
+
         for t in range(pts.shape[1]):  # each frame's cells go to the motion of their nearest track
             _, nearest = cKDTree(pts[use, t]).query(centres)
             scores += np.bincount(labels[use][nearest], weights=weight, minlength=k)[:k]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -50,3 +51,26 @@ def test_run_ahead_stops_and_closes_the_stage_when_the_consumer_stops() -> None:
     out.close()  # the consumer gives up: the worker must not run on forever
     assert closed.wait(5.0)
     assert not any(t.name == "endless" and t.is_alive() for t in threading.enumerate())
+
+
+def test_import_ahead_imports_on_its_own_thread_and_skips_what_is_loaded(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sys
+
+    from mosegpipe.runtime import import_ahead
+
+    (tmp_path / "moseg_ahead_probe.py").write_text(
+        "import threading\nTHREAD = threading.current_thread().name\n", encoding="utf-8"
+    )
+    (tmp_path / "moseg_ahead_broken.py").write_text("raise RuntimeError('broken on purpose')\n", encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name in ("moseg_ahead_probe", "moseg_ahead_broken"):
+        monkeypatch.delitem(sys.modules, name, raising=False)
+    thread = import_ahead("moseg_ahead_broken", "moseg_ahead_probe")
+    assert thread is not None
+    thread.join(timeout=30)
+    # a failing import is left for the main thread to meet; the next one still loads, on the helper thread
+    assert "moseg_ahead_broken" not in sys.modules
+    assert sys.modules["moseg_ahead_probe"].THREAD == "moseg-import"
+    assert import_ahead("moseg_ahead_probe") is None  # nothing left to import

@@ -58,6 +58,11 @@ def test_setup_imports_with_the_collector_paused_and_freezes_them(tmp_path: Path
         "import mosegpipe.cli.main\n"
         "from mosegpipe.cli.app import _setup\n"
         "_setup(1, False, 'mosegpipe.outputs')\n"
+        "from mosegpipe.cli.clip import _import_ahead\n"  # what `run` imports on a thread of its own
+        "from mosegpipe.pipeline import PipelineConfig\n"
+        "import threading\n"
+        "_import_ahead(PipelineConfig())\n"
+        "[t.join() for t in threading.enumerate() if t.name == 'moseg-import']\n"
         "print(full[0], gc.isenabled(), gc.get_freeze_count(), 'torch' in sys.modules, 'sklearn' in sys.modules)\n"
         "built_after = [[] for _ in range(20_000)]\n"  # alive at exit (lists are tracked; empty dicts are not)
     )

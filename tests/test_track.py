@@ -219,3 +219,17 @@ def test_track_points_follows_given_points_in_order() -> None:
     tracker.step(frames[0])
     with pytest.raises(ValueError, match="first call"):
         tracker.start(frames[0], xy)
+
+
+def test_tracker_gray_is_the_last_frame_as_the_flow_converts_it() -> None:
+    from mosegpipe.flow import to_gray
+
+    rng = np.random.default_rng(3)
+    frames = rng.integers(0, 256, size=(2, 40, 56, 3), dtype=np.uint8)
+    tracker = KLTTracker()
+    assert tracker.gray is None
+    for frame in frames:
+        tracker.step(frame)
+        assert tracker.gray is not None
+        np.testing.assert_array_equal(tracker.gray, to_gray(frame, 1.0))
+        np.testing.assert_array_equal(to_gray(tracker.gray, 0.5), to_gray(frame, 0.5))  # the flow's resize

@@ -20,7 +20,7 @@ class MotionMaskConfig:
     sections after it).
 
     Attributes:
-        flow: dense flow and camera fit (DIS medium, patch stride 4, 3 refinement iterations).
+        flow: dense flow and camera fit (DIS medium, patch stride 4, 1 refinement iteration).
         work_scale: the mask steps run on images resized by this factor; masks are resized back (nearest).
         eps_px: residuals are compared as log(residual + eps_px), full-resolution pixels.
         min_residual_px: a pixel whose residual is below this (full-resolution pixels) is never moving.
@@ -48,7 +48,7 @@ class MotionMaskConfig:
         smooth_sigma: its colour scale (0-255 units): colours farther apart than this are an edge.
     """
 
-    flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=3))
+    flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=1))
     work_scale: float = 0.75
     eps_px: float = 1.0
     min_residual_px: float = 0.5

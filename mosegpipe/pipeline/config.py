@@ -47,13 +47,14 @@ options and --set of a command apply after them. Chosen from `benchmarks/profile
 half of a frame's CPU, the mask steps a fifth) and measured on the 20 DAVIS dev clips only (docs/RESULTS.md,
 "Speed": CPU per frame and J side by side):
 
-- best: the defaults, DIS medium (patch stride 4, 3 refinement iterations) at full resolution, the mask
-  steps at 0.75 of the frame size.
+- best: the defaults, DIS medium (patch stride 4, 1 refinement iteration) at full resolution, the mask
+  steps at 0.75 of the frame size (issue 38: 3 iterations before, DAVIS dev J 0.7575 against 0.7572).
 - balanced: DIS with a patch stride of 6 and 1 refinement iteration (half of DIS's time), the mask steps at
   half size.
 - fast: the flow (DIS, its forward-backward check, the camera fit) on half-size frames (a quarter of the
-  pixels) and the mask steps at half size: half of best's CPU, J 0.04 lower. DIS's "fast" preset at full
-  size cost as much J (its finest scale is half the image's) for less speed.
+  pixels) and the mask steps at half size: J 0.04 below best (1 refinement iteration: dev J 0.717 against
+  0.714 with 3).
+  DIS's "fast" preset at full size cost as much J (its finest scale is half the image's) for less speed.
 """
 
 

@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
 
 from mosegpipe.configs import LabelConfig
 from mosegpipe.errors import InputError
@@ -297,6 +296,8 @@ def _continued_labels(
         mapping[0] = 0
         overlap[0] = 0
         overlap[:, olds == 0] = 0
+    from scipy.optimize import linear_sum_assignment  # on first use: see runtime.import_ahead
+
     rows, cols = linear_sum_assignment(-overlap)
     for r, c in zip(rows, cols):
         if r in mapping:

@@ -277,7 +277,7 @@ def _read_windows(
             stream = None
         cut = bool(window) and _is_cut(window[-1][2], ids, cfg)
         if stream is not None:
-            stream.add(t, frame, new_shot=cut)
+            stream.add(t, frame if tracker.gray is None else tracker.gray, new_shot=cut)  # the grey KLT made
         if held is not None:
             yield *held, None if cut or stream is None else t
             held = None
