@@ -201,6 +201,8 @@ def _revived_labels(
         share[:, j] = [np.count_nonzero(held & (clusters == c)) / np.count_nonzero(clusters == c) for c in reopen]
     share[share < cfg.revive_share] = 0
     out: dict[int, int] = {}
+    from scipy.optimize import linear_sum_assignment  # on first use: see runtime.import_ahead
+
     rows, cols = linear_sum_assignment(-share)
     for r, j in zip(rows, cols):
         if share[r, j] > 0:
@@ -223,6 +225,8 @@ def _revived_labels(
     dist[dist > cfg.gate] = np.inf
     if not np.isfinite(dist).any():
         return out
+    from scipy.optimize import linear_sum_assignment  # on first use: see runtime.import_ahead
+
     rows, cols = linear_sum_assignment(np.where(np.isfinite(dist), dist, 1e9))
     for r, j in zip(rows, cols):
         if np.isfinite(dist[r, j]):
