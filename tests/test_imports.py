@@ -212,3 +212,19 @@ def test_inference_stages_never_import_training_evaluation_or_synth(graph: dict[
     for module in stages:
         bad = sorted(m for m in reachable(graph, module) if m.startswith(FORBIDDEN))
         assert not bad, f"{module} imports {', '.join(bad)}"
+
+
+def test_every_package_folder_is_installed() -> None:
+    """pyproject.toml lists the packages by hand: a folder left out imports in the checkout (editable) but not
+    from a wheel, the way CI installs the project."""
+    import tomllib
+
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(setuptools["packages"])
+    folders = {
+        ".".join((prefix, *init.parent.relative_to(folder).parts))
+        for prefix, folder in PACKAGES.items()
+        for init in folder.rglob("__init__.py")
+    }
+    assert folders - listed == set(), f"packages missing from pyproject.toml: {sorted(folders - listed)}"
+    assert listed - folders == set(), f"pyproject.toml lists packages with no folder: {sorted(listed - folders)}"
