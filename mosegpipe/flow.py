@@ -174,6 +174,16 @@ class FrameMotion:
     forward: npt.NDArray[np.float32] | None = None
     backward: npt.NDArray[np.float32] | None = None
 
+    def frames(self, a: int, b: int) -> FrameMotion:
+        """The evidence of frames a..b-1 (and the flows between them) of this stack."""
+        return FrameMotion(
+            self.residual[a:b],
+            self.fb_error[a:b],
+            self.scale,
+            None if self.forward is None else self.forward[a : b - 1],
+            None if self.backward is None else self.backward[a : b - 1],
+        )
+
 
 def _evidence(
     forward: npt.NDArray[np.float32], backward: npt.NDArray[np.float32], cfg: FlowConfig

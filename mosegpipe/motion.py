@@ -416,13 +416,7 @@ def stack_motion(
     wide = np.concatenate([s for s in ([before], images, [after]) if s[0] is not None])
     full = frame_motion(wide, cfg.flow)
     end = lead + images.shape[0]
-    return FrameMotion(
-        full.residual[lead:end],
-        full.fb_error[lead:end],
-        full.scale,
-        None if full.forward is None else full.forward[lead : end - 1],
-        None if full.backward is None else full.backward[lead : end - 1],
-    )
+    return full.frames(lead, end)
 
 
 def moving_masks(

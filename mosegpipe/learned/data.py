@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.data.davis import DAVIS_DEV, DAVIS_VAL, read_davis_clip
-from mosegpipe.flow import FrameMotion, frame_motion
+from mosegpipe.flow import frame_motion
 from mosegpipe.learned.features import clip_features, net_size
 from mosegpipe.motion import MotionMaskConfig
 
@@ -90,18 +90,6 @@ def _area_truth(mask: npt.NDArray[np.bool_], hw: tuple[int, int]) -> npt.NDArray
     return cv2.resize(mask.astype(np.float32), (hw[1], hw[0]), interpolation=cv2.INTER_AREA).astype(np.float16)
 
 
-def _slice(motion: FrameMotion, a: int, b: int) -> FrameMotion:
-    """The evidence of frames a..b-1 of a stack whose evidence was computed over all its frames (what
-    `motion.stack_motion` gives frames a..b-1 with the frames before and after as context)."""
-    return FrameMotion(
-        motion.residual[a:b],
-        motion.fb_error[a:b],
-        motion.scale,
-        None if motion.forward is None else motion.forward[a : b - 1],
-        None if motion.backward is None else motion.backward[a : b - 1],
-    )
-
-
 def stacks(num: int, size: int = STACK) -> list[tuple[int, int]]:
     """(first, end) of the consecutive stacks of `size` frames of a clip of `num` frames (a last stack of
     fewer, at least 2; a lone last frame joins the stack before)."""
@@ -118,7 +106,7 @@ def clip_to_net(images: npt.NDArray[np.uint8], truth: npt.NDArray[np.bool_], nam
     hw = net_size(images.shape[1:3], scale)
     out = Frames4Net([], [], [])
     for a, b in stacks(len(images)):
-        feats = clip_features(images[a:b], _slice(motion, a, b), scale)
+        feats = clip_features(images[a:b], motion.frames(a, b), scale)
         for t in range(a, b):
             out.features.append(feats[t - a].astype(np.float16))
             out.truth.append(_area_truth(truth[t], hw))
