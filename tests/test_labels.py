@@ -114,6 +114,15 @@ def test_a_new_object_gets_a_new_label() -> None:
     assert labels[2] == {0: 0, 1: 3, 2: 1}
 
 
+def test_a_small_new_object_is_labelled_from_the_settings_size() -> None:
+    # 12 new tracks beside 600 of the world: under both default thresholds (15 tracks; 5 % = 31 tracks)
+    world = Mover(0, 600, (320, 240), (0, 0))
+    small = Mover(1000, 12, (100, 100), (5, 0))
+    assert _run([[world, small]])[0] == {0: 0, 1: -1}
+    assert _run([[world, small]], LabelConfig(new_tracks=10, new_share=0.0))[0] == {0: 0, 1: 1}
+    assert _run([[world, small]], LabelConfig(new_tracks=10, new_share=0.05))[0] == {0: 0, 1: -1}
+
+
 def test_a_shot_cut_forgets_every_label() -> None:
     book = LabelBook()
     a = Mover(100, 20, (100, 100), (5, 0))

@@ -273,12 +273,16 @@ class LabelConfig:
         revive_share: a cluster takes a label back when at least this share of its tracks held it lately.
         gate: new tracks take a label back within this many radii of its predicted centre (0 = by tracks only).
         min_radius_px: the smallest radius of a remembered label (twice its tracks' RMS spread), pixels.
+        new_tracks: a cluster of new tracks with fewer (and under a quarter of the window's) stays unlabelled.
+        new_share: ... and one under this share of the window's tracks too (RESULTS.md "Several movers").
     """
 
     memory_windows: int = 4
     revive_share: float = 0.5
     gate: float = 1.0
     min_radius_px: float = 16.0
+    new_tracks: int = 15
+    new_share: float = 0.05
 
     def __post_init__(self) -> None:
         check_fields(self, _LABEL_CHECKS)
@@ -289,5 +293,7 @@ _LABEL_CHECKS: tuple[Check, ...] = (
     ("revive_share", lambda v: 0 < v <= 1, "lie in (0, 1]"),
     ("gate", lambda v: 0 <= v <= 100, "lie in 0..100"),
     ("min_radius_px", lambda v: 0 <= v <= 100_000, "lie in 0..100000"),
+    ("new_tracks", lambda v: 0 <= v <= 100_000, "lie in 0..100000"),
+    ("new_share", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
 )
 """LabelConfig's checks: (field, test, what it must be)."""

@@ -15,9 +15,6 @@ from mosegpipe.errors import InputError
 from mosegpipe.masks import MAX_LABEL
 
 _MIN_SHARE = 0.5  # a cluster continues a global label only if most of its shared tracks carried it
-_MIN_NEW_TRACKS = 15  # a cluster with fewer tracks (and fewer than _MIN_NEW_SHARE of the window's) is not
-_MIN_NEW_SHARE = 0.05  # trusted as a new motion: it joins the label most of its shared tracks carried, or
-# stays unlabelled. On the long rendered clips 15 tracks gave 2.39 labels per object, 5 % alone 2.49.
 _MIN_CONTINUED = 0.25  # a cluster continues a label only if this share of its tracks carried labels before
 
 
@@ -119,8 +116,8 @@ def match_labels(
        motion carries it to where the cluster lies (`xy`). A motion that merged into another for a window
        and splits off again, or that was hidden, keeps its label.
     4. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
-       unless the cluster is too small to trust (fewer than _MIN_NEW_TRACKS tracks and under
-       _MIN_NEW_SHARE of the window's), which stays unlabelled (-1).
+       unless the cluster is too small to trust (fewer than LabelConfig.new_tracks tracks, or a quarter of
+       the window's, and under LabelConfig.new_share of the window's), which stays unlabelled (-1).
 
     Args:
         prev: track id -> global label from the previous labelled window.
@@ -140,7 +137,7 @@ def match_labels(
     old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     sizes = np.bincount(clusters, minlength=k)
-    small = max(min(_MIN_NEW_TRACKS, 0.25 * clusters.size), _MIN_NEW_SHARE * clusters.size)
+    small = max(min(book.cfg.new_tracks, 0.25 * clusters.size), book.cfg.new_share * clusters.size)
     mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world)
     takes_zero = world or (0 not in mapping and 0 not in mapping.values())
     reopen = [c for c in range(k) if (c not in mapping or c in splits) and sizes[c] >= small and (c or not takes_zero)]
