@@ -9,6 +9,7 @@ path and a fingerprint, mosegpipe.provenance) so that `moseg replay` reads the s
 
 from __future__ import annotations
 
+import array
 import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -329,14 +330,14 @@ def write_pair_outputs(
 def video_summary(
     path: str | Path,
     info: dict[str, Any],
-    windows: list[WindowResult],
+    windows: WindowLog,
     cfg: PipelineConfig,
     model: Embedder,
     seconds: float,
 ) -> dict[str, Any]:
     """The JSON summary of a whole-video run (schema: docs/OUTPUTS.md)."""
-    last = windows[-1]
-    num_frames = last.num_frames_read
+    num_frames = windows.num_frames_read
+    records = windows.records()
     return {
         "schema": SUMMARY_SCHEMA,
         "kind": "video",
@@ -347,18 +348,82 @@ def video_summary(
         "size_hw": list(info["size_hw"]),
         "video_fps": float(info.get("fps") or 0.0),
         "window_frames": cfg.frames,
-        "num_windows": len(windows),
-        "num_windows_labelled": sum(w.is_labelled for w in windows),
-        "num_motions": last.num_motions,
-        "num_labels_reused": last.num_labels_reused,
-        "shot_cuts": [w.start for w in windows if w.shot_start],
+        "num_windows": len(records),
+        "num_windows_labelled": sum(r["k"] > 0 for r in records),
+        "num_motions": windows.num_motions,
+        "num_labels_reused": windows.num_labels_reused,
+        "shot_cuts": [r["start"] for r in records if r["shot_start"]],
         "k_method": "fixed" if cfg.k is not None else cfg.cluster.method,
-        "windows": [w.record() for w in windows],
+        "windows": records,
         "seconds": round(seconds, 3),
         "processing_fps": round(num_frames / seconds, 3) if seconds > 0 else 0.0,
         "model": model_info(model),
         "config": asdict(cfg),
     }
+
+
+_RECORD_FIELDS = ("start", "frames", "num_tracks", "k", "k_ambiguous", "shot_start")
+"""WindowResult.record()'s keys, in the order WindowLog keeps them."""
+
+
+class WindowLog:
+    """What a whole-video run's outputs keep of its windows, in (nearly) constant memory.
+
+    summary.json needs each window's record (six integers here, 48 bytes a window) and labels.npz every
+    labelled track's id and label: those go to spool files in the output folder as the windows arrive and
+    are read back in chunks when labels.npz is written (a long live run held them all in memory before:
+    about 13 kB a window, 5 MiB a minute at 25 frames/s).
+
+    Args:
+        folder: where the spool files go (the output folder under construction); they are removed by
+            `write_labels`.
+    """
+
+    def __init__(self, folder: Path) -> None:
+        self._records = array.array("q")
+        self._paths = {name: folder / f".labels-{name}.bin" for name in ("track_ids", "labels", "window")}
+        self._files = {name: open(p, "wb") for name, p in self._paths.items()}  # noqa: SIM115 (closed in write_labels)
+        self.num_windows = 0
+        self.num_frames_read = 0
+        self.num_motions = 0
+        self.num_labels_reused = 0
+
+    def add(self, window: WindowResult) -> None:
+        """Keeps a window's record and spools its labelled tracks."""
+        record = window.record()
+        self._records.extend(int(record[key]) for key in _RECORD_FIELDS)
+        if window.is_labelled:
+            self._files["track_ids"].write(np.asarray(window.track_ids, np.int64).tobytes())
+            self._files["labels"].write(np.asarray(window.labels, np.int64).tobytes())
+            self._files["window"].write(np.full(window.track_ids.size, self.num_windows, np.int64).tobytes())
+        self.num_windows += 1
+        self.num_frames_read = window.num_frames_read
+        self.num_motions = window.num_motions
+        self.num_labels_reused = window.num_labels_reused
+
+    def records(self) -> list[dict[str, int | bool]]:
+        """Each window's row in summary.json (WindowResult.record())."""
+        rows = np.frombuffer(self._records, np.int64).reshape(-1, len(_RECORD_FIELDS)).tolist()
+        flags = ("k_ambiguous", "shot_start")
+        return [{key: bool(v) if key in flags else v for key, v in zip(_RECORD_FIELDS, row)} for row in rows]
+
+    def write_labels(self, path: Path) -> None:
+        """labels.npz of the video: the labelled windows' track ids and labels, and each one's window (its
+        index among all windows); the arrays are read from the spool files in chunks, which are then removed."""
+        self.close()
+        arrays = {
+            name: np.memmap(p, np.int64, mode="r") if p.stat().st_size else np.zeros(0, np.int64)
+            for name, p in self._paths.items()
+        }
+        write_npz(path, **arrays)
+        del arrays
+        for p in self._paths.values():
+            p.unlink()
+
+    def close(self) -> None:
+        """Closes the spool files (write_labels does; for a run that failed, the folder goes anyway)."""
+        for fh in self._files.values():
+            fh.close()
 
 
 _WINDOWS_AHEAD = 2
@@ -422,11 +487,12 @@ def write_video_outputs(
         with decode_errors(path):
             info = video_info(path)
     fps = float(info.get("fps") or 0.0) or _FALLBACK_FPS
-    windows: list[WindowResult] = []
     t_start = time.perf_counter()
     with _OutputDir(Path(out_dir), overwrite) as tmp:
         (tmp / "masks").mkdir()
         with ExitStack() as stack:
+            windows = WindowLog(tmp)
+            stack.callback(windows.close)
             recorder = None
             if rrd:
                 from mosegpipe.viz import VIDEO_VIZ, VideoRecorder
@@ -439,7 +505,7 @@ def write_video_outputs(
             segmented = partial(segment_video, path, cfg, model, max_frames, masks=False, frames=frames)
             overlays = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window)
             write_video(tmp / "overlay.mp4", overlays, fps)
-        _write_window_labels(tmp / "labels.npz", windows)
+        windows.write_labels(tmp / "labels.npz")
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
         if summary_extra is not None:
             summary.update(summary_extra())
@@ -451,17 +517,15 @@ def _written_overlays(
     segmented: Callable[[], Iterator[WindowResult]],
     cfg: PipelineConfig,
     tmp: Path,
-    windows: list[WindowResult],
+    windows: WindowLog,
     recorder: VideoRecorder | None,
     on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None,
     on_window: Callable[[WindowResult], None] | None,
 ) -> Iterator[npt.NDArray[np.uint8]]:
     """Writes each frame's mask (and recording) as the windows arrive; yields its overlay. The windows
-    come from `segmented()`, called when the first overlay is asked for; each, without its frames, is
-    appended to `windows`."""
+    come from `segmented()`, called when the first overlay is asked for; each goes into `windows`."""
     for window in run_ahead(segmented(), _WINDOWS_AHEAD, "moseg-segment"):
-        # Keep what the summary and labels.npz need, not the images (flat memory).
-        windows.append(replace(window, frames=()))
+        windows.add(window)  # what the summary and labels.npz need, not the images (flat memory)
         if recorder is not None:
             recorder.log_window(window.start, window.k, window.k_scores)
         for fr in window.frames:
@@ -474,21 +538,8 @@ def _written_overlays(
                 on_frame(fr, mask)
             yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
         if on_window is not None:
-            on_window(windows[-1])
+            on_window(replace(window, frames=()))
         del window, fr  # before the next window is read: hold a few windows' frames at most
-
-
-def _write_window_labels(path: Path, windows: list[WindowResult]) -> None:
-    """labels.npz of a whole video: the labelled windows' track ids and labels, and each one's window."""
-    labelled = [w for w in windows if w.is_labelled]
-    write_npz(
-        path,
-        track_ids=np.concatenate([w.track_ids for w in labelled]),
-        labels=np.concatenate([w.labels for w in labelled]),
-        window=np.concatenate(
-            [np.full(w.track_ids.size, i, dtype=np.int64) for i, w in enumerate(windows) if w.is_labelled]
-        ),
-    )
 
 
 def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> dict[str, Any]:

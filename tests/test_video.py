@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tracemalloc
 import weakref
 from collections.abc import Iterator
 from dataclasses import replace
@@ -18,8 +19,8 @@ from mosegpipe.cli.main import app
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.io import iter_video, read_palette_png
 from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import _WINDOWS_AHEAD, write_video_outputs
-from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
+from mosegpipe.outputs import _WINDOWS_AHEAD, WindowLog, write_video_outputs
+from mosegpipe.pipeline import LabelBook, PipelineConfig, WindowResult, match_labels
 from mosegpipe.pipeline import video as video_module
 from mosegpipe.synth.render import RenderedClip
 
@@ -86,6 +87,49 @@ def test_label_book_reuses_the_least_recently_used_label() -> None:
     assert book.new_label(busy={1}) == 2 and book.num_reused == 1
     with pytest.raises(InputError, match="more than 3 motions live at once"):
         book.new_label(busy={0, 1, 2})
+
+
+def _window(i: int, n: int) -> WindowResult:
+    ids = np.arange(i * n, (i + 1) * n, dtype=np.int64)
+    return WindowResult(
+        start=4 * i, num_frames=5, num_tracks=n, k=2 if n else 0, track_ids=ids, labels=ids % 3, frames=(),
+        num_motions=3, num_labels_reused=i, num_frames_read=4 * i + 5, k_note="the K choice is ambiguous" * (i % 2),
+        shot_start=i == 3,
+    )  # fmt: skip
+
+
+def test_the_window_log_spools_the_labels_and_keeps_the_records(tmp_path: Path) -> None:
+    windows = [_window(i, 0 if i == 2 else 40 + i) for i in range(6)]
+    log = WindowLog(tmp_path)
+    for w in windows:
+        log.add(w)
+    assert log.records() == [w.record() for w in windows]
+    assert (log.num_windows, log.num_frames_read, log.num_labels_reused) == (6, 25, 5)
+    log.write_labels(tmp_path / "labels.npz")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["labels.npz"]  # the spool files are gone
+    labelled = [(i, w) for i, w in enumerate(windows) if w.is_labelled]
+    with np.load(tmp_path / "labels.npz") as z:
+        assert np.array_equal(z["track_ids"], np.concatenate([w.track_ids for _, w in labelled]))
+        assert np.array_equal(z["labels"], np.concatenate([w.labels for _, w in labelled]))
+        assert np.array_equal(z["window"], np.concatenate([np.full(w.num_tracks, i) for i, w in labelled]))
+
+
+def test_the_window_log_holds_no_labels_in_memory(tmp_path: Path) -> None:
+    # A live run adds windows for hours: what it keeps of each is a few integers, not its tracks' arrays.
+    log = WindowLog(tmp_path)
+    windows = [_window(i, 1000) for i in range(300)]  # 16 kB of ids and labels each, 4.8 MB in all
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for w in windows:
+            log.add(w)
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    log.write_labels(tmp_path / "labels.npz")
+    assert grown < 200_000, grown
+    with np.load(tmp_path / "labels.npz") as z:
+        assert z["track_ids"].shape == (300_000,)
 
 
 # ---------------------------------------------------------------------------------------------
