@@ -9,7 +9,6 @@ path and a fingerprint, mosegpipe.provenance) so that `moseg replay` reads the s
 
 from __future__ import annotations
 
-import array
 import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -44,6 +43,7 @@ from mosegpipe.pipeline import (
 from mosegpipe.provenance import source_identity
 from mosegpipe.runtime import run_ahead
 from mosegpipe.viz import k_statement
+from mosegpipe.window_log import WindowLog
 
 if TYPE_CHECKING:
     from mosegpipe.inference import Embedder
@@ -362,70 +362,6 @@ def video_summary(
     }
 
 
-_RECORD_FIELDS = ("start", "frames", "num_tracks", "k", "k_ambiguous", "shot_start")
-"""WindowResult.record()'s keys, in the order WindowLog keeps them."""
-
-
-class WindowLog:
-    """What a whole-video run's outputs keep of its windows, in (nearly) constant memory.
-
-    summary.json needs each window's record (six integers here, 48 bytes a window) and labels.npz every
-    labelled track's id and label: those go to spool files in the output folder as the windows arrive and
-    are read back in chunks when labels.npz is written (a long live run held them all in memory before:
-    about 13 kB a window, 5 MiB a minute at 25 frames/s).
-
-    Args:
-        folder: where the spool files go (the output folder under construction); they are removed by
-            `write_labels`.
-    """
-
-    def __init__(self, folder: Path) -> None:
-        self._records = array.array("q")
-        self._paths = {name: folder / f".labels-{name}.bin" for name in ("track_ids", "labels", "window")}
-        self._files = {name: open(p, "wb") for name, p in self._paths.items()}  # noqa: SIM115 (closed in write_labels)
-        self.num_windows = 0
-        self.num_frames_read = 0
-        self.num_motions = 0
-        self.num_labels_reused = 0
-
-    def add(self, window: WindowResult) -> None:
-        """Keeps a window's record and spools its labelled tracks."""
-        record = window.record()
-        self._records.extend(int(record[key]) for key in _RECORD_FIELDS)
-        if window.is_labelled:
-            self._files["track_ids"].write(np.asarray(window.track_ids, np.int64).tobytes())
-            self._files["labels"].write(np.asarray(window.labels, np.int64).tobytes())
-            self._files["window"].write(np.full(window.track_ids.size, self.num_windows, np.int64).tobytes())
-        self.num_windows += 1
-        self.num_frames_read = window.num_frames_read
-        self.num_motions = window.num_motions
-        self.num_labels_reused = window.num_labels_reused
-
-    def records(self) -> list[dict[str, int | bool]]:
-        """Each window's row in summary.json (WindowResult.record())."""
-        rows = np.frombuffer(self._records, np.int64).reshape(-1, len(_RECORD_FIELDS)).tolist()
-        flags = ("k_ambiguous", "shot_start")
-        return [{key: bool(v) if key in flags else v for key, v in zip(_RECORD_FIELDS, row)} for row in rows]
-
-    def write_labels(self, path: Path) -> None:
-        """labels.npz of the video: the labelled windows' track ids and labels, and each one's window (its
-        index among all windows); the arrays are read from the spool files in chunks, which are then removed."""
-        self.close()
-        arrays = {
-            name: np.memmap(p, np.int64, mode="r") if p.stat().st_size else np.zeros(0, np.int64)
-            for name, p in self._paths.items()
-        }
-        write_npz(path, **arrays)
-        del arrays
-        for p in self._paths.values():
-            p.unlink()
-
-    def close(self) -> None:
-        """Closes the spool files (write_labels does; for a run that failed, the folder goes anyway)."""
-        for fh in self._files.values():
-            fh.close()
-
-
 _WINDOWS_AHEAD = 2
 """Windows the tracking thread may run ahead of the writer (memory: that many windows' frames)."""
 
@@ -491,8 +427,7 @@ def write_video_outputs(
     with _OutputDir(Path(out_dir), overwrite) as tmp:
         (tmp / "masks").mkdir()
         with ExitStack() as stack:
-            windows = WindowLog(tmp)
-            stack.callback(windows.close)
+            windows = stack.enter_context(WindowLog(tmp))
             recorder = None
             if rrd:
                 from mosegpipe.viz import VIDEO_VIZ, VideoRecorder

@@ -19,10 +19,11 @@ from mosegpipe.cli.main import app
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.io import iter_video, read_palette_png
 from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import _WINDOWS_AHEAD, WindowLog, write_video_outputs
+from mosegpipe.outputs import _WINDOWS_AHEAD, write_video_outputs
 from mosegpipe.pipeline import LabelBook, PipelineConfig, WindowResult, match_labels
 from mosegpipe.pipeline import video as video_module
 from mosegpipe.synth.render import RenderedClip
+from mosegpipe.window_log import WindowLog
 
 from helpers import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 
