@@ -414,9 +414,7 @@ def main() -> None:
     # so that no stage's first call pays for an import.
     import scipy.optimize  # noqa: F401
     import scipy.spatial  # noqa: F401
-    import skimage.filters  # noqa: F401
-    import sklearn.cluster  # noqa: F401
-    import sklearn.metrics  # noqa: F401
+    import skimage.filters.thresholding  # noqa: F401
 
     options: dict[str, Any] = {"settings": args.settings}
     if args.preset is not None:

@@ -16,7 +16,8 @@
 (d) start-up: `moseg run` on 5 frames (samples/rendered/frames) from the shell, fresh processes with
     the commands interleaved, against `python -c "import numpy, cv2"` and `python -c "import torch"`
     measured in the same rounds; then the same steps stamped one by one in a fresh process (interpreter,
-    imports, model, stages, files, recording, exit).
+    imports, model, stages, files, recording, exit). `--startup-against OTHER/.venv/bin/moseg` runs another
+    checkout's `moseg run` in the same rounds and prints the per-round ratios.
 
 (b) also times a bare OpenCV KLT loop on the same frames (same corners, no checks) right before each
 run and prints the pipeline's frames/s as a multiple of it: on these shared machines absolute
@@ -275,15 +276,16 @@ print(json.dumps({"marks": marks, "timings": result.timings, "rrd": summary["tim
 STARTUP_PHASES = (
     ("interpreter", "Python itself, up to the first line"),
     ("CLI import", "mosegpipe.cli.main: Typer, NumPy"),
-    ("imports + setup", "OpenCV, mosegpipe; thread settings (scikit-learn, SciPy, PyAV: on a thread of their own)"),
+    ("imports + setup", "OpenCV, mosegpipe; thread settings (SciPy, PyAV, Rerun: on a thread of their own)"),
     ("model", "the shipped weights (their NumPy copy; torch only on a checkpoint's first run)"),
     ("read", "5 frames"),
+    ("flow", "the clip's dense flow (the motion masks', the world's evidence)"),
     ("track", "KLT"),
     ("embed", "SubspaceNet"),
-    ("cluster", "automatic K (with any wait for scikit-learn's import)"),
+    ("cluster", "automatic K, the rigid-motion check, the world (with any wait for SciPy's import)"),
     ("masks", "dense masks"),
     ("files", "masks, overlays, labels, summary"),
-    ("rrd", "the recording, Rerun's import included"),
+    ("rrd", "the recording (with any wait for Rerun's import)"),
     ("exit", "interpreter teardown"),
 )
 
@@ -304,10 +306,12 @@ def _timed_process(cmd: list[str], env: dict[str, str]) -> tuple[float, float, s
 _COLD = "moseg run CLIP --frames 5 --no-rrd, first run of the weights"
 
 
-def startup_tables(clip: Path, work: Path, repeats: int = 5) -> str:
+def startup_tables(clip: Path, work: Path, repeats: int = 5, against: Path | None = None) -> str:
     """(d): wall and CPU time of fresh processes from the shell, `repeats` rounds, the commands
     interleaved within each round (the load of a shared machine drifts; interleaving spreads it
-    evenly); then the breakdown of `moseg run` on 5 frames into its steps (_STARTUP_PROBE)."""
+    evenly); then the breakdown of `moseg run` on 5 frames into its steps (_STARTUP_PROBE). With `against`
+    (another checkout's `moseg`, e.g. main's) its `moseg run` runs in the same rounds, and the table adds the
+    median of the per-round ratios."""
     import resource
     import shutil
 
@@ -325,6 +329,12 @@ def startup_tables(clip: Path, work: Path, repeats: int = 5) -> str:
         _COLD: [moseg, "run", str(clip), "--frames", "5", "--no-rrd", "--out", str(out)],
         "breakdown probe": [sys.executable, "-c", _STARTUP_PROBE, str(clip), str(out)],
     }
+    if against is not None:
+        commands["OTHER run CLIP --frames 5 --no-rrd"] = [
+            str(against),
+            *commands["moseg run CLIP --frames 5 --no-rrd"][1:],
+        ]
+        commands["OTHER run CLIP --frames 5"] = [str(against), *commands["moseg run CLIP --frames 5"][1:]]
     wall: dict[str, list[float]] = {k: [] for k in commands}
     cpu: dict[str, list[float]] = {k: [] for k in commands}
     phases: dict[str, list[float]] = {name: [] for name, _ in STARTUP_PHASES}
@@ -341,7 +351,7 @@ def startup_tables(clip: Path, work: Path, repeats: int = 5) -> str:
             if name == "breakdown probe":
                 rec = json.loads(stdout.strip().splitlines()[-1])
                 m, t = rec["marks"], rec["timings"]
-                stages = {k: float(t.get(k, 0.0)) for k in ("read", "track", "embed", "cluster", "masks")}
+                stages = {k: float(t.get(k, 0.0)) for k in ("read", "flow", "track", "embed", "cluster", "masks")}
                 write_s = m["written"] - m["segmented"]
                 values = {
                     "interpreter": m["started"] - started,
@@ -370,6 +380,13 @@ def startup_tables(clip: Path, work: Path, repeats: int = 5) -> str:
             f"| `{name}` | {w:.2f} | {min(wall[name]):.2f}–{max(wall[name]):.2f} | {statistics.median(cpu[name]):.2f} "
             f"| {w / ref:.1f} | {w / torch_s:.2f} |"
         )
+    if against is not None:
+        lines.insert(0, f"OTHER = {against}.\n")
+        for rrd in ("", " --no-rrd"):
+            ours, other = f"moseg run CLIP --frames 5{rrd}", f"OTHER run CLIP --frames 5{rrd}"
+            w = statistics.median(a / b for a, b in zip(wall[ours], wall[other], strict=True))
+            c = statistics.median(a / b for a, b in zip(cpu[ours], cpu[other], strict=True))
+            lines.append(f"\n`{ours}` / `{other}` in the same round, median: wall {w:.2f}×, CPU {c:.2f}×")
     total = statistics.median(wall["breakdown probe"])
     lines += [
         "",
@@ -418,6 +435,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--skip", nargs="*", default=[], choices=["clip", "video", "dense", "kt3d", "startup"])
     ap.add_argument("--startup-clip", type=Path, default=_SAMPLE_FRAMES, help="input of the start-up table (d)")
     ap.add_argument("--startup-repeats", type=int, default=5, help="rounds of the start-up table (d)")
+    ap.add_argument("--startup-against", type=Path, default=None, help="(d): another checkout's moseg, same rounds")
     args = ap.parse_args(argv)
 
     set_threads(1)
@@ -464,7 +482,7 @@ def main(argv: list[str] | None = None) -> None:
             print(dense_table(video, model, work, tuple(args.dense_methods)) + "\n", flush=True)
         if "startup" not in args.skip:
             print("## (d) start-up: `moseg run` on 5 frames from the shell\n")
-            print(startup_tables(args.startup_clip.resolve(), work, args.startup_repeats) + "\n")
+            print(startup_tables(args.startup_clip.resolve(), work, args.startup_repeats, args.startup_against) + "\n")
         if "kt3d" not in args.skip:
             if (args.data_root / "kt3dmoseg").is_dir():
                 print("## (c) embedding + automatic K on the KT3DMoSeg test clips (one thread)\n")

@@ -443,8 +443,8 @@ def _setup(threads: int, verbose: bool, *preload: str) -> None:
             root.addHandler(_WARNINGS)
         root.setLevel(logging.WARNING)
         _quiet_native_logs()
-    with collector_paused("sklearn"):
-        set_threads(threads)  # imports torch and OpenCV
+    with collector_paused("cv2"):
+        set_threads(threads)  # imports OpenCV
         for name in preload:
             importlib.import_module(name)
 

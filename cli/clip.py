@@ -110,7 +110,7 @@ def run(
     stderr when it is a terminal. Exit code 1 with one 'moseg: error:' line on failure.
     """
     started = time.perf_counter()
-    # Paths and option combinations first: torch and scikit-learn take seconds to import.
+    # Paths and option combinations first: the libraries take a second to import.
     if not clip.exists():
         raise InputError(f"{clip}: no such file or folder")
     if max_frames is not None and not whole:
@@ -140,7 +140,7 @@ def run(
     )
     out = out or _default_out(clip, "_moseg")
     check_output_dir(out, overwrite)
-    _import_ahead(cfg)
+    _import_ahead(cfg, whole=whole, rrd=not no_rrd)
     net = load_embedder(frames, model)
     if whole:
         with _frames_progress(clip, cfg, max_frames, quiet) as on_window:
@@ -156,13 +156,22 @@ def run(
     _print_total(started)
 
 
-def _import_ahead(cfg: Any) -> None:
+def _import_ahead(cfg: Any, whole: bool = False, rrd: bool = True) -> None:
     """What only `run`'s later steps need loads on a thread of its own while the frames are read and tracked
-    (runtime.import_ahead). Not Rerun: it imports pyarrow, which scikit-learn looks for in sys.modules while
-    it clusters."""
-    from mosegpipe.runtime import LATER_IMPORTS, import_ahead
+    (runtime.import_ahead), in the order the steps ask for it: SciPy for the rigid-motion check and the
+    world, scikit-image's thresholds for the motion masks, SciPy's assignment for a video's label memory,
+    PyAV and Pillow for the files, Rerun for the recording."""
+    from mosegpipe.runtime import import_ahead
 
-    import_ahead(*LATER_IMPORTS, *(["skimage.filters"] if cfg.mask.method == "motion" else []), "av")
+    import_ahead(
+        "scipy.spatial",
+        "scipy.sparse.csgraph",
+        *(["skimage.filters.thresholding"] if cfg.mask.method == "motion" else []),
+        *(["scipy.optimize"] if whole else []),
+        "av",
+        "PIL.Image",
+        *(["rerun", "rerun.blueprint"] if rrd else []),
+    )
 
 
 @_friendly

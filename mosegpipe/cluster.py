@@ -4,7 +4,7 @@ Two criteria pick K from a sweep of K-means fits:
 
 - ``"residual"`` (default): an elbow of the K-means residual curve, scored by how much sharper the
   relative drop of the residual is at K than at K+1 (see :func:`cluster_auto_k`).
-- ``"silhouette"``: the mean silhouette coefficient (scikit-learn), K >= 2 plus a threshold rule
+- ``"silhouette"``: the mean silhouette coefficient, K >= 2 plus a threshold rule
   for K = 1.
 
 Cluster ids are ordered by cluster size (0 = largest, usually the background), ties broken by
@@ -14,7 +14,6 @@ first appearance, so results are deterministic for a seed and easy to colour con
 from __future__ import annotations
 
 import logging
-import warnings
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -80,6 +79,13 @@ def relabel_by_size(labels: npt.ArrayLike) -> npt.NDArray[np.int64]:
     return new_id[inverse.ravel()]
 
 
+# K-means stops when no centre's squared move in an iteration exceeds _TOL times the data's mean
+# per-dimension variance (OpenCV compares the largest move with its epsilon), or after _MAX_ITER
+# iterations: scikit-learn's defaults (tol 1e-4, max_iter 300), which the clustering was measured with.
+_TOL = 1e-4
+_MAX_ITER = 300
+
+
 def kmeans(
     emb: npt.ArrayLike,
     k: int,
@@ -87,29 +93,33 @@ def kmeans(
     n_init: int = 10,
     num_threads: int = 1,
 ) -> tuple[npt.NDArray[np.int64], float]:
-    """K-means with a fixed K (scikit-learn, k-means++ initialisation, best of n_init restarts).
+    """K-means with a fixed K: OpenCV's `cv2.kmeans`, k-means++ initialisation, best of n_init restarts.
 
-    Runs under a BLAS/OpenMP limit of ``num_threads``. Measured on the shared 2-core development
-    machine (N=300, E=5, K=4, n_init=10, median of 5 fits, four runs at different loads):
-    1 thread 7-26 ms; 2 threads 10 ms when nothing else ran, but 235-310 ms (10-30x slower)
-    with other processes on the machine and once 2.9 s (400x), as the OpenMP threads wait for
-    a core that is busy elsewhere.
+    OpenCV instead of scikit-learn: importing scikit-learn cost ~1.2 s of CPU, most of `moseg run`'s
+    start-up on 5 frames (docs/RESULTS.md, "Start-up"). The k-means++ seeding draws from OpenCV's
+    random generator of the calling thread, seeded with ``seed`` before every call: the same seed gives
+    the same result whatever ran before. The points are centred and scaled by one number first (K-means
+    does not change under either) so that OpenCV's float32 keeps their precision; the inertia is
+    computed in float64 from the labels.
 
     Args:
         emb: (N, E) float embeddings.
         k: number of clusters, 1 <= k <= N.
-        seed: random state of the k-means++ seeding; same seed, same result.
-        n_init: number of restarts.
-        num_threads: thread limit for the BLAS/OpenMP pools.
+        seed: seed of the k-means++ seeding; same seed, same result.
+        n_init: number of restarts; the one of least residual is kept.
+        num_threads: thread limit of the BLAS/OpenMP pools during the call (OpenCV's own threads are
+            the process's setting, runtime.set_threads).
 
     Returns:
         labels: (N,) int64 in 0..k-1, ordered by decreasing cluster size (see relabel_by_size).
             Fewer than k ids occur when the points have fewer than k distinct values.
-        inertia: sum of squared distances of the points to their centroid (same units as emb**2).
+        inertia: sum of squared distances of the points to the mean of their cluster (units of emb**2).
 
     Raises:
         InputError: bad shape, non-finite values, or k outside 1..N.
     """
+    import cv2
+
     x = _check_embeddings(emb)
     n = x.shape[0]
     k = _check_k(k, "k")
@@ -117,26 +127,34 @@ def kmeans(
         raise InputError(f"k={k} must be at least 1")
     if k > n:
         raise InputError(f"k={k} is larger than the number of points ({n})")
+    centred = x - x.mean(axis=0)
+    if k == 1:  # exact: the best single centre is the mean (and OpenCV reads one row as many points)
+        return np.zeros(n, dtype=np.int64), float(np.sum(centred * centred))
+    spread = float(np.sqrt(np.mean(centred * centred)))  # the root of the mean per-dimension variance
+    scale = spread if spread > 0 else 1.0
+    data = np.ascontiguousarray(centred / scale, dtype=np.float32)
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, _MAX_ITER, float(np.sqrt(_TOL)))
     # Inside cluster_auto_k's sweep the pools are already limited: limited_threads enters nothing then.
-    # scikit-learn is imported on first use (a third of `moseg run`'s start-up): the CLI imports it on a
-    # thread of its own while the frames are read and tracked (runtime.import_ahead).
-    from sklearn.cluster import KMeans
-    from sklearn.exceptions import ConvergenceWarning
-
-    with limited_threads(num_threads), warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", ConvergenceWarning)
-        model = KMeans(n_clusters=k, n_init=n_init, random_state=seed).fit(x)
-    for warning in caught:
-        logger.debug("K-means K=%d: %s", k, warning.message)
-    return relabel_by_size(model.labels_), float(model.inertia_)
+    with limited_threads(num_threads):
+        cv2.setRNGSeed(seed)  # the calling thread's generator, which the k-means++ seeding draws from
+        _, raw, _ = cv2.kmeans(data, k, None, criteria, n_init, cv2.KMEANS_PP_CENTERS)
+    labels = relabel_by_size(raw.ravel())
+    sums = np.zeros((int(labels.max()) + 1, x.shape[1]))
+    np.add.at(sums, labels, centred)
+    means = sums / np.bincount(labels)[:, None]
+    return labels, float(np.sum((centred - means[labels]) ** 2))
 
 
 def pairwise_distances(x: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
-    """(N, N) Euclidean distances between the rows of x (scikit-learn's `pairwise_distances`, imported on first use)."""
-    from sklearn.metrics import pairwise_distances as distances
-
-    out: npt.NDArray[np.float64] = distances(x)
-    return out
+    """(N, N) Euclidean distances between the rows of x: symmetric, zero on the diagonal."""
+    x = np.asarray(x, dtype=np.float64)
+    x = x - x.mean(axis=0)  # distances do not change; the products below lose less to rounding
+    sq = np.sum(x * x, axis=1)
+    d2 = sq[:, None] + sq[None, :] - 2.0 * (x @ x.T)
+    np.maximum(d2, 0.0, out=d2)
+    d2 = (d2 + d2.T) / 2.0
+    np.fill_diagonal(d2, 0.0)
+    return np.sqrt(d2)
 
 
 def mean_silhouette(distances: npt.NDArray[np.float64], labels: npt.NDArray[np.int64]) -> float:
@@ -242,7 +260,7 @@ def cluster_auto_k(
        [-1, 1]. When the spread r(1) is at most one_motion_spread * S, K = 1 is a candidate with
        the score min_elbow, so it wins exactly when no K >= 2 exceeds it (one Gaussian blob of
        N >= 100 points in E >= 3 dimensions scores at most 0.15); wider spreads never give K = 1.
-    3. "silhouette": mean silhouette coefficient (scikit-learn, Euclidean) of the K-means labels
+    3. "silhouette": mean silhouette coefficient (Euclidean; scikit-learn's definition) of the K-means labels
        for K in [max(2, k_min), min(k_max, N - 1)]. K = 1 (under the same spread gate) gets the
        score min_silhouette, so it wins exactly when no K >= 2 exceeds it.
 

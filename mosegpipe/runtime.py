@@ -108,9 +108,10 @@ def collector_paused(marker: str) -> Iterator[None]:
         atexit.register(gc.freeze)  # at exit: before the interpreter's last collection
 
 
-LATER_IMPORTS = ("sklearn.cluster", "sklearn.metrics", "scipy.spatial", "scipy.sparse.csgraph", "scipy.optimize")
-"""What the pipeline imports on first use (the clustering, the rigid-motion check, the world, label matching):
-`moseg run` imports them ahead (`import_ahead`), batch workers before their first clip (`import_now`)."""
+LATER_IMPORTS = ("scipy.spatial", "scipy.sparse.csgraph", "scipy.optimize", "skimage.filters.thresholding")
+"""What the pipeline imports on first use (the rigid-motion check, the world, label matching, the motion masks'
+thresholds): batch workers import them before their first clip (`import_now`); `moseg run` imports what it needs
+of them ahead (`import_ahead`)."""
 
 
 def import_now(*names: str) -> None:

@@ -4,7 +4,14 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, mean_silhouette, relabel_by_size
+from mosegpipe.cluster import (
+    ClusterConfig,
+    cluster_auto_k,
+    kmeans,
+    mean_silhouette,
+    pairwise_distances,
+    relabel_by_size,
+)
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.metrics import misclassification_error
 
@@ -70,6 +77,65 @@ def test_kmeans_is_deterministic_for_a_seed() -> None:
     b = kmeans(x, 5, seed=3)
     np.testing.assert_array_equal(a[0], b[0])
     assert a[1] == b[1]
+
+
+def test_kmeans_does_not_depend_on_what_ran_before_or_on_the_thread() -> None:
+    import threading
+
+    import cv2
+
+    x = np.random.default_rng(2).normal(size=(150, 3))  # no structure: the seeding decides
+    first = kmeans(x, 6, seed=4, n_init=1)
+    assert len({kmeans(x, 6, seed=s, n_init=1)[1] for s in range(6)}) > 1  # the seed matters
+    cv2.setRNGSeed(99)
+    cv2.randu(np.zeros(100, np.float32), 0, 1)  # OpenCV's generator moved on
+    again = kmeans(x, 6, seed=4, n_init=1)
+    on_thread: list[tuple[npt.NDArray[np.int64], float]] = []
+    worker = threading.Thread(target=lambda: on_thread.append(kmeans(x, 6, seed=4, n_init=1)))
+    worker.start()
+    worker.join()
+    for other in (again, on_thread[0]):
+        np.testing.assert_array_equal(first[0], other[0])
+        assert first[1] == other[1]
+
+
+def test_kmeans_keeps_the_best_restart_and_is_translation_and_scale_free() -> None:
+    x, _ = sphere_blobs(4, n=160, e=5, noise=0.3, seed=7)
+    # The first restart of a seed is the single run of that seed: more restarts never end worse.
+    one = np.array([kmeans(x, 6, seed=s, n_init=1)[1] for s in range(6)])
+    eight = np.array([kmeans(x, 6, seed=s, n_init=8)[1] for s in range(6)])
+    assert np.all(eight <= one * (1 + 1e-9)) and np.any(eight < one * (1 - 1e-6))
+    labels, inertia = kmeans(x, 4)
+    moved, moved_inertia = kmeans(1000.0 * x + 5e4, 4)  # far from the origin: float32 would lose it
+    np.testing.assert_array_equal(labels, moved)
+    assert moved_inertia == pytest.approx(1e6 * inertia, rel=1e-6)
+
+
+def test_kmeans_on_fewer_distinct_points_than_k() -> None:
+    x = np.repeat(np.eye(3), [5, 3, 2], axis=0)
+    labels, inertia = kmeans(x, 3)
+    assert labels.tolist() == [0] * 5 + [1] * 3 + [2] * 2
+    assert inertia == pytest.approx(0.0, abs=1e-12)
+    labels, inertia = kmeans(np.ones((6, 2)), 2)  # one distinct point
+    assert inertia == 0.0 and set(labels.tolist()) <= {0, 1}
+
+
+def test_kmeans_of_one_cluster_and_of_one_point() -> None:
+    x = np.arange(12.0).reshape(2, 6)  # two points of 6 dimensions: not 12 points of one
+    assert kmeans(x, 2)[0].tolist() == [0, 1]
+    labels, inertia = kmeans(x, 1)
+    assert labels.tolist() == [0, 0] and inertia == pytest.approx(6 * 2 * 3.0**2)
+    labels, inertia = kmeans(x[:1], 1)
+    assert labels.tolist() == [0] and inertia == 0.0
+
+
+def test_pairwise_distances_equal_scikit_learn() -> None:
+    from sklearn.metrics import pairwise_distances as reference
+
+    x = np.random.default_rng(3).normal(size=(70, 5)) + 40.0
+    d = pairwise_distances(x)
+    np.testing.assert_allclose(d, reference(x), atol=1e-9)
+    assert np.array_equal(d, d.T) and not d.diagonal().any()
 
 
 @pytest.mark.parametrize("bad", [np.zeros((0, 3)), np.zeros(5), np.full((4, 2), np.nan)])

@@ -63,14 +63,15 @@ def test_setup_imports_with_the_collector_paused_and_freezes_them(tmp_path: Path
         "import threading\n"
         "_import_ahead(PipelineConfig())\n"
         "[t.join() for t in threading.enumerate() if t.name == 'moseg-import']\n"
-        "print(full[0], gc.isenabled(), gc.get_freeze_count(), 'torch' in sys.modules, 'sklearn' in sys.modules)\n"
+        "print(full[0], gc.isenabled(), gc.get_freeze_count(), *(m in sys.modules for m in ('torch', 'sklearn', "
+        "'scipy.spatial', 'rerun.blueprint')))\n"
         "built_after = [[] for _ in range(20_000)]\n"  # alive at exit (lists are tracked; empty dicts are not)
     )
     proc = _python(code, tmp_path)
-    full, enabled, frozen, has_torch, has_sklearn = proc.stdout.split()
-    # scikit-learn + SciPy (+ OpenCV, Rerun): ~180 k objects; with the collector running they cost full
-    # collections. Torch is not among them: a single-clip run embeds with NumPy (inference.py).
-    assert (full, enabled, has_torch, has_sklearn) == ("0", "True", "False", "True")
+    full, enabled, frozen, *loaded = proc.stdout.split()
+    # SciPy, Rerun (+ OpenCV): ~100 k objects; with the collector running they cost full collections.
+    # Neither torch (a single-clip run embeds with NumPy, inference.py) nor scikit-learn (K-means is OpenCV's).
+    assert (full, enabled, *loaded) == ("0", "True", "False", "False", "True", "True")
     assert int(frozen) > 50_000
     # At exit the lists are frozen too (a few hundred objects frozen at start-up may have gone since).
     assert _at_exit(proc.stderr)[1] >= int(frozen) + 10_000
@@ -78,11 +79,16 @@ def test_setup_imports_with_the_collector_paused_and_freezes_them(tmp_path: Path
 
 @pytest.mark.slow
 def test_moseg_run_starts_without_full_collections(tmp_path: Path) -> None:
-    """The whole `moseg run` on 5 frames: ~5 full collections walking everything torch and
-    scikit-learn built (about 0.5-1 s here) when the imports run with the collector on."""
-    code = _PROBE + "import sys\nfrom mosegpipe.cli.main import app\nsys.argv[0] = 'moseg'\napp()\n"
+    """The whole `moseg run` on 5 frames: full collections walking everything the imports built (about
+    0.5-1 s here when it imported torch and scikit-learn) when the imports run with the collector on."""
+    code = _PROBE + (
+        "import atexit, sys\n"
+        "atexit.register(lambda: print('LOADED', sorted({m.split('.')[0] for m in sys.modules} & {'sklearn', 'scipy'})))\n"
+        "from mosegpipe.cli.main import app\nsys.argv[0] = 'moseg'\napp()\n"
+    )
     proc = _python(code, tmp_path, "run", str(SAMPLE_FRAMES), "--frames", "5", "--no-rrd", "--out", str(tmp_path / "o"))
     assert (tmp_path / "o" / "labels.npz").is_file()
+    assert "LOADED ['scipy']" in proc.stdout  # K-means is OpenCV's: no scikit-learn on a clip's way
     full, frozen = _at_exit(proc.stderr)
     assert full <= 1, f"{full} full collections during moseg run"
     assert frozen > 50_000

@@ -2,7 +2,7 @@
 geometric and joint model fits, the world's motion, and whole videos' labels across windows.
 
 Light on purpose (standard library and mosegpipe.settings / types only): the CLI takes its defaults from
-these classes without importing OpenCV or scikit-learn. Re-exported by the modules that use them
+these classes without importing OpenCV or SciPy. Re-exported by the modules that use them
 (mosegpipe.cluster, rigid, grouping, geometry_select, world).
 """
 
@@ -25,7 +25,7 @@ class ClusterConfig:
         k_max: largest K considered (capped at N - 1 for N points).
         n_init: K-means restarts per K; the best residual of the restarts is kept.
         seed: random seed of K-means (same seed, same labels).
-        num_threads: BLAS / OpenMP threads for scikit-learn; 1 is fastest for these sizes.
+        num_threads: BLAS / OpenMP threads while clustering; 1 is fastest for these sizes.
         min_elbow: "residual" answers K = 1 unless some K >= 2 scores above this (scores lie in [-1, 1]).
         min_silhouette: "silhouette" answers K = 1 unless the best silhouette exceeds this.
         min_spread: below this mean squared distance to the centroid (share of the mean squared norm): K = 1 outright.
@@ -39,7 +39,7 @@ class ClusterConfig:
     k_max: int = 8  # benchmarks have at most 5 motions; 8 leaves headroom for real videos
     n_init: int = 3  # 10 restarts cost 3x the time; see docs/RESULTS.md for the accuracy check
     seed: int = 0  # fixed so that repeated runs give identical labels
-    num_threads: int = 1  # see the timing note in kmeans(): 2 threads were 10-400x slower
+    num_threads: int = 1  # docs/HISTORY.md, ClusterConfig: 2 threads were 10-400x slower
     min_elbow: float = 0.2
     min_silhouette: float = 0.4
     min_spread: float = 1e-4  # RMS distance 0.01 on the unit sphere: identical up to noise
