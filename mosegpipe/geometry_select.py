@@ -266,6 +266,32 @@ def _merge_gain(xy: npt.NDArray[np.float64], one: _Group, two: _Group, cfg: Join
     return (gain, _Group(rows, model)) if gain > 0 else None
 
 
+def window_points(points: npt.ArrayLike, cfg: JointConfig = JointConfig()) -> npt.NDArray[np.float64]:
+    """(N, 2F) trajectories -> (N, P + 1, 2) their positions in the frames the models are fitted on."""
+    data = np.asarray(points, dtype=np.float64)
+    return data.reshape(data.shape[0], -1, 2)[:, _pairs(data.shape[1] // 2, cfg.max_pairs)]
+
+
+def one_rigid_motion(
+    xy: npt.NDArray[np.float64],
+    a: npt.NDArray[np.int64],
+    b: npt.NDArray[np.int64],
+    cfg: JointConfig = JointConfig(),
+    planar: bool = False,
+    share: float | None = None,
+) -> bool:
+    """Whether one model (translation, affine map, homography, or unless `planar` a fundamental matrix) explains
+    `share` (None: cfg.merge_share) of each of the rows a and b of xy (`window_points`): the two move as one rigid
+    body (step 3's test, without GRIC)."""
+    rows = np.concatenate([a, b])
+    cv2.setRNGSeed(cfg.seed)
+    model = best_planar(xy[rows], cfg) if planar else best_model(xy[rows], cfg)
+    if model is None:
+        return False
+    fits = model.residuals(xy[rows]).max(axis=1) <= cfg.residual_px
+    return bool(min(fits[: a.size].mean(), fits[a.size :].mean()) >= (cfg.merge_share if share is None else share))
+
+
 def select_models(
     points: npt.ArrayLike,
     labels: npt.ArrayLike,

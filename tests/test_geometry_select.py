@@ -136,3 +136,41 @@ def test_joint_method_on_a_clip_and_a_whole_video(tmp_path: Path) -> None:
     assert (tmp_path / "out" / "recording.rrd").is_file()
     windows = list(segment_video(clip, strict))
     assert windows and all(w.k >= 1 for w in windows)
+
+
+def _movers_case(rng: np.random.Generator, second_step: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(points, embeddings): a still world and two groups of movers, the second moving by `second_step`; the
+    embedding puts the world at one place and the two movers near each other (two tight blobs)."""
+    world = _moving(rng, 200, (0, 0, 640, 480), (0.0, 0.0))
+    a = _moving(rng, 40, (100, 100, 200, 200), (5.0, 0.0))
+    b = _moving(rng, 40, (400, 300, 500, 380), second_step)
+    centres = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.1], [0.0, 1.0, -0.1]])
+    emb = np.repeat(centres, [200, 40, 40], axis=0) + rng.normal(0, 0.01, (280, 3))
+    return np.vstack([world, a, b]), emb / np.linalg.norm(emb, axis=1, keepdims=True)
+
+
+def test_split_movers_separates_movers_the_clustering_joined() -> None:
+    from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.pipeline.common import split_movers
+    from mosegpipe.types import Clustering
+
+    rng = np.random.default_rng(3)
+    points, emb = _movers_case(rng, (-4.0, 3.0))
+    joined = Clustering(labels=np.repeat([0, 1], [200, 80]).astype(np.int64), k=2)
+    off = split_movers(joined, emb, points, PipelineConfig())
+    assert off is joined  # movers_k_max 1: off
+    cfg = PipelineConfig().with_settings(["cluster.movers_k_max=4"])
+    split = split_movers(joined, emb, points, cfg)
+    assert split.k == 3 and (split.labels[:200] == 0).all()
+    assert len(set(split.labels[200:240].tolist())) == 1 and len(set(split.labels[240:].tolist())) == 1
+    assert split.labels[200] != split.labels[240] and "clustered again" in split.note
+    # the same embedding, but both groups move as one: one rigid motion explains them, nothing is split
+    points, emb = _movers_case(np.random.default_rng(3), (5.0, 0.0))
+    assert split_movers(joined, emb, points, cfg) is joined
+    assert split_movers(joined, emb, points, replace_k(cfg)) is joined  # K given: unchanged
+
+
+def replace_k(cfg):  # type: ignore[no-untyped-def]
+    from dataclasses import replace
+
+    return replace(cfg, k=2)

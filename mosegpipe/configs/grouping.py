@@ -17,7 +17,7 @@ from mosegpipe.types import K_METHODS, KMethodName
 @dataclass(frozen=True)
 class ClusterConfig:
     """How :func:`cluster_auto_k` chooses K, one line each; how the values were chosen is in docs/HISTORY.md
-    ("Where the defaults come from", "ClusterConfig"), how often K is right in docs/RESULTS.md ("The paper's benchmarks").
+    ("Where the defaults come from", "ClusterConfig"), how often K is right in docs/RESULTS.md ("The paper's benchmarks"), the movers' settings in docs/results/41-diagnosis.md.
 
     Attributes:
         method: the automatic-K rule (types.KMethodName): the silhouette, or the elbow of the K-means residual.
@@ -32,6 +32,9 @@ class ClusterConfig:
         one_motion_spread: K = 1 is a candidate only at most this mean squared distance to the centroid (same share).
         static_residual_px: K = 1 without clustering when one affine motion explains the tracks this well (None: never).
         ambiguity_margin: the K choice is reported as ambiguous when the runner-up scores within this of the winner.
+        movers_k_max: the moving tracks clustered again on their own into up to this many groups (1 = off).
+        movers_silhouette: ... split only when their best silhouette exceeds this.
+        movers_min_group: ... and into groups of at least this many tracks each.
     """
 
     method: KMethodName = "silhouette"
@@ -46,6 +49,9 @@ class ClusterConfig:
     one_motion_spread: float = 0.1
     static_residual_px: float | None = 2.0
     ambiguity_margin: float = 0.01
+    movers_k_max: int = 1
+    movers_silhouette: float = 0.4
+    movers_min_group: int = 5
 
     def __post_init__(self) -> None:
         check_fields(self, _CLUSTER_CHECKS)
@@ -65,6 +71,9 @@ _CLUSTER_CHECKS: tuple[Check, ...] = (
     ("one_motion_spread", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
     ("static_residual_px", lambda v: v >= 0, "be >= 0 (or None: never)"),
     ("ambiguity_margin", lambda v: v >= 0, "be >= 0"),
+    ("movers_k_max", lambda v: 1 <= v <= MAX_K, f"lie in 1..{MAX_K}"),
+    ("movers_silhouette", lambda v: -1 <= v <= 1, "lie in [-1, 1]"),
+    ("movers_min_group", lambda v: v >= 1, "be >= 1"),
 )
 """ClusterConfig's checks: (field, test, what it must be)."""
 

@@ -28,6 +28,7 @@ from mosegpipe.pipeline.common import (
     decode_errors,
     embed_at_model_frames,
     model_info,
+    split_movers,
     world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
@@ -102,6 +103,7 @@ def group_tracks(
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
     clustering = check_rigid(clustering, traj.data, size_hw, cfg)
     clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
+    clustering = split_movers(clustering, emb, traj.data, cfg)
     timings["cluster"] = time.perf_counter() - t0
     return emb, clustering
 

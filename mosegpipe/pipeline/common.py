@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.flow import FrameMotion
-from mosegpipe.geometry_select import select_models
+from mosegpipe.geometry_select import one_rigid_motion, select_models, window_points
 from mosegpipe.inference import Embedder, load_embedder
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import split_by_rigid_motion
@@ -125,6 +125,54 @@ def world_to_zero(
     if world == 0:
         return clustering
     return replace(clustering, labels=world_first(clustering.labels, world))
+
+
+def split_movers(
+    clustering: Clustering, emb: npt.NDArray[np.floating], points: npt.NDArray[np.float32], cfg: PipelineConfig
+) -> Clustering:
+    """`clustering` (the world 0) with its moving tracks clustered again on their own embeddings.
+
+    The embedding separates the world from what moves better than one mover from another: automatic K over
+    all tracks often puts every mover in one group (docs/results/41-diagnosis.md). The tracks of the groups
+    other than 0 are clustered again, K from 1 to cfg.cluster.movers_k_max by the silhouette (K = 1 unless the
+    best exceeds cfg.cluster.movers_silhouette); two of the new groups that one rigid motion explains
+    (`geometry_select.one_rigid_motion`, cfg.joint's thresholds) are one again. They replace the moving
+    groups when there are more of them, each of at least cfg.cluster.movers_min_group tracks. Unchanged when K
+    was given, with cfg.cluster.movers_k_max 1, or with fewer than twice movers_min_group moving tracks. The world
+    stays 0; the new groups follow it, by decreasing size.
+    """
+    movers = np.flatnonzero(clustering.labels > 0)
+    k_max, least = cfg.cluster.movers_k_max, cfg.cluster.movers_min_group
+    if cfg.k is not None or k_max <= 1 or movers.size < 2 * least or k_max <= clustering.k - 1:
+        return clustering
+    sweep = replace(
+        cfg.cluster,
+        k_min=1,
+        k_max=k_max,
+        min_silhouette=cfg.cluster.movers_silhouette,
+        one_motion_spread=1.0,  # K = 1 stays a candidate however wide the movers spread
+        static_residual_px=None,
+    )
+    from mosegpipe.cluster import cluster_auto_k, relabel_by_size
+
+    sub = cluster_auto_k(np.asarray(emb)[movers], sweep).labels
+    xy = window_points(np.asarray(points)[movers], cfg.joint)
+    for a in range(int(sub.max()) + 1):
+        for b in range(a + 1, int(sub.max()) + 1):
+            rows_a, rows_b = np.flatnonzero(sub == a), np.flatnonzero(sub == b)
+            if not (rows_a.size and rows_b.size):
+                continue
+            if one_rigid_motion(xy, rows_a, rows_b, cfg.joint, planar=True, share=cfg.joint.rigid_share):
+                sub[rows_b] = a
+    sub = relabel_by_size(sub)
+    k = int(sub.max()) + 1
+    if k <= clustering.k - 1 or np.bincount(sub).min() < least:
+        return clustering
+    labels = clustering.labels.copy()
+    labels[movers] = sub + 1
+    what = f"the moving tracks clustered again: {clustering.k - 1} -> {k} moving groups"
+    note = f"{clustering.note}; {what}" if clustering.note else what
+    return replace(clustering, labels=labels, k=k + 1, note=note)
 
 
 def _model_or_default(model: Embedder | None, frames: int, timings: dict[str, float]) -> Embedder:

@@ -42,7 +42,14 @@ from mosegpipe.masks import (
     carry_unclustered,
 )
 from mosegpipe.motion import ColourMemory, moving_from_motion
-from mosegpipe.pipeline.common import _frames, check_rigid, decode_errors, embed_at_model_frames, world_to_zero
+from mosegpipe.pipeline.common import (
+    _frames,
+    check_rigid,
+    decode_errors,
+    embed_at_model_frames,
+    split_movers,
+    world_to_zero,
+)
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels
 from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
@@ -342,6 +349,7 @@ def _cluster_window(
         log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
         return common, _WindowLabels()
     forced = None if cfg.k is None else min(cfg.k, common.size)
+    emb = None
     if cfg.method == "geometric":  # rigid models fitted one after another: no embedding, no check
         clustering = group_geometric(traj.data, tracks.size_hw, cfg.geometric, k=forced)
         sweep_k = clustering.k
@@ -354,6 +362,8 @@ def _cluster_window(
         clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
     before = np.array([run.prev.get(int(i), -1) for i in common], np.int64)
     clustering = world_to_zero(clustering, traj.data, tracks.size_hw, cfg, before == WORLD, before >= 0, motion)
+    if emb is not None:
+        clustering = split_movers(clustering, emb, traj.data, cfg)
     glob = np.full(common.size, -1, np.int64)
     kept = clustering.labels >= 0  # method "joint" leaves out the tracks no model explains (-1)
     xy_all = traj.data.reshape(common.size, len(window), 2)
