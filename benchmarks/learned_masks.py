@@ -1,6 +1,7 @@
-"""The mask step alone at 640x480, one thread: the "learned" masks (features + network + threshold) against the
-"motion" chain (`moving_from_motion`), on the same frames and the same flow evidence, in the same run; CPU ms
-per frame (process time), alternating the two so that the machine's load hits both alike. The flow (shared by
+"""The mask step alone at 640x480, one thread: the "learned" masks (features + network + the steps after it, and
+the network's probability only thresholded) against the "motion" chain (`moving_from_motion`), on the same frames
+and the same flow evidence, in the same run; CPU ms per frame (process time), alternating them so that the
+machine's load hits all alike. The flow (shared by
 both, and by the tracks) is computed once beforehand and not counted.
 
 Frames: 5-frame windows of DAVIS development clips resized to 640x480 (with the frame after as evidence, as a
@@ -9,6 +10,7 @@ clip run has it). Usage: python benchmarks/learned_masks.py [DATA_ROOT] [ROUNDS]
 
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -25,6 +27,7 @@ set_threads(1)
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1].parent / "shared" / "data"
 rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 3
 motion_cfg, learned_cfg = MotionMaskConfig(), LearnedMaskConfig()
+plain_cfg = replace(learned_cfg, temporal_weight=0.0, refine_scale=0.0, min_component=0.0)
 stacks = []
 for name in ("bear", "dance-jump", "hockey", "soccerball"):
     clip = read_davis_clip(root, name, max_frames=6)
@@ -32,7 +35,7 @@ for name in ("bear", "dance-jump", "hockey", "soccerball"):
     stacks.append((images[:5], stack_motion(images[:5], motion_cfg, after=images[5])))
 net = load_masknet()
 learned_moving(*stacks[0], learned_cfg)  # torch's first call
-cpu = {"motion": 0.0, "learned": 0.0, "features": 0.0, "network": 0.0}
+cpu = {"motion": 0.0, "learned": 0.0, "plain": 0.0, "features": 0.0, "network": 0.0}
 frames = 0
 for _ in range(rounds):
     for images, motion in stacks:
@@ -45,6 +48,9 @@ for _ in range(rounds):
         c3 = time.process_time()
         predict(net, feats)
         c4 = time.process_time()
+        learned_moving(images, motion, plain_cfg)
+        c5 = time.process_time()
+        cpu["plain"] += c5 - c4
         cpu["motion"] += c1 - c0
         cpu["learned"] += c2 - c1
         cpu["features"] += c3 - c2
@@ -53,7 +59,10 @@ for _ in range(rounds):
 print("| mask step, 640x480, one thread | CPU ms / frame |")
 print("|---|---|")
 print(f"| motion chain (`moving_from_motion`) | {1000 * cpu['motion'] / frames:.1f} |")
-print(f"| learned (`learned_moving`) | {1000 * cpu['learned'] / frames:.1f} |")
+print(f"| learned (`learned_moving`, defaults) | {1000 * cpu['learned'] / frames:.1f} |")
+print(
+    f"| learned, probability only thresholded (no temporal carry, refinement, components) | {1000 * cpu['plain'] / frames:.1f} |"
+)
 print(f"| of which features | {1000 * cpu['features'] / frames:.1f} |")
 print(f"| of which network | {1000 * cpu['network'] / frames:.1f} |")
 print(f"({frames} frames per method; load {open('/proc/loadavg').read().split()[0]})")

@@ -7,16 +7,18 @@ import json
 from dataclasses import asdict, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
 
 from mosegpipe.data.davis import DAVIS_DEV, DAVIS_VAL
 from mosegpipe.errors import CheckpointError, ConfigError
+from mosegpipe.flow import FrameMotion
 from mosegpipe.learned import data as learned_data
 from mosegpipe.learned.data import HELD_OUT, TRAIN_DAVIS, Frames4Net, source_clips, stacks
 from mosegpipe.learned.features import NUM_CHANNELS, LearnedMaskConfig, clip_features, net_size
-from mosegpipe.learned.moving import learned_moving
+from mosegpipe.learned.moving import _carried, _refined, learned_moving, learned_probability
 from mosegpipe.learned.net import MaskNet, load_masknet, shipped_path
 from mosegpipe.learned.train import MaskTrainConfig, train_masknet
 from mosegpipe.masks import MaskConfig
@@ -42,8 +44,9 @@ def test_shipped_weights_load_with_weights_only() -> None:
     assert ckpt["kind"] == "masknet" and ckpt["recipe"]["name"] == "masknet"
     net = load_masknet()
     assert not net.training and net.in_channels == NUM_CHANNELS
-    # the threshold the recipe chose on the held-out development clips is the default
-    assert LearnedMaskConfig().threshold == ckpt["recipe"]["threshold"]
+    # the recipe chose its threshold for the probability alone; the default, with the steps after the network
+    # (temporal carry, refinement, weak regions dropped), was chosen end to end and is lower
+    assert ckpt["recipe"]["threshold"] == 0.7 and LearnedMaskConfig().threshold == 0.6
 
 
 def test_a_broken_checkpoint_is_one_error(tmp_path: Path) -> None:
@@ -143,3 +146,59 @@ def test_training_is_seeded_and_learns(tmp_path: Path, monkeypatch: pytest.Monke
     assert first["held_out_table"] == again["held_out_table"]
     scores = [max(e["j"]) for e in first["held_out_table"]]
     assert scores[-1] > scores[0] + 0.2 and first["held_out_j"] > 0.7  # a threshold of channel 1, learnt in 40 steps
+
+
+def test_temporal_carry_follows_the_flow() -> None:
+    # a blob moving 3 px right per frame: carried along the flow it stays whole; a one-frame spike is damped
+    prob = np.zeros((3, 16, 24), np.float32)
+    for t in range(3):
+        prob[t, 6:10, 6 + 3 * t : 10 + 3 * t] = 1.0
+    prob[1, 0, 0] = 1.0  # noise in one frame only
+    step = np.zeros((2, 16, 24, 2), np.float32)
+    step[..., 0] = 3.0
+    motion = FrameMotion(np.zeros((3, 16, 24), np.float32), np.zeros((3, 16, 24), np.float32), 1.0, step, -step)
+    out = _carried(prob, motion, 0.5)
+    assert np.allclose(out[1, 6:10, 9:13], 1.0) and np.allclose(out[1].sum(), 16 + 0.5)
+    backwards = FrameMotion(motion.residual, motion.fb_error, 1.0, -step, step)  # the wrong way: the blob smears
+    assert _carried(prob, backwards, 0.5)[1, 6:10, 9:13].min() < 0.75
+
+
+def test_refined_edges_follow_the_image() -> None:
+    image = np.full((64, 96, 3), 40, np.uint8)
+    image[:, 50:] = 200  # the object: the bright right part
+    coarse = np.zeros((16, 24), np.float32)
+    coarse[:, 12:] = 0.95  # at 1/4 size its edge falls at x = 48, and linear upsampling blurs it
+    truth = np.zeros((64, 96), bool)
+    truth[:, 50:] = True
+    cfg = LearnedMaskConfig(threshold=0.5, refine_scale=1.0)
+    refined = _refined(coarse, image, cfg)
+    plain = cv2.resize(coarse, (96, 64), interpolation=cv2.INTER_LINEAR) > 0.5
+    assert (refined != truth).sum() < (plain != truth).sum()
+    assert (refined != truth).mean() < 0.01
+
+
+def test_temporal_carry_of_a_window_matches_the_whole_stack() -> None:
+    # a window's first frames are evidence only: the frames it masks get what the whole stack gives them
+    clip = render_clip(RenderConfig(size_hw=(96, 128), frames=5, seed=4, camera_motion="pan"))
+    motion = stack_motion(clip.frames, MotionMaskConfig())
+    cfg = LearnedMaskConfig(temporal_weight=0.5)
+    whole = learned_probability(clip.frames, motion, cfg)
+    assert np.allclose(learned_probability(clip.frames, motion, cfg, first=2), whole[2:], atol=1e-5)
+    alone = learned_probability(clip.frames, motion, LearnedMaskConfig(temporal_weight=0.0))
+    assert not np.allclose(alone, whole, atol=1e-3)
+
+
+def test_weak_regions_are_dropped(monkeypatch: pytest.MonkeyPatch) -> None:
+    # two confident regions of the same size: the one whose pixels barely move (flow noise, a thin structure's
+    # parallax) is weaker than a tenth of the other (area x mean residual^2) and goes; with 0 both stay
+    prob = np.zeros((1, 16, 24), np.float32)
+    prob[0, 2:6, 2:6] = prob[0, 10:14, 14:18] = 0.95
+    residual = np.zeros((1, 64, 96), np.float32)
+    residual[0, 8:24, 8:24] = 6.0  # the first region's pixels, at the flow's (full) size
+    residual[0, 40:56, 56:72] = 1.0
+    motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
+    monkeypatch.setattr("mosegpipe.learned.moving.learned_probability", lambda *a, **k: prob)
+    images = np.zeros((1, 64, 96, 3), np.uint8)
+    both = learned_moving(images, motion, LearnedMaskConfig(threshold=0.5, refine_scale=0.0, min_component=0.0))[0]
+    strong = learned_moving(images, motion, LearnedMaskConfig(threshold=0.5, refine_scale=0.0, min_component=0.1))[0]
+    assert both[16, 16] and both[48, 64] and strong[16, 16] and not strong[48, 64]

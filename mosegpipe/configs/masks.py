@@ -109,18 +109,25 @@ _MOTION_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class LearnedMaskConfig:
-    """Settings of the "learned" masks (`MaskConfig.learned`, mosegpipe.learned); the threshold is the masknet
-    recipe's choice on the held-out development clips (docs/HISTORY.md, "Learned masks").
+    """Settings of the "learned" masks (`MaskConfig.learned`, mosegpipe.learned); each default chosen end to end on
+    the 4 held-out development clips and the 20 development clips (docs/RESULTS.md and docs/HISTORY.md, "Learned
+    masks"; the threshold 0.6 with the steps after the network, the recipe's 0.7 without them).
 
     Attributes:
         threshold: a pixel is moving where the network's probability of "not the world" is above this.
         scale: the network's input is the frame resized by this; its probability is resized back (linear).
         weights: checkpoint of the mask network ("" = the shipped one, mosegpipe/weights/masknet.pt).
+        temporal_weight: each frame's probability is averaged with weight w with its neighbours' carried along the flow (0 = off).
+        refine_scale: the probability goes to this scale of the frame through a guided filter and global smoother (0 = off).
+        min_component: moving regions weaker (area x mean residual^2) than this share of the frame's strongest are dropped.
     """
 
-    threshold: float = 0.7
+    threshold: float = 0.6
     scale: float = 0.25
     weights: str = ""
+    temporal_weight: float = 0.5
+    refine_scale: float = 0.5
+    min_component: float = 0.1
 
     def __post_init__(self) -> None:
         check_fields(self, _LEARNED_CHECKS)
@@ -129,6 +136,9 @@ class LearnedMaskConfig:
 _LEARNED_CHECKS: tuple[Check, ...] = (
     ("threshold", lambda v: 0 < v < 1, "lie in (0, 1)"),
     ("scale", lambda v: 0.05 <= v <= 1, "lie in [0.05, 1]"),
+    ("temporal_weight", lambda v: 0 <= v < 1, "lie in [0, 1)"),
+    ("refine_scale", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("min_component", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
 )
 """LearnedMaskConfig's checks: (field, test, what it must be)."""
 

@@ -27,7 +27,7 @@ import numpy.typing as npt
 from mosegpipe.configs.masks import LearnedMaskConfig
 from mosegpipe.flow import FrameMotion
 
-__all__ = ["NUM_CHANNELS", "LearnedMaskConfig", "clip_features", "net_size"]
+__all__ = ["NUM_CHANNELS", "LearnedMaskConfig", "clip_features", "net_flows", "net_size", "sample_along"]
 
 NUM_CHANNELS = 9
 """Input channels of the mask network (see the module docstring)."""
@@ -48,7 +48,17 @@ def _area(x: npt.NDArray[np.float32], hw: tuple[int, int]) -> npt.NDArray[np.flo
     return out
 
 
-def _sample(
+def net_flows(
+    motion: FrameMotion, hw: tuple[int, int]
+) -> tuple[list[npt.NDArray[np.float32]], list[npt.NDArray[np.float32]]]:
+    """The stack's forward and backward flows at net size `hw`, in net-size pixels (empty when not kept)."""
+    to_net = np.float32(hw[1] / motion.residual.shape[2])
+    forward = [] if motion.forward is None else [_area(f, hw) * to_net for f in motion.forward]
+    backward = [] if motion.backward is None else [_area(f, hw) * to_net for f in motion.backward]
+    return forward, backward
+
+
+def sample_along(
     values: npt.NDArray[np.float32], flow: npt.NDArray[np.float32], grid: tuple[npt.NDArray[np.float32], ...]
 ) -> npt.NDArray[np.float32]:
     """`values` read where `flow` (net-size pixels) leads each pixel (border pixels repeated)."""
@@ -75,10 +85,8 @@ def clip_features(
     num, height, width = images.shape[:3]
     hw = net_size((height, width), scale)
     to_full = np.float32(1.0 / motion.scale)
-    # flows at net size, in net-size pixels
     to_net = np.float32(hw[1] / motion.residual.shape[2])
-    forward = [] if motion.forward is None else [_area(f, hw) * to_net for f in motion.forward]
-    backward = [] if motion.backward is None else [_area(f, hw) * to_net for f in motion.backward]
+    forward, backward = net_flows(motion, hw)
     logs, rel = [], []
     for t in range(num):
         lg = np.log1p(_area(motion.residual[t] * to_full, hw))
@@ -92,9 +100,9 @@ def clip_features(
         c[0], c[1] = logs[t], rel[t]
         near = []
         if t > 0 and len(backward) >= t:
-            near.append(_sample(rel[t - 1], backward[t - 1], grid))
+            near.append(sample_along(rel[t - 1], backward[t - 1], grid))
         if t + 1 < num and len(forward) > t:
-            near.append(_sample(rel[t + 1], forward[t], grid))
+            near.append(sample_along(rel[t + 1], forward[t], grid))
         c[2] = np.mean(near, axis=0) if near else rel[t]
         err = np.minimum(np.nan_to_num(motion.fb_error[t], nan=1e3, posinf=1e3), 1e3) * to_full
         c[3] = np.log1p(np.minimum(_area(err.astype(np.float32), hw), 50.0))

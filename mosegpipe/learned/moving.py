@@ -3,6 +3,13 @@
 The drop-in for `motion.moving_from_motion` (same inputs, same output): `masks.motion_masks` and the whole
 video's windows call this instead when `MaskConfig.method` is "learned"; the moving pixels then get the
 tracks' labels exactly as the "motion" masks' do. Torch is imported on the first call only.
+
+Steps after the network, each a setting of `LearnedMaskConfig` (measured in docs/RESULTS.md, "Learned masks"):
+the probability carried along the flow from the neighbouring frames and averaged (`temporal_weight`), its
+edges moved onto the image's by the motion chain's guided filter and global smoother at `refine_scale` of the
+frame (instead of plain upsampling), and regions weaker than a share of the frame's strongest dropped as the
+chain drops them (`min_component`; strength = area x mean camera residual^2: flow noise, parallax of thin
+structures, ripples).
 """
 
 from __future__ import annotations
@@ -12,7 +19,35 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.flow import FrameMotion
-from mosegpipe.learned.features import LearnedMaskConfig, clip_features
+from mosegpipe.learned.features import LearnedMaskConfig, clip_features, net_flows, sample_along
+from mosegpipe.motion import _keep_strong
+
+GUIDED_RADIUS = 2
+"""`refine_scale`'s guided filter: radius (the motion chain's `MotionMaskConfig.guided_radius`)."""
+GUIDED_EPS = 0.001
+"""Its regulariser, (intensity / 255)^2 (the chain's `guided_eps`)."""
+SMOOTH_LAMBDA = 16.0
+"""The global smoother's strength after it (the chain's `smooth_lambda`)."""
+SMOOTH_SIGMA = 5.0
+"""Its colour scale, 0-255 units (the chain's `smooth_sigma`)."""
+COMPONENT_POWER = 2.0
+"""`min_component`'s strength: area x mean residual to this power (the chain's `component_power`)."""
+
+
+def _carried(prob: npt.NDArray[np.float32], motion: FrameMotion, weight: float) -> npt.NDArray[np.float32]:
+    """Each frame's probability averaged, with `weight`, with its neighbours' read where its flow leads."""
+    forward, backward = net_flows(motion, prob.shape[1:])
+    ys, xs = np.mgrid[0 : prob.shape[1], 0 : prob.shape[2]].astype(np.float32)
+    grid = (xs, ys)
+    out = np.empty_like(prob)
+    for t, p in enumerate(prob):
+        near = []
+        if t > 0 and len(backward) >= t:
+            near.append(sample_along(prob[t - 1], backward[t - 1], grid))
+        if t + 1 < len(prob) and len(forward) > t:
+            near.append(sample_along(prob[t + 1], forward[t], grid))
+        out[t] = p if not near else (1 - np.float32(weight)) * p + np.float32(weight) * np.mean(near, axis=0)
+    return out
 
 
 def learned_probability(
@@ -23,24 +58,61 @@ def learned_probability(
     Args:
         images: (T, H, W, 3) uint8 RGB, T >= 2.
         motion: the frames' flow evidence with its flows (`motion.stack_motion`, a `FlowStream`'s).
-        cfg: the network's settings (its weights, input scale).
-        first: frames first..T-1 only (the frames before are the first one's neighbours).
+        cfg: the network's settings (its weights, input scale, `temporal_weight`).
+        first: frames first..T-1 only (the frames before are the first one's neighbours; with
+            `temporal_weight`, their probability is carried into the first one's too).
     """
     from mosegpipe.learned.net import load_masknet, predict
 
-    return predict(load_masknet(cfg.weights), clip_features(images, motion, cfg.scale, first))
+    net = load_masknet(cfg.weights)
+    if cfg.temporal_weight <= 0:
+        return predict(net, clip_features(images, motion, cfg.scale, first))
+    prob = predict(net, clip_features(images, motion, cfg.scale, max(0, first - 1)))
+    start = max(0, first - 1)
+    carried = _carried(prob, motion.frames(start, len(images)), cfg.temporal_weight)
+    return carried[first - start :]
+
+
+def _refined(
+    prob: npt.NDArray[np.float32], image: npt.NDArray[np.uint8], cfg: LearnedMaskConfig
+) -> npt.NDArray[np.bool_]:
+    """Moving pixels at `cfg.refine_scale` of the frame: the probability minus the threshold, resized (linear),
+    guided filter with the grey frame as guide, then global smoother with the colour frame as guide, > 0."""
+    height, width = image.shape[:2]
+    hw = (max(1, round(height * cfg.refine_scale)), max(1, round(width * cfg.refine_scale)))
+    small = image if hw == (height, width) else cv2.resize(image, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+    z = cv2.resize(prob, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) - np.float32(cfg.threshold)
+    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+    z = cv2.ximgproc.guidedFilter(grey, z, GUIDED_RADIUS, GUIDED_EPS * 255.0**2)
+    z = cv2.ximgproc.fastGlobalSmootherFilter(small, z, SMOOTH_LAMBDA, SMOOTH_SIGMA)
+    out: npt.NDArray[np.bool_] = z > 0
+    return out
 
 
 def learned_moving(
-    images: npt.NDArray[np.uint8], motion: FrameMotion, cfg: LearnedMaskConfig = LearnedMaskConfig(), first: int = 0
+    images: npt.NDArray[np.uint8],
+    motion: FrameMotion,
+    cfg: LearnedMaskConfig = LearnedMaskConfig(),
+    first: int = 0,
 ) -> npt.NDArray[np.bool_]:
     """Masks of the moving pixels of frames first..T-1: (T - first, H, W) bool, True = not the world.
 
-    The probability is resized to the frame's size (linear) and compared with `cfg.threshold`.
+    The probability is resized to the frame's size (linear; or refined, `cfg.refine_scale`) and compared with
+    `cfg.threshold`; with `cfg.min_component`, weak regions are dropped.
     """
     height, width = images.shape[1:3]
     prob = learned_probability(images, motion, cfg, first)
     out = np.empty((len(prob), height, width), bool)
     for t, p in enumerate(prob):
-        out[t] = cv2.resize(p, (width, height), interpolation=cv2.INTER_LINEAR) > np.float32(cfg.threshold)
+        if cfg.refine_scale > 0:
+            small = _refined(p, images[first + t], cfg)
+        else:
+            small = cv2.resize(p, (width, height), interpolation=cv2.INTER_LINEAR) > np.float32(cfg.threshold)
+        if cfg.min_component > 0:
+            residual = motion.residual[first + t] * np.float32(1.0 / motion.scale)  # full-resolution pixels
+            residual = cv2.resize(residual, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_LINEAR)
+            small = _keep_strong(small, residual, cfg.min_component, COMPONENT_POWER)
+        if small.shape != (height, width):
+            small = cv2.resize(small.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
+        out[t] = small
     return out
