@@ -58,7 +58,15 @@ Matcher = Literal["bf", "flann"]
 MATCHERS: tuple[Matcher, ...] = get_args(Matcher)
 
 RecipeName = Literal[
-    "clip-f5", "clip-f5-rendered", "clip-f5-davis", "base-f5", "synthetic-f5", "pair-f2", "synthetic-f2", "lce"
+    "clip-f5",
+    "clip-f5-rendered",
+    "clip-f5-davis",
+    "clip-f5-variety",
+    "base-f5",
+    "synthetic-f5",
+    "pair-f2",
+    "synthetic-f2",
+    "lce",
 ]
 """Named training recipes (`mosegpipe.training.recipes.RECIPES`, `moseg train --preset`); the first is the
 shipped 5-frame model's."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -252,3 +253,106 @@ def test_rendered_own_clips_label_track_and_cache(tmp_path: Path, monkeypatch: p
     (root / "videos" / "p1.png").unlink()  # other textures: another cache entry
     with pytest.raises(AssertionError, match="tracked again"):
         own_tracks.rendered_own_clips(root, frames=4, cfg=cfg, cache_dir=cache)
+
+
+# ---------------------------------------------------------------- composites through our tracker
+
+
+def _two_object_composite(frames: int = 7):  # type: ignore[no-untyped-def]
+    """A panning textured plate (2 px/frame to the left) with two pasted 50 px squares: object 1 moves 4 px/frame
+    to the right over the scene (2 px/frame on the screen), object 2 holds still in the scene (it pans with the
+    plate)."""
+    from mosegpipe.synth.composite import Composite, ObjectPath, compose, sprite_from
+
+    h, w = 120, 200
+    rng = np.random.default_rng(0)
+    noise = rng.integers(0, 256, (h // 4, (w + 40) // 4, 3), dtype=np.uint8)
+    big = cv2.GaussianBlur(cv2.resize(noise, (w + 40, h), interpolation=cv2.INTER_CUBIC), (3, 3), 0)
+    plate = np.stack([big[:, 2 * t : 2 * t + w] for t in range(frames)])
+    camera = np.stack([np.array([[1, 0, -2.0 * t], [0, 1, 0], [0, 0, 1]]) for t in range(frames)])
+    sprites = []
+    for seed in (1, 2):
+        tex = cv2.resize(
+            np.random.default_rng(seed).integers(0, 256, (20, 20, 3), dtype=np.uint8),
+            (60, 60),
+            interpolation=cv2.INTER_CUBIC,
+        )
+        mask = np.zeros((60, 60), dtype=bool)
+        mask[5:55, 5:55] = True
+        sprites.append(sprite_from(tex[None], mask[None]))
+    paths = [
+        ObjectPath("translation", (60.0, 60.0), (60.0 + 4 * (frames - 1), 60.0)),
+        ObjectPath("translation", (150.0, 60.0), (150.0, 60.0)),
+    ]
+    images, masks = compose(plate, None, sprites, paths, camera)
+    moving = np.stack([np.ones(frames, dtype=bool), np.zeros(frames, dtype=bool)], axis=1)
+    return Composite("dev-00", images, masks, (1, 2), moving, sources=("a", "b"), plate="p", camera=camera)
+
+
+def test_composite_labels_by_object_still_objects_are_the_world() -> None:
+    from mosegpipe.training.own_tracks import label_composite_tracks
+
+    comp = _two_object_composite()
+    t = np.arange(5)[None, :, None]
+    xy = np.concatenate(
+        [
+            np.array([[[68.0, 60.0]]]) + t * [2.0, 0.0],  # on object 1, moving with it
+            np.array([[[150.0, 60.0]]]) + t * [-2.0, 0.0],  # on object 2, carried by the camera
+            np.array([[[20.0, 105.0]]]) + t * [-2.0, 0.0],  # on the plate
+            np.array([[[36.0, 60.0]]]) + t * [2.0, 0.0],  # at object 1's left edge (35.5 = 60 - 24.5)
+        ]
+    )
+    # From frame 2 on, a point 8 px further right (object 1 has moved 4 px, object 2 4 px the other way).
+    assert label_composite_tracks(comp, xy, 0, boundary_px=3).tolist() == [1, 0, 0, -1]
+    assert label_composite_tracks(comp, xy + [8.0, 0.0], 2, boundary_px=3).tolist()[:3] == [1, 0, 0]
+    moving = comp.moving.copy()
+    moving[2:, 1] = True  # object 2 "starts" in frame 2: neither the world nor an object in frames 0-4
+    started = dataclasses.replace(comp, moving=moving)
+    assert label_composite_tracks(started, xy, 0, boundary_px=3).tolist() == [1, -1, 0, -1]
+    assert label_composite_tracks(started, xy + [8.0, 0.0], 2, boundary_px=3).tolist()[:3] == [1, 2, 0]
+
+
+def test_composite_own_clips_track_every_window_and_cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mosegpipe.errors import ConfigError
+    from mosegpipe.synth import composite
+    from mosegpipe.training import own_tracks
+
+    made: list[tuple[int, list[str] | None]] = []
+
+    def tiny_set(root: object, part: str, count: int = 10, seed: int = 41, cfg: object = None, names=None):  # type: ignore[no-untyped-def]
+        assert part == "dev"
+        made.append((seed, names))
+        return [_two_object_composite()]
+
+    monkeypatch.setattr(composite, "composite_set", tiny_set)
+    cfg = own_tracks.CompositeTracksConfig(num_clips=2, seed=7)
+    cache = tmp_path / "cache"
+    clips = own_tracks.composite_own_clips(tmp_path, frames=5, cfg=cfg, cache_dir=cache)
+    assert made == [(7, ["dev-00"]), (7, ["dev-01"])]
+    assert [c.name for c in clips] == [f"composite/{i:02d}/f{s + 1}-{s + 5}" for i in range(2) for s in range(3)]
+    for c in clips:
+        assert c.traj.shape[1] == 10 and c.dataset == "composite-own"
+        assert set(np.unique(c.labels)) == {-1, 0, 1}  # the still object is the world
+        assert int((c.labels == 1).sum()) >= 10 and int((c.labels == 0).sum()) > int((c.labels == 1).sum())
+
+    def no_tracking(*args: object, **kwargs: object) -> None:
+        raise AssertionError("tracked again although the windows are cached")
+
+    monkeypatch.setattr(own_tracks, "track_klt", no_tracking)
+    again = own_tracks.composite_own_clips(tmp_path, frames=5, cfg=cfg, cache_dir=cache)
+    assert [c.name for c in again] == [c.name for c in clips]
+    np.testing.assert_array_equal(again[-1].labels, clips[-1].labels)
+    assert own_tracks.composite_own_clips(tmp_path, frames=5, exclude=["b"], cfg=cfg, cache_dir=cache) == []
+    with pytest.raises(ConfigError, match="scored"):
+        own_tracks.composite_own_clips(tmp_path, cfg=own_tracks.CompositeTracksConfig(seed=composite.SEED))
+
+
+def test_variety_recipe_draws_composites_from_known_sources() -> None:
+    from mosegpipe.training.recipes import RECIPES, SOURCES
+
+    recipe = RECIPES["clip-f5-variety"]
+    assert dict(recipe.sources)["composite-own"] > 0 and recipe.init == "base-f5"
+    assert recipe.train == RECIPES["clip-f5"].train and recipe.model == RECIPES["clip-f5"].model
+    for r in RECIPES.values():
+        assert {name for name, _ in r.sources} <= set(SOURCES), r.name
+    assert SOURCES["composite-own"].augment is not None

@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.data.labels import remap_labels
+from mosegpipe.errors import ConfigError
 from mosegpipe.evaluation.label_transfer import (
     PairTransferConfig,
     TrackTransferConfig,
@@ -37,6 +38,7 @@ from mosegpipe.evaluation.label_transfer import (
 )
 from mosegpipe.io import default_cache_dir, write_npz
 from mosegpipe.match import MatchConfig, match_sift
+from mosegpipe.synth.composite import Composite, CompositeConfig
 from mosegpipe.track import TrackConfig, track_klt
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import Frames, LabeledClip
@@ -356,27 +358,30 @@ def texture_photos(data_root: str | Path, exclude: Collection[str] = ()) -> list
     return [photo for _, load in texture_sources(data_root, exclude) for photo in load()]
 
 
-def label_rendered_tracks(clip: Any, xy: npt.NDArray[np.floating], boundary_px: int) -> npt.NDArray[np.int64]:
+def label_rendered_tracks(
+    clip: Any, xy: npt.NDArray[np.floating], boundary_px: int, start: int = 0
+) -> npt.NDArray[np.int64]:
     """Labels of tracked points from a rendered clip's masks: the surface under the point in every
     frame when it is the same one (and no other lies within `boundary_px` in the first and last
     frame), else -1.
 
     Args:
-        clip: a synth.render.RenderedClip.
-        xy: (N, F, 2) our track positions in frames 0..F-1 of the clip.
+        clip: a synth.render.RenderedClip, or anything with its `label_at(t, xy)` (a synth.composite.Composite).
+        xy: (N, F, 2) our track positions in frames start..start+F-1 of the clip.
         boundary_px: see RenderedTracksConfig.
+        start: the clip's frame of xy[:, 0].
 
     Returns:
         (N,) int64 mask ids (0 = background, i = object i) or -1.
     """
     n, f = xy.shape[:2]
-    per_frame = np.stack([clip.label_at(t, xy[:, t]) for t in range(f)], axis=1)
+    per_frame = np.stack([clip.label_at(start + t, xy[:, t]) for t in range(f)], axis=1)
     labels = per_frame[:, 0].copy()
     ok = (per_frame == labels[:, None]).all(axis=1)
     b = boundary_px
     for t in (0, f - 1):
         for dx, dy in ((b, 0), (-b, 0), (0, b), (0, -b), (b, b), (-b, -b), (b, -b), (-b, b)):
-            ok &= clip.label_at(t, xy[:, t] + [dx, dy]) == labels
+            ok &= clip.label_at(start + t, xy[:, t] + [dx, dy]) == labels
     labels[~ok] = -1
     return labels.astype(np.int64)
 
@@ -447,3 +452,117 @@ def rendered_own_clips(
             LabeledClip(name=f"rendered/{i}", traj=arrays[f"{i}/traj"], labels=labels, dataset="rendered-own", meta={})
         )
     return clips
+
+
+@dataclass(frozen=True)
+class CompositeTracksConfig:
+    """What `composite_own_clips` composes and how it labels our tracks of it.
+
+    Attributes:
+        num_clips: composites made ("train-00" ... in the cache; composite i is `composite_set`'s i-th
+            development composite under `seed`: plate = development clip i mod 20).
+        seed: base seed of the composites; never `synth.composite.SEED`, the seed of the composites that
+            `moseg eval composite` scores.
+        composite: how each is drawn (default: as the scored ones, 25 frames at 427x240, 2-4 objects).
+        boundary_px: a track closer than this to a change of mask id (in its first or last frame)
+            stays unlabelled.
+    """
+
+    num_clips: int = 40
+    seed: int = 1041
+    composite: CompositeConfig = CompositeConfig()
+    boundary_px: int = 3
+
+
+def label_composite_tracks(
+    comp: Composite, xy: npt.NDArray[np.floating], start: int, boundary_px: int
+) -> npt.NDArray[np.int64]:
+    """Labels of tracked points of a composite's window from its exact per-object masks.
+
+    A point takes the object id under it (`label_rendered_tracks`: the same id in every frame, not
+    within `boundary_px` of another in the first and last frame, else -1). An object that stands still
+    in the world in every frame of the window is the world (0), as `moseg eval composite` counts it;
+    one that moves in some of the window's frames only (starting, stopping) is left unlabelled (-1).
+
+    Args:
+        comp: the composite.
+        xy: (N, F, 2) positions in frames start..start+F-1.
+        start: the window's first frame.
+        boundary_px: see CompositeTracksConfig.
+
+    Returns:
+        (N,) int64: 0 = world, i = object i (moving), -1 = unlabelled (context only).
+    """
+    ids = label_rendered_tracks(comp, xy, boundary_px, start=start)
+    labels = ids.copy()
+    moving = comp.moving[start : start + xy.shape[1]]
+    for col, oid in enumerate(comp.object_ids):
+        if not moving[:, col].all():
+            labels[ids == oid] = -1 if moving[:, col].any() else 0
+    return labels
+
+
+def composite_own_clips(
+    data_root: str | Path,
+    frames: int = 5,
+    exclude: Collection[str] = (),
+    cfg: CompositeTracksConfig = CompositeTracksConfig(),
+    track: TrackConfig = TrackConfig(),
+    cache_dir: str | Path | None = None,
+) -> list[LabeledClip]:
+    """Our KLT tracks of every F-frame window of composites of the DAVIS development clips.
+
+    The composites are `synth.composite.composite_set(data_root, "dev", ...)` under `cfg.seed` (plates
+    and cut-outs from the development clips only, never a validation clip; other arrangements than the
+    scored development composites, which use `synth.composite.SEED`); each window is tracked by the
+    pipeline's KLT tracker and labelled by `label_composite_tracks`.
+
+    Args:
+        data_root: the data folder holding ``davis2016-train/``.
+        frames: F, frames per window (every start is used, stride 1).
+        exclude: DAVIS clip names: composites that use one (as plate or cut-out) are left out.
+        cfg: which composites and how tracks are labelled.
+        track: KLT settings (the pipeline's defaults).
+        cache_dir: where tracked windows are cached (None = `default_cache_dir()`).
+
+    Returns:
+        LabeledClips named "composite/<i>/f<a>-<b>" with traj (N, 2F) float32 pixels and labels (N,) int64;
+        windows with fewer than MIN_LABELLED labelled points or one labelled group only are left out.
+
+    Raises:
+        ConfigError: cfg.seed is the scored composites' seed.
+        DatasetError: a DAVIS clip is missing or unreadable.
+    """
+    from mosegpipe.synth.composite import SEED, composite_names, composite_set
+
+    if cfg.seed == SEED:
+        raise ConfigError(f"composite-own: seed {SEED} makes the scored development composites; choose another")
+    folder = (
+        Path(cache_dir or default_cache_dir())
+        / f"composite-own-f{frames}-{cache_key('composite-own', frames=frames, cfg=cfg, track=track)}"
+    )
+    clips: list[LabeledClip] = []
+    for i, name in enumerate(composite_names("dev", cfg.num_clips)):
+
+        def build(name: str = name) -> dict[str, npt.NDArray[Any]]:
+            (comp,) = composite_set(data_root, "dev", seed=cfg.seed, cfg=cfg.composite, names=[name])
+            out: dict[str, npt.NDArray[Any]] = {"sources": np.array(comp.sources, dtype=str)}
+            for s in range(comp.num_frames - frames + 1):
+                tracks = track_klt(Frames(images=comp.frames[s : s + frames], source=name), track)
+                traj = build_trajectories(tracks, frames=frames)
+                out[f"{s}/traj"] = traj.data
+                out[f"{s}/labels"] = label_composite_tracks(comp, tracks.xy[traj.track_ids], s, cfg.boundary_px)
+            log.info("composite-own %s: tracked %d windows", name, comp.num_frames - frames + 1)
+            return out
+
+        arrays = _load_or_build(folder / f"train-{i:02d}.npz", build)
+        if set(arrays["sources"].tolist()) & set(exclude):
+            continue
+        clips += _window_clips(arrays, f"composite/{i:02d}", frames, "composite-own", _labelled_if_two_groups)
+    return clips
+
+
+def _labelled_if_two_groups(labels: npt.NDArray[np.int64]) -> int:
+    """Labelled points, or 0 when they hold fewer than two groups (nothing to tell apart)."""
+    known = labels[labels >= 0]
+    return int(known.size) if np.unique(known).size >= 2 else 0

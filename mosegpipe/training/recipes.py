@@ -96,6 +96,21 @@ RECIPES: dict[str, Recipe] = {
             init="base-f5",
         ),
         Recipe(
+            "clip-f5-variety",
+            "clip-f5 with our own KLT tracks of composites of the DAVIS development clips (several objects "
+            "moving independently over real video) and of photo-textured rendered clips added",
+            TrainConfig(frames=5, steps=1500, batch_size=8, lr=1e-3, max_points=1000),
+            _F5,
+            (
+                ("kt3d-own", 0.35),
+                ("composite-own", 0.3),
+                ("rendered-own", 0.1),
+                ("hopkins", 0.1),
+                ("synthetic", 0.15),
+            ),
+            init="base-f5",
+        ),
+        Recipe(
             "base-f5",
             "5-frame starting point without KT3DMoSeg: synthetic clips and Hopkins155 windows",
             # No time budget, so that the steps done (and the weights) do not depend on the machine's speed.
@@ -243,6 +258,12 @@ def _davis_dev_own(data_root: Path, frames: int, exclude: Collection[str]) -> li
     return davis_dev_own_clips(data_root, frames=frames, exclude=exclude)
 
 
+def _composite_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.training.own_tracks import composite_own_clips
+
+    return composite_own_clips(data_root, frames=frames, exclude=exclude)
+
+
 def _augmented(sampler: Sampler, cfg: TrackAugmentConfig) -> Sampler:
     """`sampler` whose clips go through `augment_point_set` (a fresh draw of the augmentation each time)."""
 
@@ -329,6 +350,15 @@ SOURCES: dict[str, Source] = {
             "our KLT tracks of the DAVIS-2016 train clips of the development part (never the validation "
             "part), labels from the human masks: the main object against the rest",
             clips=_davis_dev_own,
+            augment=TRACK_AUGMENT,
+        ),
+        Source(
+            "composite-own",
+            "our KLT tracks of every F-frame window of 40 composites (25 frames, 427x240, 2-4 objects) of the "
+            "DAVIS-2016 train clips of the development part (never the validation part), seeds 1041 (not the "
+            "scored composites' 41), labels from the exact per-object masks (an object still in the world "
+            "is the world)",
+            clips=_composite_own,
             augment=TRACK_AUGMENT,
         ),
         Source("lce", "the synthetic lines/circles/ellipses training split", clips=_lce, needs_data=False),
