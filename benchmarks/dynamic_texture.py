@@ -1,0 +1,137 @@
+"""Rippling water with nothing in it: how much of it the masks write as moving.
+
+Renders clips of a procedural water surface and no object: a seeded smooth texture (blue-green, with foam
+specks) warped every frame by a sum of travelling waves (random directions, wavelengths 12-60 px, speeds
+0.5-2.5 px a frame, amplitudes 0.5-2.5 px), its brightness modulated by the waves' slope (glints), with
+sensor noise; the camera holds still, pans or shakes (a whole-frame translation the world's camera model
+explains). Every pixel is the world: the ground truth is 0 everywhere. Each clip is segmented as a whole
+video exactly as `moseg run --whole` writes it (mask PNGs read back) and the script prints per clip the share
+of pixels written as moving (any value but 0 and 255), the share written unknown (255) and the share of frames
+with any pixel written as moving. Issue 42's target: at most 2 % of the pixels written as moving.
+
+Measurement only: nothing in the pipeline is chosen from these clips (seeds 0-9; no validation split is
+needed while nothing is fitted to them).
+
+    python benchmarks/dynamic_texture.py                                  # the default masks (motion)
+    python benchmarks/dynamic_texture.py --set mask.method=learned
+    python benchmarks/dynamic_texture.py --preset fast
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.inference import load_embedder
+from mosegpipe.io import read_palette_png
+from mosegpipe.outputs import write_video_outputs
+from mosegpipe.pipeline import PipelineConfig
+from mosegpipe.runtime import set_threads
+
+CAMERAS = ("still", "pan", "shake")
+
+
+def _seeds(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out += list(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def water_clip(seed: int, frames: int, size_hw: tuple[int, int], camera: str) -> npt.NDArray[np.uint8]:
+    """(frames, H, W, 3) uint8 RGB frames of rippling water with no object, a pure function of the seed."""
+    rng = np.random.default_rng(seed)
+    h, w = size_hw
+    margin = 40  # the texture is larger than the frame: the camera's pan and the waves never leave it
+    big_h, big_w = h + 2 * margin, w + 2 * margin
+    # A smooth random base: noise blurred at two scales, coloured blue-green, with sparse foam specks.
+    base = np.zeros((big_h, big_w), np.float32)
+    for sigma, weight in ((12.0, 0.7), (3.0, 0.3)):
+        base += weight * cv2.GaussianBlur(rng.standard_normal((big_h, big_w)).astype(np.float32), (0, 0), sigma)
+    base = (base - base.mean()) / (base.std() + 1e-6)
+    foam = cv2.GaussianBlur((rng.random((big_h, big_w)) > 0.997).astype(np.float32), (0, 0), 1.2) * 6.0
+    colour = np.array([40.0, 110.0, 130.0], np.float32) + rng.uniform(-20, 20, 3).astype(np.float32)
+    waves = [
+        (
+            rng.uniform(0, 2 * np.pi),  # direction
+            rng.uniform(12.0, 60.0),  # wavelength, px
+            rng.uniform(0.5, 2.5),  # speed, px a frame
+            rng.uniform(0.5, 2.5),  # amplitude, px
+            rng.uniform(0, 2 * np.pi),  # phase
+        )
+        for _ in range(int(rng.integers(4, 8)))
+    ]
+    ys, xs = np.mgrid[0:big_h, 0:big_w].astype(np.float32)
+    pan = rng.uniform(-1.5, 1.5, 2) if camera == "pan" else np.zeros(2)
+    out = np.empty((frames, h, w, 3), np.uint8)
+    for t in range(frames):
+        dx = np.zeros((big_h, big_w), np.float32)
+        dy = np.zeros((big_h, big_w), np.float32)
+        slope = np.zeros((big_h, big_w), np.float32)
+        for angle, length, speed, amp, phase in waves:
+            ux, uy = np.cos(angle), np.sin(angle)
+            arg = (2 * np.pi / length) * (ux * xs + uy * ys - speed * t) + phase
+            dx += amp * ux * np.sin(arg)
+            dy += amp * uy * np.sin(arg)
+            slope += np.cos(arg)
+        warped = cv2.remap(base, xs + dx, ys + dy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        warped_foam = cv2.remap(foam, xs + dx, ys + dy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        glint = np.clip(slope / len(waves), 0, None) ** 3 * 90.0
+        shade = 28.0 * warped + glint + 120.0 * np.clip(warped_foam, 0, 1)
+        image = colour[None, None, :] + shade[..., None] + rng.normal(0, 2.0, (big_h, big_w, 1)).astype(np.float32)
+        ox, oy = margin + pan * t
+        if camera == "shake":
+            ox, oy = margin + rng.uniform(-3, 3), margin + rng.uniform(-3, 3)
+        crop = cv2.getRectSubPix(np.clip(image, 0, 255).astype(np.float32), (w, h), (ox + w / 2, oy + h / 2))
+        out[t] = np.clip(crop, 0, 255).astype(np.uint8)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seeds", default="0-9", help="render seeds, e.g. 0-9")
+    parser.add_argument("--frames", type=int, default=25, help="frames per clip")
+    parser.add_argument("--size", default="240x320", help="HxW of the frames")
+    parser.add_argument("--preset", default=None, help="best, balanced or fast (default: best)")
+    parser.add_argument("--set", action="append", default=[], help="a pipeline setting, dotted.path=value")
+    args = parser.parse_args()
+    set_threads(1)
+    h, w = (int(v) for v in args.size.split("x"))
+    cfg = PipelineConfig.from_options(5, preset=args.preset, settings=args.set)
+    model = load_embedder(cfg.frames)
+    rows = []
+    print(f"{'seed':>5} {'camera':>7} {'written moving':>15} {'unknown':>8} {'frames with moving':>19} {'s':>6}")
+    for seed in _seeds(args.seeds):
+        camera = CAMERAS[seed % len(CAMERAS)]
+        frames = water_clip(seed, args.frames, (h, w), camera)
+        with tempfile.TemporaryDirectory(prefix="moseg-water-") as tmp:
+            folder = Path(tmp) / "frames"
+            folder.mkdir()
+            for t, image in enumerate(frames):
+                cv2.imwrite(str(folder / f"{t:06d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+            t0 = time.perf_counter()
+            write_video_outputs(folder, Path(tmp) / "out", cfg, model, rrd=False)
+            seconds = time.perf_counter() - t0
+            masks = np.stack(
+                [read_palette_png(Path(tmp) / "out" / "masks" / f"{t:06d}.png") for t in range(len(frames))]
+            )
+        moving = (masks != 0) & (masks != 255)
+        row = (float(moving.mean()), float((masks == 255).mean()), float(moving.any(axis=(1, 2)).mean()))
+        rows.append(row)
+        print(
+            f"{seed:>5} {camera:>7} {100 * row[0]:>14.2f}% {100 * row[1]:>7.2f}% {100 * row[2]:>18.0f}% {seconds:>6.1f}",
+            flush=True,
+        )
+    mean = np.mean(rows, axis=0)
+    print(f"{'mean':>5} {'':>7} {100 * mean[0]:>14.2f}% {100 * mean[1]:>7.2f}% {100 * mean[2]:>18.0f}%")
+
+
+if __name__ == "__main__":
+    main()
