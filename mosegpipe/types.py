@@ -62,6 +62,7 @@ RecipeName = Literal[
     "clip-f5-rendered",
     "clip-f5-davis",
     "clip-f5-variety",
+    "clip-f5-composites",
     "base-f5",
     "synthetic-f5",
     "pair-f2",

@@ -347,10 +347,11 @@ def test_composite_own_clips_track_every_window_and_cache(tmp_path: Path, monkey
         own_tracks.composite_own_clips(tmp_path, cfg=own_tracks.CompositeTracksConfig(seed=composite.SEED))
 
 
-def test_variety_recipe_draws_composites_from_known_sources() -> None:
+@pytest.mark.parametrize("name", ["clip-f5-variety", "clip-f5-composites"])
+def test_variety_recipes_draw_composites_from_known_sources(name: str) -> None:
     from mosegpipe.training.recipes import RECIPES, SOURCES
 
-    recipe = RECIPES["clip-f5-variety"]
+    recipe = RECIPES[name]
     assert dict(recipe.sources)["composite-own"] > 0 and recipe.init == "base-f5"
     assert recipe.train == RECIPES["clip-f5"].train and recipe.model == RECIPES["clip-f5"].model
     for r in RECIPES.values():

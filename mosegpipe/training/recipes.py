@@ -98,7 +98,11 @@ RECIPES: dict[str, Recipe] = {
         Recipe(
             "clip-f5-variety",
             "clip-f5 with our own KLT tracks of composites of the DAVIS development clips (several objects "
-            "moving independently over real video) and of photo-textured rendered clips added",
+            "moving independently over real video) and of photo-textured rendered clips added (an experiment, "
+            "not shipped)",
+            # Dev, against clip-f5 retrained from the same base-f5, mean of two training seeds: composites
+            # J 0.267 -> 0.284, composite-clip5 0.306 -> 0.327, rendered 0.702 both, kt3d-video 4.49 -> 5.79 %
+            # (docs/results/41-diagnosis.md).
             TrainConfig(frames=5, steps=1500, batch_size=8, lr=1e-3, max_points=1000),
             _F5,
             (
@@ -108,6 +112,15 @@ RECIPES: dict[str, Recipe] = {
                 ("hopkins", 0.1),
                 ("synthetic", 0.15),
             ),
+            init="base-f5",
+        ),
+        Recipe(
+            "clip-f5-composites",
+            "clip-f5 with a quarter of its clips from composite-own instead (KT3DMoSeg's share kept at a half, no "
+            "rendered clips; an experiment, not shipped)",
+            TrainConfig(frames=5, steps=1500, batch_size=8, lr=1e-3, max_points=1000),
+            _F5,
+            (("kt3d-own", 0.5), ("composite-own", 0.25), ("hopkins", 0.125), ("synthetic", 0.125)),
             init="base-f5",
         ),
         Recipe(
