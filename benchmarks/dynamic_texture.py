@@ -27,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import numpy.typing as npt
+from world_static import seed_list  # benchmarks/ is the script's folder
 
 from mosegpipe.inference import load_embedder
 from mosegpipe.io import read_palette_png
@@ -35,14 +36,6 @@ from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.runtime import set_threads
 
 CAMERAS = ("still", "pan", "shake")
-
-
-def _seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def water_clip(seed: int, frames: int, size_hw: tuple[int, int], camera: str) -> npt.NDArray[np.uint8]:
@@ -108,7 +101,7 @@ def main() -> None:
     model = load_embedder(cfg.frames)
     rows = []
     print(f"{'seed':>5} {'camera':>7} {'written moving':>15} {'unknown':>8} {'frames with moving':>19} {'s':>6}")
-    for seed in _seeds(args.seeds):
+    for seed in seed_list(args.seeds):
         camera = CAMERAS[seed % len(CAMERAS)]
         frames = water_clip(seed, args.frames, (h, w), camera)
         with tempfile.TemporaryDirectory(prefix="moseg-water-") as tmp:

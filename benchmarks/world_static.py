@@ -33,7 +33,8 @@ from mosegpipe.synth.render import RenderConfig, render_clip
 MOTIONS = ("forward", "handheld", "pan")
 
 
-def _seeds(text: str) -> list[int]:
+def seed_list(text: str) -> list[int]:
+    """The seeds of '0-9' or '0-4,100-104'."""
     out: list[int] = []
     for part in text.split(","):
         lo, _, hi = part.partition("-")
@@ -52,7 +53,7 @@ def main() -> None:
     model = load_embedder(cfg.frames)
     rows = []
     print(f"{'seed':>5} {'camera':>9} {'static written moving':>22} {'object J':>9} {'world off':>10} {'s':>6}")
-    for seed in _seeds(args.seeds):
+    for seed in seed_list(args.seeds):
         motion = MOTIONS[seed % len(MOTIONS)]
         clip = render_clip(
             RenderConfig(
