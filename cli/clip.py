@@ -161,13 +161,14 @@ def _import_ahead(cfg: Any, whole: bool = False, rrd: bool = True) -> None:
     (runtime.import_ahead), in the order the steps ask for it: SciPy for the rigid-motion check and the
     world, scikit-image's thresholds for the motion masks, SciPy's assignment for a video's label memory,
     PyAV and Pillow for the files, Rerun for the recording."""
-    from mosegpipe.runtime import import_ahead
+    from mosegpipe.runtime import LATER_IMPORTS, import_ahead
 
+    unneeded = {
+        *([] if cfg.mask.method == "motion" else ["skimage.filters.thresholding"]),
+        *([] if whole else ["scipy.optimize"]),
+    }
     import_ahead(
-        "scipy.spatial",
-        "scipy.sparse.csgraph",
-        *(["skimage.filters.thresholding"] if cfg.mask.method == "motion" else []),
-        *(["scipy.optimize"] if whole else []),
+        *(name for name in LATER_IMPORTS if name not in unneeded),
         "av",
         "PIL.Image",
         *(["rerun", "rerun.blueprint"] if rrd else []),

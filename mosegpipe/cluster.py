@@ -146,15 +146,12 @@ def kmeans(
 
 
 def pairwise_distances(x: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
-    """(N, N) Euclidean distances between the rows of x: symmetric, zero on the diagonal."""
-    x = np.asarray(x, dtype=np.float64)
-    x = x - x.mean(axis=0)  # distances do not change; the products below lose less to rounding
-    sq = np.sum(x * x, axis=1)
-    d2 = sq[:, None] + sq[None, :] - 2.0 * (x @ x.T)
-    np.maximum(d2, 0.0, out=d2)
-    d2 = (d2 + d2.T) / 2.0
-    np.fill_diagonal(d2, 0.0)
-    return np.sqrt(d2)
+    """(N, N) Euclidean distances between the rows of x: symmetric, zero on the diagonal (SciPy's, imported on
+    first use: `moseg run` imports scipy.spatial ahead)."""
+    from scipy.spatial.distance import pdist, squareform
+
+    out: npt.NDArray[np.float64] = squareform(pdist(np.asarray(x, dtype=np.float64)))
+    return out
 
 
 def mean_silhouette(distances: npt.NDArray[np.float64], labels: npt.NDArray[np.int64]) -> float:

@@ -254,16 +254,31 @@ def _merge_gain(xy: npt.NDArray[np.float64], one: _Group, two: _Group, cfg: Join
     that translates as well.
     """
     assert one.model is not None and two.model is not None
-    rows = np.concatenate([one.rows, two.rows])
     both_3d = cfg.merge_3d and not _planar(one.model) and not _planar(two.model)
-    model = best_model(xy[rows], cfg) if both_3d else best_planar(xy[rows], cfg)
+    # GRIC caps an outlier's cost: a small group's motion must be explained (merge_share of it), not outvoted.
+    model = _union_model(xy, one.rows, two.rows, cfg, both_3d, cfg.merge_share)
+    if model is None:
+        return None
+    gain = one.model.score + two.model.score - model.score
+    return (gain, _Group(np.concatenate([one.rows, two.rows]), model)) if gain > 0 else None
+
+
+def _union_model(
+    xy: npt.NDArray[np.float64],
+    a: npt.NDArray[np.int64],
+    b: npt.NDArray[np.int64],
+    cfg: JointConfig,
+    three_d: bool,
+    share: float,
+) -> GroupModel | None:
+    """The best model of the rows a and b of xy together (a fundamental matrix allowed only with `three_d`), when
+    it explains at least `share` of each within cfg.residual_px over every frame pair; else None."""
+    rows = np.concatenate([a, b])
+    model = best_model(xy[rows], cfg) if three_d else best_planar(xy[rows], cfg)
     if model is None:
         return None
     fits = model.residuals(xy[rows]).max(axis=1) <= cfg.residual_px
-    if min(fits[: one.rows.size].mean(), fits[one.rows.size :].mean()) < cfg.merge_share:
-        return None  # GRIC caps an outlier's cost: a small group's motion must be explained, not outvoted
-    gain = one.model.score + two.model.score - model.score
-    return (gain, _Group(rows, model)) if gain > 0 else None
+    return model if min(fits[: a.size].mean(), fits[a.size :].mean()) >= share else None
 
 
 def window_points(points: npt.ArrayLike, cfg: JointConfig = JointConfig()) -> npt.NDArray[np.float64]:
@@ -283,13 +298,8 @@ def one_rigid_motion(
     """Whether one model (translation, affine map, homography, or unless `planar` a fundamental matrix) explains
     `share` (None: cfg.merge_share) of each of the rows a and b of xy (`window_points`): the two move as one rigid
     body (step 3's test, without GRIC)."""
-    rows = np.concatenate([a, b])
     cv2.setRNGSeed(cfg.seed)
-    model = best_planar(xy[rows], cfg) if planar else best_model(xy[rows], cfg)
-    if model is None:
-        return False
-    fits = model.residuals(xy[rows]).max(axis=1) <= cfg.residual_px
-    return bool(min(fits[: a.size].mean(), fits[a.size :].mean()) >= (cfg.merge_share if share is None else share))
+    return _union_model(xy, a, b, cfg, not planar, cfg.merge_share if share is None else share) is not None
 
 
 def select_models(
@@ -315,7 +325,7 @@ def select_models(
     n = labs.size
     if n == 0 or data.shape[1] < 4:
         return labs.copy(), ""
-    xy = data.reshape(n, -1, 2)[:, _pairs(data.shape[1] // 2, cfg.max_pairs)]
+    xy = window_points(data, cfg)
     cv2.setRNGSeed(cfg.seed)
     min_size = max(cfg.min_group, math.ceil(cfg.min_share * n))
     groups = [

@@ -108,10 +108,10 @@ def collector_paused(marker: str) -> Iterator[None]:
         atexit.register(gc.freeze)  # at exit: before the interpreter's last collection
 
 
-LATER_IMPORTS = ("scipy.spatial", "scipy.sparse.csgraph", "scipy.optimize", "skimage.filters.thresholding")
-"""What the pipeline imports on first use (the rigid-motion check, the world, label matching, the motion masks'
-thresholds): batch workers import them before their first clip (`import_now`); `moseg run` imports what it needs
-of them ahead (`import_ahead`)."""
+LATER_IMPORTS = ("scipy.spatial", "scipy.sparse.csgraph", "skimage.filters.thresholding", "scipy.optimize")
+"""What the pipeline imports on first use, in the order a run asks for them (the rigid-motion check, the world, the
+motion masks' thresholds, a video's label matching): batch workers import them before their first clip
+(`import_now`); `moseg run` imports what it needs of them ahead (`import_ahead`)."""
 
 
 def import_now(*names: str) -> None:

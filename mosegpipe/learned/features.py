@@ -20,6 +20,8 @@ This module needs NumPy and OpenCV only (not torch).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -27,7 +29,7 @@ import numpy.typing as npt
 from mosegpipe.configs.masks import LearnedMaskConfig
 from mosegpipe.flow import FrameMotion
 
-__all__ = ["NUM_CHANNELS", "LearnedMaskConfig", "clip_features", "net_flows", "net_size", "sample_along"]
+__all__ = ["NUM_CHANNELS", "LearnedMaskConfig", "clip_features", "neighbours_along", "net_flows", "net_size"]
 
 NUM_CHANNELS = 9
 """Input channels of the mask network (see the module docstring)."""
@@ -58,7 +60,7 @@ def net_flows(
     return forward, backward
 
 
-def sample_along(
+def _sample(
     values: npt.NDArray[np.float32], flow: npt.NDArray[np.float32], grid: tuple[npt.NDArray[np.float32], ...]
 ) -> npt.NDArray[np.float32]:
     """`values` read where `flow` (net-size pixels) leads each pixel (border pixels repeated)."""
@@ -66,6 +68,23 @@ def sample_along(
         values, grid[0] + flow[..., 0], grid[1] + flow[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
     )
     return out
+
+
+def neighbours_along(
+    values: Sequence[npt.NDArray[np.float32]],
+    forward: Sequence[npt.NDArray[np.float32]],
+    backward: Sequence[npt.NDArray[np.float32]],
+    t: int,
+    grid: tuple[npt.NDArray[np.float32], ...],
+) -> list[npt.NDArray[np.float32]]:
+    """Frame t's neighbours' `values` carried to it: frame t-1's read along t's flow back, frame t+1's along its
+    flow forward (`net_flows`), each when that frame and flow exist."""
+    near = []
+    if t > 0 and len(backward) >= t:
+        near.append(_sample(values[t - 1], backward[t - 1], grid))
+    if t + 1 < len(values) and len(forward) > t:
+        near.append(_sample(values[t + 1], forward[t], grid))
+    return near
 
 
 def clip_features(
@@ -98,11 +117,7 @@ def clip_features(
     for t in range(first, num):
         c = out[t - first]
         c[0], c[1] = logs[t], rel[t]
-        near = []
-        if t > 0 and len(backward) >= t:
-            near.append(sample_along(rel[t - 1], backward[t - 1], grid))
-        if t + 1 < num and len(forward) > t:
-            near.append(sample_along(rel[t + 1], forward[t], grid))
+        near = neighbours_along(rel, forward, backward, t, grid)
         c[2] = np.mean(near, axis=0) if near else rel[t]
         err = np.minimum(np.nan_to_num(motion.fb_error[t], nan=1e3, posinf=1e3), 1e3) * to_full
         c[3] = np.log1p(np.minimum(_area(err.astype(np.float32), hw), 50.0))

@@ -14,24 +14,20 @@ structures, ripples).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.configs.masks import MotionMaskConfig
 from mosegpipe.flow import FrameMotion
-from mosegpipe.learned.features import LearnedMaskConfig, clip_features, net_flows, sample_along
-from mosegpipe.motion import _keep_strong
+from mosegpipe.learned.features import LearnedMaskConfig, clip_features, neighbours_along, net_flows
+from mosegpipe.motion import _keep_strong, _refined_scores
 
-GUIDED_RADIUS = 2
-"""`refine_scale`'s guided filter: radius (the motion chain's `MotionMaskConfig.guided_radius`)."""
-GUIDED_EPS = 0.001
-"""Its regulariser, (intensity / 255)^2 (the chain's `guided_eps`)."""
-SMOOTH_LAMBDA = 16.0
-"""The global smoother's strength after it (the chain's `smooth_lambda`)."""
-SMOOTH_SIGMA = 5.0
-"""Its colour scale, 0-255 units (the chain's `smooth_sigma`)."""
-COMPONENT_POWER = 2.0
-"""`min_component`'s strength: area x mean residual to this power (the chain's `component_power`)."""
+EDGE_STEPS = replace(MotionMaskConfig(), local_colour_weight=0.0, superpixels=0)
+"""The motion chain's settings whose edge steps (guided filter, global smoother) `refine_scale` runs, and whose
+`component_power` measures a region's strength for `min_component`."""
 
 
 def _carried(prob: npt.NDArray[np.float32], motion: FrameMotion, weight: float) -> npt.NDArray[np.float32]:
@@ -40,12 +36,9 @@ def _carried(prob: npt.NDArray[np.float32], motion: FrameMotion, weight: float) 
     ys, xs = np.mgrid[0 : prob.shape[1], 0 : prob.shape[2]].astype(np.float32)
     grid = (xs, ys)
     out = np.empty_like(prob)
-    for t, p in enumerate(prob):
-        near = []
-        if t > 0 and len(backward) >= t:
-            near.append(sample_along(prob[t - 1], backward[t - 1], grid))
-        if t + 1 < len(prob) and len(forward) > t:
-            near.append(sample_along(prob[t + 1], forward[t], grid))
+    frames = list(prob)
+    for t, p in enumerate(frames):
+        near = neighbours_along(frames, forward, backward, t, grid)
         out[t] = p if not near else (1 - np.float32(weight)) * p + np.float32(weight) * np.mean(near, axis=0)
     return out
 
@@ -82,10 +75,7 @@ def _refined(
     hw = (max(1, round(height * cfg.refine_scale)), max(1, round(width * cfg.refine_scale)))
     small = image if hw == (height, width) else cv2.resize(image, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
     z = cv2.resize(prob, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) - np.float32(cfg.threshold)
-    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-    z = cv2.ximgproc.guidedFilter(grey, z, GUIDED_RADIUS, GUIDED_EPS * 255.0**2)
-    z = cv2.ximgproc.fastGlobalSmootherFilter(small, z, SMOOTH_LAMBDA, SMOOTH_SIGMA)
-    out: npt.NDArray[np.bool_] = z > 0
+    out: npt.NDArray[np.bool_] = _refined_scores([small], [z], EDGE_STEPS)[0] > 0
     return out
 
 
@@ -111,7 +101,7 @@ def learned_moving(
         if cfg.min_component > 0:
             residual = motion.residual[first + t] * np.float32(1.0 / motion.scale)  # full-resolution pixels
             residual = cv2.resize(residual, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_LINEAR)
-            small = _keep_strong(small, residual, cfg.min_component, COMPONENT_POWER)
+            small = _keep_strong(small, residual, cfg.min_component, EDGE_STEPS.component_power)
         if small.shape != (height, width):
             small = cv2.resize(small.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
         out[t] = small
