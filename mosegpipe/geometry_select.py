@@ -37,7 +37,10 @@ penalised criterion over the frames of the window (at most `max_pairs` frame pai
    (kt3d-video: 3.68 % -> 5.22 %). Tracks of the groups that are not rigid keep their label.
 
 The pipeline (`PipelineConfig.method` "joint") runs the rigid-motion check first (`rigid_first`), then
-this. Measured in docs/results/41-geometry.md.
+this. With `k_search`, K-means with automatic K and with up to that many more groups each go through both, and
+`choose_partition` keeps the partition of the lowest summed GRIC (plus `group_cost` per group and frame pair).
+In whole videos, `geometry_supported` tells the small new clusters that are rigid motions of their own, which the
+label matching then labels below its size guard (`new_rigid_tracks`). Measured in docs/results/41-geometry.md.
 
 Memory is O(N K) residuals per frame pair. Nothing is applied when K is given (the caller's rule).
 """
@@ -320,11 +323,67 @@ def select_models(
         ((N,) int64 labels in 0..K'-1 by decreasing group size, -1 for the tracks no model explains;
         a note saying what changed, "" when nothing did).
     """
+    labels_out, note, _, _ = _select(np.asarray(points, dtype=np.float64), labels, cfg, k_max)
+    return labels_out, note
+
+
+def choose_partition(
+    points: npt.ArrayLike,
+    candidates: list[npt.NDArray[np.int64]],
+    cfg: JointConfig = JointConfig(),
+    k_max: int = 8,
+) -> tuple[int, npt.NDArray[np.int64], str, list[float]]:
+    """Of several groupings of the same tracks (K-means with different K), the one geometry supports best.
+
+    Each candidate goes through `select_models`' split and merge; the partition it ends in is scored by the
+    summed GRIC of its groups' models (a group no model fits: every track an outlier of a translation) plus
+    `cfg.group_cost` per group and frame pair, so that a further group must save more than that to pay for
+    itself (`partition_score`). A candidate that ends in more groups no planar model explains (not rigid, or a
+    fundamental matrix) than the first is not taken (score inf): GRIC favours cutting a person into pieces, and a
+    world of depth into a plane and the rest (its per-point cost is lower for the plane), and either piece costs
+    the masks (DAVIS dev, stroller: J 0.73 -> 0.58). The groups a search adds are planar motions: objects.
+    Ties go to the earlier candidate.
+
+    Args:
+        points: (N, 2F) float trajectories in pixels, F >= 2.
+        candidates: (N,) int label arrays in 0..K-1, one per grouping (the first: automatic K).
+        cfg: thresholds, see JointConfig.
+        k_max: splits stop at this many groups.
+
+    Returns:
+        (index of the candidate kept, its labels after select_models, their note, every candidate's score, inf
+        for one not allowed).
+    """
+    if not candidates:
+        raise ValueError("choose_partition needs at least one candidate")
     data = np.asarray(points, dtype=np.float64)
+    found = [_select(data, labs, cfg, k_max) for labs in candidates]
+    scores = [f[2] if f[3] <= found[0][3] else math.inf for f in found]
+    best = int(np.argmin(scores)) if np.isfinite(scores).any() else 0  # first of equal scores
+    return best, found[best][0], found[best][1], scores
+
+
+def partition_score(groups_models: list[tuple[int, GroupModel | None]], pairs: int, cfg: JointConfig) -> float:
+    """The GRIC of a partition: per group (its size, its model) the model's GRIC summed over the `pairs`
+    frame pairs, or, without a model, every track a capped outlier of a translation; plus cfg.group_cost
+    per group and frame pair."""
+    d, r = _DIM_PARAMS["translation"][0], 4
+    total = 0.0
+    for size, model in groups_models:
+        total += model.score if model is not None else size * pairs * (2.0 * (r - d) + math.log(r) * d)
+    return total + cfg.group_cost * pairs * len(groups_models)
+
+
+def _select(
+    data: npt.NDArray[np.float64], labels: npt.ArrayLike, cfg: JointConfig, k_max: int
+) -> tuple[npt.NDArray[np.int64], str, float, int]:
+    """select_models, the partition_score of its groups after the splits and merges (before tracks move: the
+    score of the groups the models were fitted to; inf when there is nothing to score), and how many of those
+    groups no planar model explains (not rigid, or a fundamental matrix)."""
     labs = np.asarray(labels, dtype=np.int64).reshape(-1)
     n = labs.size
     if n == 0 or data.shape[1] < 4:
-        return labs.copy(), ""
+        return labs.copy(), "", math.inf, 0
     xy = window_points(data, cfg)
     cv2.setRNGSeed(cfg.seed)
     min_size = max(cfg.min_group, math.ceil(cfg.min_share * n))
@@ -345,6 +404,7 @@ def select_models(
         queue += [i, len(groups) - 1]
         splits += 1
     merges = _merge_rigid(xy, groups, cfg)
+    score = partition_score([(g.rows.size, g.model) for g in groups], xy.shape[1] - 1, cfg)
     out = np.full(n, -1, dtype=np.int64)
     for g, group in enumerate(groups):
         out[group.rows] = g
@@ -376,7 +436,52 @@ def select_models(
     kinds = ", ".join(g.model.kind if g.is_rigid(cfg) and g.model else "not rigid" for g in groups)
     note = f"joint: models {kinds}" + (f"; {', '.join(notes)}" if notes else "")
     logger.debug("%s", note)
-    return final, note
+    return final, note, score, sum(not (g.is_rigid(cfg) and _planar(g.model)) for g in groups)
+
+
+def geometry_supported(
+    points: npt.ArrayLike, labels: npt.ArrayLike, clusters: list[int], cfg: JointConfig = JointConfig()
+) -> list[int]:
+    """Of `clusters`, those that geometry shows to be a motion of their own: one planar model (translation,
+    affine map or homography) of the cluster explains `cfg.planar_share` of its tracks, and no other group's
+    model (`best_model`, the fundamental matrix included) explains half of them (within `cfg.residual_px` in
+    most frame pairs). A handful of tracks that move as one rigid body the rest of the window does not explain
+    is an object, however small (the label matching's guard against small new clusters may let it through).
+
+    Args:
+        points: (N, 2F) float trajectories in pixels, F >= 2.
+        labels: (N,) int groups in 0..K-1 (-1: no group).
+        clusters: the groups to check.
+        cfg: thresholds, see JointConfig.
+
+    Returns:
+        The groups of `clusters` that are supported, in their order.
+    """
+    data = np.asarray(points, dtype=np.float64)
+    labs = np.asarray(labels, dtype=np.int64).reshape(-1)
+    if data.shape[1] < 4 or not clusters:
+        return []
+    xy = window_points(data, cfg)
+    pairs = xy.shape[1] - 1
+    cv2.setRNGSeed(cfg.seed)
+    others: dict[int, GroupModel | None] = {}
+    out = []
+    for c in clusters:
+        own = xy[labs == c]
+        model = best_planar(own, cfg) if own.shape[0] else None
+        if model is None or model.share < cfg.planar_share:
+            continue
+        explained = False
+        for g in np.unique(labs[(labs >= 0) & (labs != c)]).tolist():
+            if g not in others:
+                others[g] = best_model(xy[labs == g], cfg)
+            other = others[g]
+            if other is not None and ((other.residuals(own) <= cfg.residual_px).sum(axis=1) * 2 > pairs).mean() >= 0.5:
+                explained = True
+                break
+        if not explained:
+            out.append(c)
+    return out
 
 
 def _merge_rigid(xy: npt.NDArray[np.float64], groups: list[_Group], cfg: JointConfig) -> int:

@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mosegpipe.errors import ConfigError
-from mosegpipe.geometry_select import JointConfig, best_model, gric, select_models
+from mosegpipe.geometry_select import (
+    JointConfig,
+    best_model,
+    choose_partition,
+    geometry_supported,
+    gric,
+    select_models,
+)
 
 FRAMES = 5
 ROOT = Path(__file__).resolve().parents[1]
@@ -171,6 +179,87 @@ def test_split_movers_separates_movers_the_clustering_joined() -> None:
 
 
 def replace_k(cfg):  # type: ignore[no-untyped-def]
-    from dataclasses import replace
-
     return replace(cfg, k=2)
+
+
+def _three_motions(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(points, embeddings) of a still world (200 tracks), a mover `a` (40) and a mover `b` (40, turning), on a poor
+    embedding: `a` lies beside the world (0.15 apart, noise 0.03), `b` far from both."""
+    world = _moving(rng, 200, (0, 0, 640, 480), (0.0, 0.0))
+    a = _moving(rng, 40, (100, 100, 200, 200), (5.0, 0.0))
+    b = _moving(rng, 40, (400, 300, 500, 380), (-3.0, 4.0), turn=0.02)
+    centres = np.array([[1.0, 0.0, 0.0], [1.0, 0.15, 0.0], [0.0, 0.0, 1.0]])
+    emb = np.repeat(centres, [200, 40, 40], axis=0) + rng.normal(0, 0.03, (280, 3))
+    return np.vstack([world, a, b]), emb / np.linalg.norm(emb, axis=1, keepdims=True)
+
+
+def test_k_by_gric_finds_the_three_motions_kmeans_joins_in_two() -> None:
+    from mosegpipe.cluster import cluster_auto_k
+    from mosegpipe.pipeline import PipelineConfig, check_rigid
+
+    points, emb = _three_motions(np.random.default_rng(7))
+    auto = cluster_auto_k(emb)
+    assert auto.k == 2 and len(set(auto.labels[:240].tolist())) == 1  # the world and `a` in one group
+    cfg = PipelineConfig(method="joint", joint=JointConfig(rigid_first=False, k_search=0))
+    plain = check_rigid(auto, points.astype(np.float32), (480, 640), cfg, emb)
+    assert plain.k == 2  # the model selection alone does not split the largest group (the world's)
+    search = PipelineConfig(method="joint", joint=JointConfig(rigid_first=False, k_search=1))
+    found = check_rigid(auto, points.astype(np.float32), (480, 640), search, emb)
+    assert found.k == 3 and "K by GRIC: K-means with K = 3" in found.note
+    assert [len(set(found.labels[s].tolist())) for s in (slice(0, 200), slice(200, 240), slice(240, 280))] == [1] * 3
+    assert len({found.labels[0], found.labels[200], found.labels[240]}) == 3
+    # a group must pay for itself: at a high enough cost per group automatic K stands (K is never lowered)
+    dear = PipelineConfig(method="joint", joint=JointConfig(rigid_first=False, k_search=1, group_cost=1e5))
+    assert check_rigid(auto, points.astype(np.float32), (480, 640), dear, emb).k == 2
+    # K given: no search
+    assert check_rigid(auto, points.astype(np.float32), (480, 640), replace_k(search), emb) is auto
+
+
+def test_the_partition_score_charges_what_a_group_does_not_explain() -> None:
+    points, _ = _three_motions(np.random.default_rng(8))
+    truth = np.repeat([0, 1, 2], [200, 40, 40])
+    joined = np.repeat([0, 0, 1], [200, 40, 40])
+    best, labels, _, scores = choose_partition(points, [joined, truth])
+    assert best == 1 and scores[1] < scores[0] and len(np.unique(labels)) == 3
+    # the same candidate twice: the first is kept
+    assert choose_partition(points, [truth, truth])[0] == 0
+    with pytest.raises(ValueError):
+        choose_partition(points, [])
+
+
+def test_a_small_rigid_group_is_supported_and_a_loose_or_explained_one_is_not() -> None:
+    rng = np.random.default_rng(9)
+    world = _moving(rng, 600, (0, 0, 640, 480), (1.0, 0.0))
+    small = _moving(rng, 12, (100, 100, 130, 130), (6.0, 2.0))
+    still = _moving(rng, 12, (300, 300, 330, 330), (1.0, 0.0))  # moves with the world: its model explains it
+    start = rng.uniform(400, 440, (12, 2))
+    loose = np.cumsum(np.concatenate([start[:, None], rng.normal(0, 6, (12, FRAMES - 1, 2))], axis=1), axis=1)
+    points = np.vstack([world, small, still, loose.reshape(12, -1)])
+    labels = np.repeat([0, 1, 2, 3], [600, 12, 12, 12])
+    assert geometry_supported(points, labels, [1, 2, 3]) == [1]
+
+
+def test_a_new_small_rigid_cluster_is_labelled_under_joint_only() -> None:
+    from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
+    from mosegpipe.pipeline.video import _small_rigid
+
+    rng = np.random.default_rng(10)
+    world = _moving(rng, 600, (0, 0, 640, 480), (1.0, 0.0))
+    small = _moving(rng, 12, (100, 100, 130, 130), (6.0, 2.0))
+    points = np.vstack([world, small]).astype(np.float32)
+    clusters = np.repeat([0, 1], [600, 12]).astype(np.int64)
+    ids = np.arange(612, dtype=np.int64)
+    joint = PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=8))
+    assert _small_rigid(clusters, points, PipelineConfig()) == []  # the default: the size guard alone
+    assert (
+        _small_rigid(clusters, points, PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=None))) == []
+    )
+    assert _small_rigid(clusters, points, PipelineConfig(method="joint")) == [1]  # joint's default: 8 tracks
+    assert _small_rigid(clusters, points, joint) == [1]
+    assert _small_rigid(clusters, points, replace(joint, joint=JointConfig(new_rigid_tracks=13))) == []
+    # 12 new tracks beside 600: under the guard (15 tracks, 5 %) unlabelled, labelled when supported
+    xy = points.reshape(612, FRAMES, 2)
+    plain = match_labels({}, ids, clusters, 2, LabelBook(), world=True, xy=xy)
+    assert (plain[600:] == -1).all()
+    trusted = match_labels({}, ids, clusters, 2, LabelBook(), world=True, xy=xy, supported=[1])
+    assert (trusted[600:] == 1).all() and (trusted[:600] == 0).all()

@@ -177,7 +177,7 @@ _GEOMETRIC_CHECKS: tuple[Check, ...] = (
 @dataclass(frozen=True)
 class JointConfig:
     """Settings of `select_models` (`--method joint`), one line each (the steps: the module docstring); measured
-    in docs/RESULTS.md ("Several movers: composites in real textures").
+    in docs/RESULTS.md ("Several movers: composites in real textures") and docs/results/41-geometry.md.
 
     Attributes:
         sigma_px: the noise of a track's position, pixels (GRIC's sigma).
@@ -196,6 +196,9 @@ class JointConfig:
         max_pairs: at most this many frame pairs (0, t), spread evenly over the window, are fitted.
         ransac_iters: RANSAC iterations per model.
         seed: OpenCV's random seed, set before each selection (same seed, same labels).
+        k_search: K-means also with up to this many more groups than automatic K; the lowest summed GRIC wins (0 = off).
+        group_cost: what a group costs in that sum, per frame pair, beyond its model's GRIC.
+        new_rigid_tracks: whole videos: a small cluster of this many tracks that geometry supports is labelled (None = off).
     """
 
     sigma_px: float = 1.0  # KLT tracks: about 0.5 px noise, plus drift over the window; world.parallax_sigma_px
@@ -214,6 +217,9 @@ class JointConfig:
     max_pairs: int = 8  # a 20-frame window: every third frame or so; enough to see a motion change
     ransac_iters: int = 1000
     seed: int = 0
+    k_search: int = 1  # composites 0.252 -> 0.29; 2 gave the same (docs/results/41-geometry.md)
+    group_cost: float = 50.0  # 0: kt3d-video 3.40 -> 8.97 %; an 18-track object saves about 4 x 18 per frame pair
+    new_rigid_tracks: int | None = 8  # the guard (15 tracks / 5 %) drops most pasted objects (about 18 tracks)
 
     def __post_init__(self) -> None:
         check_fields(self, _JOINT_CHECKS)
@@ -225,6 +231,9 @@ _JOINT_CHECKS: tuple[Check, ...] = (
     *((name, lambda v: 0 < v <= 1, "lie in (0, 1]") for name in ("rigid_share", "planar_share", "merge_share")),
     ("min_share", lambda v: 0 <= v < 1, "lie in [0, 1)"),
     *((name, lambda v: v >= 1, "be >= 1") for name in ("min_group", "max_pairs", "ransac_iters")),
+    ("k_search", lambda v: 0 <= v <= MAX_K, f"lie in 0..{MAX_K}"),
+    ("group_cost", lambda v: v >= 0, "be >= 0"),
+    ("new_rigid_tracks", lambda v: v >= 4, "be >= 4 (or None: the size guard alone)"),
 )
 """JointConfig's checks: (field, test, what it must be)."""
 

@@ -101,7 +101,7 @@ def group_tracks(
     timings["embed"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
-    clustering = check_rigid(clustering, traj.data, size_hw, cfg)
+    clustering = check_rigid(clustering, traj.data, size_hw, cfg, emb)
     clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
     clustering = split_movers(clustering, emb, traj.data, cfg)
     timings["cluster"] = time.perf_counter() - t0

@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.flow import FrameMotion
-from mosegpipe.geometry_select import one_rigid_motion, select_models, window_points
+from mosegpipe.geometry_select import choose_partition, one_rigid_motion, select_models, window_points
 from mosegpipe.inference import Embedder, load_embedder
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import split_by_rigid_motion
@@ -54,19 +54,70 @@ def _check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
 
 
 def check_rigid(
-    clustering: Clustering, points: npt.NDArray[np.float32], size_hw: tuple[int, int], cfg: PipelineConfig
+    clustering: Clustering,
+    points: npt.NDArray[np.float32],
+    size_hw: tuple[int, int],
+    cfg: PipelineConfig,
+    emb: npt.NDArray[np.floating] | None = None,
 ) -> Clustering:
     """`clustering` after the rigid-motion check (unchanged when K was given or the check is off); it
     splits off no more groups than cfg.cluster.k_max allows.
 
     Its note then says how many groups the check split off, after automatic K's own note. With method
-    "joint", the model selection of `check_joint` follows the check (cfg.joint.rigid_first) or takes its place.
+    "joint", the model selection of `check_joint` follows the check (cfg.joint.rigid_first) or takes its place;
+    with cfg.joint.k_search and the embeddings `emb` (N, E), K-means with the K around automatic K goes through
+    the same steps, and the grouping of the lowest summed GRIC is kept (`search_k`).
     """
     if cfg.method == "joint":
+        if cfg.k is None and cfg.joint.k_search and emb is not None:
+            return search_k(clustering, emb, points, size_hw, cfg)
         if cfg.joint.rigid_first:
             clustering = _rigid_split(clustering, points, size_hw, cfg)
         return check_joint(clustering, points, cfg)
     return _rigid_split(clustering, points, size_hw, cfg)
+
+
+def search_k(
+    clustering: Clustering,
+    emb: npt.NDArray[np.floating],
+    points: npt.NDArray[np.float32],
+    size_hw: tuple[int, int],
+    cfg: PipelineConfig,
+) -> Clustering:
+    """Method "joint" with K chosen by geometric evidence.
+
+    K-means on the embeddings `emb` (N, E) with automatic K (`clustering`, whose own labels stand for it) and with
+    each K up to cfg.joint.k_search more (at most cfg.cluster.k_max and N), each grouping through the rigid-motion
+    check (cfg.joint.rigid_first) and the model selection's split and merge; the one of the lowest summed GRIC is
+    kept (`geometry_select.choose_partition`: a group must save cfg.joint.group_cost per frame pair). The embedding
+    underestimates K where movers look alike to it (docs/results/41-diagnosis.md); the models see them apart.
+    K is never lowered: fewer groups than automatic K's gave cars to the world's fundamental matrix on kt3d-video
+    (error 3.4 -> 8.3 %, docs/results/41-geometry.md). The note says which K was kept when it is not automatic K's.
+    """
+    from mosegpipe.cluster import kmeans
+
+    n = clustering.labels.size
+    hi = min(max(cfg.cluster.k_max, clustering.k), n, clustering.k + cfg.joint.k_search)
+    ks = list(range(clustering.k, hi + 1))
+    tried = [clustering]
+    for k in ks[1:]:
+        labels, _ = kmeans(
+            emb, k, seed=cfg.cluster.seed, n_init=cfg.cluster.n_init, num_threads=cfg.cluster.num_threads
+        )
+        tried.append(Clustering(labels=labels, k=int(labels.max()) + 1, method="fixed"))
+    if cfg.joint.rigid_first:
+        tried = [_rigid_split(c, points, size_hw, cfg) for c in tried]
+    k_max = max(cfg.cluster.k_max, clustering.k)
+    best, labels, what, _ = choose_partition(points, [c.labels for c in tried], cfg.joint, k_max=k_max)
+    k = int(labels.max()) + 1 if (labels >= 0).any() else 0
+    if k == 0:  # every track left out: keep the embedding's groups
+        return clustering
+    if best:
+        what = f"{what}; K by GRIC: K-means with K = {ks[best]} (automatic K {clustering.k})"
+    # the first candidate grew out of `clustering`, its note included; the others start with none
+    note = tried[0].note if best == 0 else "; ".join(x for x in (clustering.note, tried[best].note) if x)
+    note = f"{note}; {what}" if note and what else note or what
+    return replace(clustering, labels=labels, k=k, note=note)
 
 
 def _rigid_split(

@@ -5,6 +5,7 @@ a motion that was missing for a few windows takes its label back: `LabelConfig`)
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +93,7 @@ def match_labels(
     world: bool = False,
     xy: npt.NDArray[np.float32] | None = None,
     frame: int = 0,
+    supported: Collection[int] = (),
 ) -> npt.NDArray[np.int64]:
     """Maps this window's clusters to global labels through the tracks shared with the previous window.
 
@@ -117,7 +119,8 @@ def match_labels(
        and splits off again, or that was hidden, keeps its label.
     4. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
        unless the cluster is too small to trust (fewer than LabelConfig.new_tracks tracks, or a quarter of
-       the window's, and under LabelConfig.new_share of the window's), which stays unlabelled (-1).
+       the window's, and under LabelConfig.new_share of the window's), which stays unlabelled (-1). The clusters
+       `supported` pass whatever their size (steps 2-4): rigid motions of their own (method "joint").
 
     Args:
         prev: track id -> global label from the previous labelled window.
@@ -130,6 +133,7 @@ def match_labels(
         xy: (N, T, 2) float32 positions of the tracks in this window's frames, pixels (None: the memory
             matches by shared tracks only, and remembers no position).
         frame: the source index of this window's first frame.
+        supported: clusters exempt from the size guard (`small_guard`).
 
     Returns:
         (N,) int64 global labels.
@@ -137,10 +141,12 @@ def match_labels(
     old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     sizes = np.bincount(clusters, minlength=k)
-    small = max(min(book.cfg.new_tracks, 0.25 * clusters.size), book.cfg.new_share * clusters.size)
+    small = np.where(np.isin(np.arange(k), list(supported)), 0.0, small_guard(book.cfg, clusters.size))
     mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world)
     takes_zero = world or (0 not in mapping and 0 not in mapping.values())
-    reopen = [c for c in range(k) if (c not in mapping or c in splits) and sizes[c] >= small and (c or not takes_zero)]
+    reopen = [
+        c for c in range(k) if (c not in mapping or c in splits) and sizes[c] >= small[c] and (c or not takes_zero)
+    ]
     for c, lab in _revived_labels(book, ids, clusters, old, reopen, set(mapping.values()), window, xy, frame).items():
         mapping[c] = lab
         splits.pop(c, None)
@@ -159,15 +165,26 @@ def match_labels(
     return labels
 
 
+def small_guard(cfg: LabelConfig, num_tracks: int) -> float:
+    """The fewest tracks a cluster needs to start a label or a split in a window of `num_tracks` tracks (the
+    guard of match_labels' steps 2 and 4): LabelConfig.new_tracks (at most a quarter of the window), or
+    new_share of the window when that is more."""
+    return max(min(cfg.new_tracks, 0.25 * num_tracks), cfg.new_share * num_tracks)
+
+
 def _new_labels(
-    mapping: dict[int, int], sizes: npt.NDArray[np.int64], small: float, book: LabelBook, busy: set[int]
+    mapping: dict[int, int],
+    sizes: npt.NDArray[np.int64],
+    small: npt.NDArray[np.float64],
+    book: LabelBook,
+    busy: set[int],
 ) -> None:
     """Step 4 of match_labels: a new label for each cluster not in `mapping` (-1 for one too small to trust)."""
     k = sizes.size
     for c in range(k):
         if c in mapping:
             continue
-        if sizes[c] < small and k > 1:
+        if sizes[c] < small[c] and k > 1:
             # Too few tracks to trust as a motion that just appeared: left unlabelled (-1).
             mapping[c] = -1
             continue
@@ -268,7 +285,7 @@ def _continued_labels(
     clusters: npt.NDArray[np.int64],
     k: int,
     sizes: npt.NDArray[np.int64],
-    small: float,
+    small: npt.NDArray[np.float64],
     world: bool,
 ) -> tuple[dict[int, int], dict[int, int]]:
     """Steps 1 and 2 of match_labels: (cluster -> the previous label it continues, cluster -> the label
@@ -287,7 +304,7 @@ def _continued_labels(
     known = per_cluster >= _MIN_CONTINUED * sizes
     for r in range(k):
         mine = candidate[(clusters == r) & (candidate >= 0)]
-        if known[r] and sizes[r] >= small and mine.size and np.bincount(mine).max() >= _MIN_SHARE * per_cluster[r]:
+        if known[r] and sizes[r] >= small[r] and mine.size and np.bincount(mine).max() >= _MIN_SHARE * per_cluster[r]:
             confirmed.add(r)
     if world:
         confirmed.discard(0)
@@ -309,6 +326,6 @@ def _continued_labels(
         if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
             continue
         mapping[r] = int(olds[int(carried[r].argmax())])
-        if sizes[r] >= small:
+        if sizes[r] >= small[r]:
             splits[r] = mapping[r]
     return mapping, splits

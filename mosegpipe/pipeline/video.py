@@ -30,6 +30,7 @@ import numpy.typing as npt
 from mosegpipe.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.flow import FlowStream, FrameMotion, flow_fits
+from mosegpipe.geometry_select import geometry_supported
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
@@ -51,7 +52,7 @@ from mosegpipe.pipeline.common import (
     world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.pipeline.labels import LabelBook, match_labels
+from mosegpipe.pipeline.labels import LabelBook, match_labels, small_guard
 from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
 from mosegpipe.runtime import run_ahead
 from mosegpipe.track import KLTTracker, tracks_from_steps
@@ -359,7 +360,7 @@ def _cluster_window(
             sweep = _window_sweep(cfg, run.prev_k)
             clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
         sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
-        clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg)
+        clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg, emb)
     before = np.array([run.prev.get(int(i), -1) for i in common], np.int64)
     clustering = world_to_zero(clustering, traj.data, tracks.size_hw, cfg, before == WORLD, before >= 0, motion)
     if emb is not None:
@@ -377,6 +378,7 @@ def _cluster_window(
         world=cfg.world.enabled,
         xy=xy_all[kept],
         frame=window[0][0],
+        supported=_small_rigid(clustering.labels[kept], traj.data[kept], cfg),
     )
     keep = glob >= 0
     found = _WindowLabels(
@@ -385,6 +387,19 @@ def _cluster_window(
     run.prev, run.prev_k = found.by_id(), sweep_k
     run.num_labelled += 1
     return common, found
+
+
+def _small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
+    """Method "joint" with cfg.joint.new_rigid_tracks: the moving clusters (not 0) smaller than the label matching's
+    guard, of at least that many tracks, that geometry shows to be a rigid motion of their own
+    (`geometry_select.geometry_supported`); match_labels labels them whatever their size. Else none."""
+    least = cfg.joint.new_rigid_tracks
+    if cfg.method != "joint" or least is None or labels.size == 0:
+        return []
+    sizes = np.bincount(labels, minlength=1)
+    guard = small_guard(cfg.labels, labels.size)
+    small = [c for c in range(1, sizes.size) if least <= sizes[c] < guard]
+    return geometry_supported(points, labels, small, cfg.joint) if small else []
 
 
 def _label_window(
