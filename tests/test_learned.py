@@ -202,3 +202,14 @@ def test_weak_regions_are_dropped(monkeypatch: pytest.MonkeyPatch) -> None:
     both = learned_moving(images, motion, LearnedMaskConfig(threshold=0.5, refine_scale=0.0, min_component=0.0))[0]
     strong = learned_moving(images, motion, LearnedMaskConfig(threshold=0.5, refine_scale=0.0, min_component=0.1))[0]
     assert both[16, 16] and both[48, 64] and strong[16, 16] and not strong[48, 64]
+
+
+def test_masknet_composites_never_use_the_scored_seed(tmp_path: Path) -> None:
+    # the scored development composites' seed is refused before any clip is read; the default is another seed
+    from mosegpipe.errors import ConfigError
+    from mosegpipe.learned.data import DataConfig, composite_frames
+    from mosegpipe.synth.composite import SEED
+
+    assert DataConfig().composite_seed != SEED
+    with pytest.raises(ConfigError, match="scored development composites"):
+        composite_frames(tmp_path, DataConfig(composite_seed=SEED))

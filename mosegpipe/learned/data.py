@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.data.davis import DAVIS_DEV, DAVIS_VAL, read_davis_clip
+from mosegpipe.errors import ConfigError
 from mosegpipe.flow import frame_motion
 from mosegpipe.learned.features import clip_features, net_size
 from mosegpipe.motion import MotionMaskConfig
@@ -56,6 +57,8 @@ class DataConfig:
         rendered_sizes: frame sizes drawn from, (H, W).
         no_object_share: share of rendered clips with no moving object (hard negatives).
         composites: composites drawn (those touching a held-out clip are left out).
+        composite_seed: base seed of those composites; never `synth.composite.SEED`, the seed of the
+            composites that `moseg eval composite` scores (the same as the embedding's `composite-own`).
         scale: the network's input scale (`LearnedMaskConfig.scale`).
         seed: mixed into every random choice.
     """
@@ -65,6 +68,7 @@ class DataConfig:
     rendered_sizes: tuple[tuple[int, int], ...] = ((480, 640), (360, 640), (480, 854))
     no_object_share: float = 0.2
     composites: int = 20
+    composite_seed: int = 1041
     scale: float = 0.25
     seed: int = 42
 
@@ -160,11 +164,17 @@ def rendered_frames(root: str | Path, cfg: DataConfig) -> Frames4Net:
 
 
 def composite_frames(root: str | Path, cfg: DataConfig) -> Frames4Net:
-    """Development composites that use no held-out clip (plate or object)."""
-    from mosegpipe.synth.composite import composite_set
+    """Development composites that use no held-out clip (plate or object), drawn with `cfg.composite_seed`.
 
+    Raises:
+        ConfigError: the seed is that of the scored development composites.
+    """
+    from mosegpipe.synth.composite import SEED, composite_set
+
+    if cfg.composite_seed == SEED:
+        raise ConfigError(f"masknet composites: seed {SEED} makes the scored development composites; choose another")
     parts = []
-    for comp in composite_set(root, "dev", count=cfg.composites):
+    for comp in composite_set(root, "dev", count=cfg.composites, seed=cfg.composite_seed):
         used = {comp.plate, *comp.sources}
         if used & set(HELD_OUT) or used & set(DAVIS_VAL):
             continue

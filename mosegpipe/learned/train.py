@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 
 from mosegpipe.learned.data import DataConfig, Frames4Net, load_source
-from mosegpipe.learned.net import MaskNet
+from mosegpipe.learned.net import WIDTHS, MaskNet
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +50,7 @@ class MaskTrainConfig:
             16 training clips' colours are few, and a network that learns them does not carry over.
         appearance_dropout: share of crops whose Lab channels are set to 0 (the motion evidence alone).
         seed: numpy and torch seed.
+        widths: the network's channels per level (`net.WIDTHS` by default).
         data: what the sources hold.
     """
 
@@ -65,6 +66,7 @@ class MaskTrainConfig:
     appearance_jitter: float = 0.3
     appearance_dropout: float = 0.3
     seed: int = 0
+    widths: tuple[int, ...] = WIDTHS
     data: DataConfig = field(default_factory=DataConfig)
 
 
@@ -169,7 +171,7 @@ def _train(
     held = load_source("held-out", data_root, cfg.data)
     weights = np.array([w for _, w in cfg.sources], np.float64)
     weights /= weights.sum()
-    net = MaskNet()
+    net = MaskNet(widths=cfg.widths)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     warm = max(1, cfg.steps // 20)
     sched = torch.optim.lr_scheduler.LambdaLR(
