@@ -17,9 +17,9 @@ from mosegpipe.errors import CheckpointError, ConfigError
 from mosegpipe.flow import FrameMotion
 from mosegpipe.learned import data as learned_data
 from mosegpipe.learned.data import HELD_OUT, TRAIN_DAVIS, Frames4Net, source_clips, stacks
-from mosegpipe.learned.features import NUM_CHANNELS, LearnedMaskConfig, clip_features, net_size
+from mosegpipe.learned.features import NUM_CHANNELS, LearnedMaskConfig, clip_features, net_flows, net_size
 from mosegpipe.learned.moving import _carried, _refined, learned_moving, learned_probability
-from mosegpipe.learned.net import MaskNet, load_masknet, shipped_path
+from mosegpipe.learned.net import WIDTHS, MaskNet, load_masknet, shipped_path
 from mosegpipe.learned.train import MaskTrainConfig, train_masknet
 from mosegpipe.masks import MaskConfig
 from mosegpipe.motion import MotionMaskConfig, stack_motion
@@ -44,9 +44,10 @@ def test_shipped_weights_load_with_weights_only() -> None:
     assert ckpt["kind"] == "masknet" and ckpt["recipe"]["name"] == "masknet"
     net = load_masknet()
     assert not net.training and net.in_channels == NUM_CHANNELS
-    # the recipe chose its threshold for the probability alone; the default, with the steps after the network
-    # (temporal carry, refinement, weak regions dropped), was chosen end to end and is lower
-    assert ckpt["recipe"]["threshold"] == 0.7 and LearnedMaskConfig().threshold == 0.6
+    # the recipe chose its threshold for the probability alone; end to end, with the steps after the network
+    # (temporal carry, refinement, weak regions dropped), it was the best but for 0.003: the default is the recipe's
+    assert ckpt["recipe"]["threshold"] == LearnedMaskConfig().threshold == 0.3
+    assert tuple(ckpt["widths"]) == WIDTHS  # `moseg train --preset masknet` rebuilds this network
 
 
 def test_a_broken_checkpoint_is_one_error(tmp_path: Path) -> None:
@@ -157,10 +158,10 @@ def test_temporal_carry_follows_the_flow() -> None:
     step = np.zeros((2, 16, 24, 2), np.float32)
     step[..., 0] = 3.0
     motion = FrameMotion(np.zeros((3, 16, 24), np.float32), np.zeros((3, 16, 24), np.float32), 1.0, step, -step)
-    out = _carried(prob, motion, 0.5)
+    out = _carried(prob, net_flows(motion, (16, 24)), 0.5)
     assert np.allclose(out[1, 6:10, 9:13], 1.0) and np.allclose(out[1].sum(), 16 + 0.5)
     backwards = FrameMotion(motion.residual, motion.fb_error, 1.0, -step, step)  # the wrong way: the blob smears
-    assert _carried(prob, backwards, 0.5)[1, 6:10, 9:13].min() < 0.75
+    assert _carried(prob, net_flows(backwards, (16, 24)), 0.5)[1, 6:10, 9:13].min() < 0.75
 
 
 def test_refined_edges_follow_the_image() -> None:

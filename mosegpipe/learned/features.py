@@ -88,7 +88,11 @@ def neighbours_along(
 
 
 def clip_features(
-    images: npt.NDArray[np.uint8], motion: FrameMotion, scale: float = 0.25, first: int = 0
+    images: npt.NDArray[np.uint8],
+    motion: FrameMotion,
+    scale: float = 0.25,
+    first: int = 0,
+    flows: tuple[list[npt.NDArray[np.float32]], list[npt.NDArray[np.float32]]] | None = None,
 ) -> npt.NDArray[np.float32]:
     """The network's input for frames first..T-1 of a stack.
 
@@ -97,6 +101,7 @@ def clip_features(
         motion: the stack's flow evidence (`motion.stack_motion` or a `FlowStream`'s), with its flows.
         scale: the network's input scale (`LearnedMaskConfig.scale`).
         first: features of frames first..T-1 only (the frames before serve as neighbours).
+        flows: `net_flows(motion, net_size(...))` when the caller has them already (they are computed otherwise).
 
     Returns:
         (T - first, NUM_CHANNELS, h, w) float32, (h, w) = `net_size`.
@@ -105,7 +110,7 @@ def clip_features(
     hw = net_size((height, width), scale)
     to_full = np.float32(1.0 / motion.scale)
     to_net = np.float32(hw[1] / motion.residual.shape[2])
-    forward, backward = net_flows(motion, hw)
+    forward, backward = net_flows(motion, hw) if flows is None else flows
     logs, rel = [], []
     for t in range(num):
         lg = np.log1p(_area(motion.residual[t] * to_full, hw))

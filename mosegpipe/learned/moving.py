@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from mosegpipe.configs.masks import MotionMaskConfig
 from mosegpipe.flow import FrameMotion
-from mosegpipe.learned.features import LearnedMaskConfig, clip_features, neighbours_along, net_flows
+from mosegpipe.learned.features import LearnedMaskConfig, clip_features, neighbours_along, net_flows, net_size
 from mosegpipe.motion import _keep_strong, _refined_scores
 
 EDGE_STEPS = replace(MotionMaskConfig(), local_colour_weight=0.0, superpixels=0)
@@ -30,9 +30,14 @@ EDGE_STEPS = replace(MotionMaskConfig(), local_colour_weight=0.0, superpixels=0)
 `component_power` measures a region's strength for `min_component`."""
 
 
-def _carried(prob: npt.NDArray[np.float32], motion: FrameMotion, weight: float) -> npt.NDArray[np.float32]:
-    """Each frame's probability averaged, with `weight`, with its neighbours' read where its flow leads."""
-    forward, backward = net_flows(motion, prob.shape[1:])
+def _carried(
+    prob: npt.NDArray[np.float32],
+    flows: tuple[list[npt.NDArray[np.float32]], list[npt.NDArray[np.float32]]],
+    weight: float,
+) -> npt.NDArray[np.float32]:
+    """Each frame's probability averaged, with `weight`, with its neighbours' read where its flow leads (`flows`:
+    the frames' `net_flows` at the probability's size)."""
+    forward, backward = flows
     ys, xs = np.mgrid[0 : prob.shape[1], 0 : prob.shape[2]].astype(np.float32)
     grid = (xs, ys)
     out = np.empty_like(prob)
@@ -60,9 +65,10 @@ def learned_probability(
     net = load_masknet(cfg.weights)
     if cfg.temporal_weight <= 0:
         return predict(net, clip_features(images, motion, cfg.scale, first))
-    prob = predict(net, clip_features(images, motion, cfg.scale, max(0, first - 1)))
     start = max(0, first - 1)
-    carried = _carried(prob, motion.frames(start, len(images)), cfg.temporal_weight)
+    flows = net_flows(motion, net_size(images.shape[1:3], cfg.scale))  # one resize for the features and the carry
+    prob = predict(net, clip_features(images, motion, cfg.scale, start, flows))
+    carried = _carried(prob, (flows[0][start:], flows[1][start:]), cfg.temporal_weight)
     return carried[first - start :]
 
 
