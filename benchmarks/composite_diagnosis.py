@@ -9,6 +9,9 @@ Rows (each the dev composites in whole-video mode, scored as `moseg eval composi
 - ``true-labels``: each window's tracks take their true group (the world 0, a still object in the world)
   and the masks are made from them by the normal mask stage: the ceiling that the tracks and the mask
   stage allow.
+- ``true-pixels``: ``true-labels``, and each pixel written as moving that lies on a moving object takes the
+  label most of that object's tracks carry in the frame (the moving pixels unchanged): the ceiling of a
+  perfect choice of "which motion" per moving pixel (issue 42's per-motion output), given the moving pixels.
 
 Per row: J per object, objects found, correct K, K written / true, track error, labels per object; then,
 over the windows: K chosen by the embedding (before the rigid check) against the true K, the tracks per
@@ -43,7 +46,7 @@ from mosegpipe.runtime import set_threads
 from mosegpipe.synth.composite import Composite, composite_set
 from mosegpipe.types import Clustering
 
-ROWS = ("default", "true-k", "true-labels")
+ROWS = ("default", "true-k", "true-labels", "true-pixels")
 MIN_TRACKS = 3
 """An object counts in a window's true K from this many of the window's tracks."""
 
@@ -117,7 +120,7 @@ def _probed(probe: _Probe) -> Iterator[None]:
         )
         if probe.row == "true-k":
             return real_auto_k(emb, cfg, k_true, points, None)
-        if probe.row == "true-labels":
+        if probe.row in ("true-labels", "true-pixels"):
             return Clustering(labels=truth, k=k_true)
         return chosen
 
@@ -125,12 +128,14 @@ def _probed(probe: _Probe) -> Iterator[None]:
         return clustering if probe.row != "default" else real_rigid(clustering, *args, **kwargs)
 
     def world(clustering: Clustering, *args: Any, **kwargs: Any) -> Clustering:
-        return clustering if probe.row == "true-labels" else real_world(clustering, *args, **kwargs)
+        return clustering if probe.row in ("true-labels", "true-pixels") else real_world(clustering, *args, **kwargs)
 
     def labelled_frame(item: Any, *args: Any, **kwargs: Any) -> Any:
         frame = real_frame(item, *args, **kwargs)
         if frame.moving is not None:
             probe.moving[int(frame.index)] = frame.moving
+        if probe.row == "true-pixels" and frame.mask is not None:
+            frame = replace(frame, mask=_true_pixels(probe.clip, frame))
         return frame
 
     with (
@@ -141,6 +146,20 @@ def _probed(probe: _Probe) -> Iterator[None]:
         mock.patch.object(vid, "_labelled_frame", labelled_frame),
     ):
         yield
+
+
+def _true_pixels(clip: Composite, frame: Any) -> npt.NDArray[np.uint8]:
+    """The frame's mask with each moving pixel on a moving object given the label most of its tracks carry."""
+    t = int(frame.index)
+    gt, mask = clip.masks[t], frame.mask.copy()
+    written = (mask != WORLD) & (mask != UNKNOWN)
+    under = clip.label_at(t, frame.xy)
+    for obj, moves in zip(clip.object_ids, clip.moving[t]):
+        labs = frame.labels[(under == obj) & (frame.labels >= 0)]
+        if moves and labs.size:
+            mask[written & (gt == obj)] = np.bincount(labs).argmax()
+    out: npt.NDArray[np.uint8] = mask
+    return out
 
 
 def _pixel_shares(clip: Composite, masks: npt.NDArray[np.uint8], probe: _Probe) -> dict[str, float]:
