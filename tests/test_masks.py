@@ -224,3 +224,66 @@ def test_a_region_moving_with_its_label_or_not_rigid_or_small_keeps_it() -> None
     few = labels.copy()
     few[5:30] = 0  # motion 1 has 5 tracks: not judged
     assert split_unexplained(mask, moving, step, few, 0, flow, 1.0) is mask
+
+
+def _bled_movers() -> tuple:
+    """A 120x160 frame: motion 1 (x 20..79, +3 px in x) and motion 2 (x 80..139, -3 px in x) touch; the
+    nearest-track labels let motion 1 bleed over x 80..99; each motion has 20 tracks, the world 40 still ones."""
+    h, w = 120, 160
+    mask = np.zeros((h, w), np.uint8)
+    mask[30:70, 20:100] = 1
+    mask[30:70, 100:140] = 2
+    flow = np.zeros((h, w, 2), np.float32)
+    flow[30:70, 20:80] = (3.0, 0.0)
+    flow[30:70, 80:140] = (-3.0, 0.0)
+    rng = np.random.default_rng(1)
+    one = np.stack([rng.uniform(22, 78, 20), rng.uniform(32, 68, 20)], axis=1).astype(np.float32)
+    two = np.stack([rng.uniform(102, 138, 20), rng.uniform(32, 68, 20)], axis=1).astype(np.float32)
+    still = np.stack([rng.uniform(0, 160, 40), rng.uniform(80, 120, 40)], axis=1).astype(np.float32)
+    xy = np.concatenate([one, two, still])
+    xy_next = np.concatenate([one + np.float32([3, 0]), two - np.float32([3, 0]), still])
+    labels = np.array([1] * 20 + [2] * 20 + [0] * 40, np.int64)
+    return mask, (xy, xy_next), labels, flow
+
+
+def test_moving_pixels_take_the_motion_whose_step_explains_their_flow() -> None:
+    from mosegpipe.masks import reassign_by_flow
+
+    mask, step, labels, flow = _bled_movers()
+    out = reassign_by_flow(mask, step, labels, flow, 1.0, 0.5)
+    assert (out[30:70, 82:140] == 2).all() and (out[30:70, 20:78] == 1).all()  # the bled part goes back to 2
+    assert (out == 0).sum() == (mask == 0).sum()  # which pixels are moving does not change
+    assert (mask[30:70, 80:100] == 1).all()  # the input is left as it was
+    # at half the flow's resolution (flows in half-resolution pixels), the same
+    half = reassign_by_flow(mask, step, labels, np.ascontiguousarray(flow[::2, ::2] / 2), 0.5, 0.5)
+    assert (half[30:70, 84:140] == 2).all() and (half[30:70, 20:76] == 1).all()
+
+
+def test_reassignment_needs_two_fitted_motions_and_a_clear_winner() -> None:
+    from mosegpipe.masks import reassign_by_flow
+
+    mask, (xy, xy_next), labels, flow = _bled_movers()
+    few = labels.copy()
+    few[25:40] = 0  # motion 2 keeps 5 tracks: too few to fit, nothing to choose between
+    assert reassign_by_flow(mask, (xy, xy_next), few, flow, 1.0, 0.5) is mask
+    # the bled pixels' flow halfway between both motions: neither explains it clearly better
+    blurred = flow.copy()
+    blurred[30:70, 80:100] = (0.0, 0.0)
+    out = reassign_by_flow(mask, (xy, xy_next), labels, blurred, 1.0, 0.5)
+    assert (out[30:70, 82:98] == 1).all()
+    with pytest.raises(Exception, match="reassign_ratio"):
+        MaskConfig(reassign_ratio=1.0)
+
+
+def test_reassignment_along_matches_the_tracks_by_id() -> None:
+    from mosegpipe.masks import reassign_along, reassign_by_flow
+
+    mask, (xy, xy_next), labels, flow = _bled_movers()
+    ids = np.arange(len(xy), dtype=np.int64) + 100
+    order = np.random.default_rng(2).permutation(len(xy))[5:]  # the neighbour frame: shuffled, 5 tracks lost
+    out = reassign_along(mask, (ids, xy, ids[order], xy_next[order]), labels, flow, 1.0, 0.5)
+    kept = np.isin(ids, ids[order])
+    assert (out == reassign_by_flow(mask, (xy[kept], xy_next[kept]), labels[kept], flow, 1.0, 0.5)).all()
+    assert (out[30:70, 82:140] == 2).all()
+    none = reassign_along(mask, (ids, xy, ids[:0], xy_next[:0]), labels, flow, 1.0, 0.5)
+    assert none is mask  # no track seen in both frames: nothing to fit

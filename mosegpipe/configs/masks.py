@@ -163,6 +163,7 @@ class MaskConfig:
         unexplained_px: "motion", clips: regions missing their motion's homography by more take 254 (`split_unexplained`; 0 = off).
         unexplained_area: smallest such region, as a share of the frame's pixels.
         unexplained_rigid: ... and the share of its pixels its own homography must explain (0 = no such test).
+        reassign_ratio: a moving pixel takes the moving motion whose affine step misses its flow by < this x its own's (`reassign_by_flow`; 0 = off).
         motion: "motion": the flow and mask settings (mosegpipe.motion); "learned": its flow settings.
         learned: "learned": the mask network's settings (mosegpipe.learned).
     """
@@ -179,6 +180,7 @@ class MaskConfig:
     unexplained_px: float = 4.0
     unexplained_area: float = 0.002
     unexplained_rigid: float = 0.8
+    reassign_ratio: float = 0.5
     motion: MotionMaskConfig = field(default_factory=MotionMaskConfig)
     learned: LearnedMaskConfig = field(default_factory=LearnedMaskConfig)
 
@@ -202,5 +204,6 @@ _MASK_CHECKS: tuple[Check, ...] = (
     ("unexplained_px", lambda v: v >= 0, "be >= 0 (0 = off)"),
     ("unexplained_area", lambda v: 0 < v <= 1, "lie in (0, 1]"),
     ("unexplained_rigid", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("reassign_ratio", lambda v: 0 <= v < 1, "lie in [0, 1) (0 = off)"),
 )
 """MaskConfig's checks: (field, test, what it must be)."""

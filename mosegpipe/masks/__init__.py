@@ -50,6 +50,8 @@ from mosegpipe.masks.moving import (
     label_moving_pixels,
     motion_masks,
     moving_to_labels,
+    reassign_along,
+    reassign_by_flow,
     split_unexplained,
 )
 from mosegpipe.masks.overlays import (
@@ -71,5 +73,7 @@ __all__ = [
     "moving_to_labels",
     "overlay_image",
     "overlay_mask",
+    "reassign_along",
+    "reassign_by_flow",
     "split_unexplained",
 ]

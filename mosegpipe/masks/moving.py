@@ -169,7 +169,7 @@ def motion_masks(
     Returns:
         (T, H, W) uint8 masks.
     """
-    if motion is None and (cfg.unexplained_px > 0 or cfg.method == "learned"):
+    if motion is None and (cfg.unexplained_px > 0 or cfg.reassign_ratio > 0 or cfg.method == "learned"):
         motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
     if cfg.method == "learned" and motion is not None:  # the mask network in place of the hand-made chain
         moving = learned_moving(images, motion, cfg.learned)
@@ -182,11 +182,15 @@ def motion_masks(
     for t in range(num):
         seen = tracks.visible[track_ids, t]
         out[t] = moving_to_labels(moving[t], tracks.xy[track_ids[seen], t], labels[seen], background, images[t], cfg)
-        if cfg.unexplained_px > 0 and motion is not None and motion.forward is not None and motion.backward is not None:
-            other = t + 1 if t + 1 < num else t - 1
-            flow = motion.forward[t] if other > t else motion.backward[t - 1]
-            both = seen & tracks.visible[track_ids, other]
-            step = (tracks.xy[track_ids[both], t], tracks.xy[track_ids[both], other])
+        if motion is None or motion.forward is None or motion.backward is None:
+            continue
+        other = t + 1 if t + 1 < num else t - 1
+        flow = motion.forward[t] if other > t else motion.backward[t - 1]
+        both = seen & tracks.visible[track_ids, other]
+        step = (tracks.xy[track_ids[both], t], tracks.xy[track_ids[both], other])
+        if cfg.reassign_ratio > 0:
+            out[t] = reassign_by_flow(out[t], step, labels[both], flow, motion.scale, cfg.reassign_ratio)
+        if cfg.unexplained_px > 0:
             out[t] = split_unexplained(out[t], moving[t], step, labels[both], background, flow, motion.scale, cfg)
     return out
 
@@ -263,3 +267,92 @@ def split_unexplained(
     out = mask.copy()
     out[split[regions]] = MOVING_UNCLUSTERED
     return out
+
+
+REASSIGN_MIN_TRACKS = 6
+"""A moving motion needs this many tracks in the frame and its neighbour for `reassign_by_flow` to fit its step."""
+
+
+def reassign_by_flow(
+    mask: npt.NDArray[np.uint8],
+    step: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+    flow: npt.NDArray[np.float32],
+    scale: float,
+    ratio: float,
+) -> npt.NDArray[np.uint8]:
+    """One frame's mask with each moving pixel given the moving motion whose step best explains its flow.
+
+    Each moving motion of the mask with at least REASSIGN_MIN_TRACKS tracks gets the affine map of its tracks'
+    step to the neighbour frame (RANSAC, 2 px). A pixel of such a motion whose flow another one's map predicts
+    with less than `ratio` times its own's miss takes that motion (the nearest track's label, which the mask
+    gives it, bleeds across touching objects); a 5 x 5 median over those pixels then removes single flips.
+    World, unknown and unclustered pixels are left as they are, and so is every pixel's moving or not.
+
+    Args:
+        mask: (H, W) uint8 labels of the frame (`moving_to_labels`).
+        step: (N, 2) float32 positions of the labelled tracks in this frame and (N, 2) in the neighbour frame.
+        labels: (N,) int64 their labels.
+        flow: (h, w, 2) float32 flow from this frame to the neighbour frame at the flow's scale.
+        scale: the flow's scale (h / H).
+        ratio: `MaskConfig.reassign_ratio`.
+
+    Returns:
+        (H, W) uint8 labels (`mask` itself when fewer than two motions can be fitted).
+    """
+    height, width = mask.shape
+    xy, xy_next = step
+    models = {}
+    for m in np.unique(mask):
+        of = labels == m
+        if m in (WORLD, UNKNOWN, MOVING_UNCLUSTERED) or of.sum() < REASSIGN_MIN_TRACKS:
+            continue
+        affine = cv2.estimateAffine2D(xy[of], xy_next[of], method=cv2.RANSAC, ransacReprojThreshold=2.0)[0]
+        if affine is not None:
+            models[int(m)] = affine
+    if len(models) < 2:
+        return mask
+    if scale != 1:
+        flow = cv2.resize(flow, (width, height), interpolation=cv2.INTER_LINEAR) / np.float32(scale)
+    names = np.array(sorted(models), np.uint8)
+    judged = np.isin(mask, names)
+    ys, xs = np.nonzero(judged)
+    points = np.stack([xs, ys], axis=1).astype(np.float32)
+    ends = points + flow[ys, xs]
+    miss = np.stack([np.linalg.norm(ends - points @ models[m][:, :2].T - models[m][:, 2], axis=1) for m in names])
+    own = miss[np.searchsorted(names, mask[ys, xs]), np.arange(ys.size)]
+    best = miss.argmin(axis=0)
+    change = miss[best, np.arange(ys.size)] < ratio * own
+    if not change.any():
+        return mask
+    out = mask.copy()
+    out[ys[change], xs[change]] = names[best[change]]
+    smooth = cv2.medianBlur(out, 5)
+    take = judged & np.isin(smooth, names)
+    out[take] = smooth[take]
+    return out
+
+
+def reassign_along(
+    mask: npt.NDArray[np.uint8],
+    tracks: tuple[npt.NDArray[np.int64], npt.NDArray[np.float32], npt.NDArray[np.int64], npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+    flow: npt.NDArray[np.float32],
+    scale: float,
+    ratio: float,
+) -> npt.NDArray[np.uint8]:
+    """`reassign_by_flow` with the step of the tracks seen in this frame and in its neighbour frame.
+
+    Args:
+        tracks: (ids, xy) of this frame's tracks and (ids, xy) of the neighbour frame's.
+        labels: (N,) int64 labels of this frame's tracks.
+        flow, scale, ratio: as `reassign_by_flow`'s.
+    """
+    ids, xy, near_ids, near_xy = tracks
+    where = {int(i): k for k, i in enumerate(near_ids)}
+    both = np.array([int(i) in where for i in ids], bool)
+    if not both.any():
+        return mask
+    ends = near_xy[[where[int(i)] for i in ids[both]]]
+    step = (xy[both].astype(np.float32), np.asarray(ends, np.float32).reshape(-1, 2))
+    return reassign_by_flow(mask, step, labels[both], flow, scale, ratio)

@@ -41,6 +41,7 @@ from mosegpipe.masks import (
     WORLD,
     MaskConfig,
     carry_unclustered,
+    reassign_along,
 )
 from mosegpipe.motion import ColourMemory, moving_from_motion
 from mosegpipe.pipeline.common import (
@@ -459,7 +460,7 @@ def _label_window(
         # the motion masks need the frame before's mask: computed here, in order, whatever `masks` says
         frame = _labelled_frame(item, lab, cfg.mask, masks or moved is not None, moved)
         if frame.mask is not None:
-            frame = replace(frame, mask=carry_unclustered(frame.mask, run.last_mask))
+            frame = replace(frame, mask=_final_mask(frame.mask, run.last_mask, window, item, lab, motion, cfg.mask))
             run.last_mask = frame.mask
         labelled.append(frame)
     run.num_windows += 1
@@ -491,6 +492,27 @@ def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
     counts = np.bincount(mask.ravel(), minlength=256)
     counts[np.array([WORLD, MOVING_UNCLUSTERED, UNKNOWN])] = 0
     return np.flatnonzero(counts).astype(np.int64)
+
+
+def _final_mask(
+    mask: npt.NDArray[np.uint8],
+    last_mask: npt.NDArray[np.uint8] | None,
+    window: list[_Frame],
+    item: _Frame,
+    labels: npt.NDArray[np.int64],
+    motion: FrameMotion | None,
+    cfg: MaskConfig,
+) -> npt.NDArray[np.uint8]:
+    """A window frame's mask with its moving pixels given the motion that explains their flow (`reassign_along`
+    the flow to the window's next frame, or to the frame before for its last one) and its unclustered regions
+    their label before (`carry_unclustered`, `last_mask`: the frame before's final mask)."""
+    if motion is not None and motion.forward is not None and motion.backward is not None and cfg.reassign_ratio > 0:
+        at = next(k for k, w in enumerate(window) if w[0] == item[0])
+        near = at + 1 if at < len(motion.forward) else at - 1
+        flow = motion.forward[at] if near > at else motion.backward[near]
+        step = (item[2], item[3], window[near][2], window[near][3])
+        mask = reassign_along(mask, step, labels, flow, motion.scale, cfg.reassign_ratio)
+    return carry_unclustered(mask, last_mask)
 
 
 def _labelled_frame(
