@@ -195,6 +195,14 @@ def motion_masks(
     return out
 
 
+def _full_size(flow: npt.NDArray[np.float32], scale: float, hw: tuple[int, int]) -> npt.NDArray[np.float32]:
+    """A flow at `scale` of the frame resized (linear) to the frame's (h, w), in full-resolution pixels."""
+    if scale == 1:
+        return flow
+    out: npt.NDArray[np.float32] = cv2.resize(flow, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) / np.float32(scale)
+    return out
+
+
 def split_unexplained(
     mask: npt.NDArray[np.uint8],
     moving: npt.NDArray[np.bool_],
@@ -231,8 +239,7 @@ def split_unexplained(
     present = [int(m) for m in np.unique(mask[moving]) if m not in (background, UNKNOWN, MOVING_UNCLUSTERED)]
     if not present:
         return mask
-    if scale != 1:
-        flow = cv2.resize(flow, (width, height), interpolation=cv2.INTER_LINEAR) / np.float32(scale)
+    flow = _full_size(flow, scale, (height, width))
     xy, xy_next = step
     ys, xs = np.nonzero(moving)  # only moving pixels are judged: a tenth of the frame or less
     points = np.stack([xs, ys], axis=1).astype(np.float32)
@@ -312,8 +319,7 @@ def reassign_by_flow(
             models[int(m)] = affine
     if len(models) < 2:
         return mask
-    if scale != 1:
-        flow = cv2.resize(flow, (width, height), interpolation=cv2.INTER_LINEAR) / np.float32(scale)
+    flow = _full_size(flow, scale, (height, width))
     names = np.array(sorted(models), np.uint8)
     judged = np.isin(mask, names)
     ys, xs = np.nonzero(judged)
@@ -349,10 +355,8 @@ def reassign_along(
         flow, scale, ratio: as `reassign_by_flow`'s.
     """
     ids, xy, near_ids, near_xy = tracks
-    where = {int(i): k for k, i in enumerate(near_ids)}
-    both = np.array([int(i) in where for i in ids], bool)
-    if not both.any():
+    _, here, there = np.intersect1d(ids, near_ids, assume_unique=True, return_indices=True)
+    if not here.size:
         return mask
-    ends = near_xy[[where[int(i)] for i in ids[both]]]
-    step = (xy[both].astype(np.float32), np.asarray(ends, np.float32).reshape(-1, 2))
-    return reassign_by_flow(mask, step, labels[both], flow, scale, ratio)
+    step = (np.asarray(xy, np.float32)[here], np.asarray(near_xy, np.float32)[there])
+    return reassign_by_flow(mask, step, labels[here], flow, scale, ratio)

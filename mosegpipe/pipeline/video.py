@@ -456,11 +456,11 @@ def _label_window(
         stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
         run.frame_before = indices[-2]
     labelled = []
-    for item, lab, moved in zip(window[skip:], labs, moving):
+    for at, (item, lab, moved) in enumerate(zip(window[skip:], labs, moving), start=skip):
         # the motion masks need the frame before's mask: computed here, in order, whatever `masks` says
         frame = _labelled_frame(item, lab, cfg.mask, masks or moved is not None, moved)
         if frame.mask is not None:
-            frame = replace(frame, mask=_final_mask(frame.mask, run.last_mask, window, item, lab, motion, cfg.mask))
+            frame = replace(frame, mask=_final_mask(frame.mask, run.last_mask, window, at, lab, motion, cfg.mask))
             run.last_mask = frame.mask
         labelled.append(frame)
     run.num_windows += 1
@@ -498,19 +498,18 @@ def _final_mask(
     mask: npt.NDArray[np.uint8],
     last_mask: npt.NDArray[np.uint8] | None,
     window: list[_Frame],
-    item: _Frame,
+    at: int,
     labels: npt.NDArray[np.int64],
     motion: FrameMotion | None,
     cfg: MaskConfig,
 ) -> npt.NDArray[np.uint8]:
-    """A window frame's mask with its moving pixels given the motion that explains their flow (`reassign_along`
+    """Frame `at` of the window: its mask with its moving pixels given the motion that explains their flow (`reassign_along`
     the flow to the window's next frame, or to the frame before for its last one) and its unclustered regions
     their label before (`carry_unclustered`, `last_mask`: the frame before's final mask)."""
     if motion is not None and motion.forward is not None and motion.backward is not None and cfg.reassign_ratio > 0:
-        at = next(k for k, w in enumerate(window) if w[0] == item[0])
         near = at + 1 if at < len(motion.forward) else at - 1
         flow = motion.forward[at] if near > at else motion.backward[near]
-        step = (item[2], item[3], window[near][2], window[near][3])
+        step = (window[at][2], window[at][3], window[near][2], window[near][3])
         mask = reassign_along(mask, step, labels, flow, motion.scale, cfg.reassign_ratio)
     return carry_unclustered(mask, last_mask)
 
