@@ -5,7 +5,9 @@ machine's load hits all alike. The flow (shared by
 both, and by the tracks) is computed once beforehand and not counted.
 
 Frames: 5-frame windows of DAVIS development clips resized to 640x480 (with the frame after as evidence, as a
-clip run has it). Usage: python benchmarks/learned_masks.py [DATA_ROOT] [ROUNDS]
+clip run has it). Last, the per-motion step (`MaskConfig.which` "learned", `which.which_motion`) on the same frames
+for 2 and 3 moving motions (the frame's corners labelled by vertical bands, the left quarter the world), its
+inputs (the features) counted apart. Usage: python benchmarks/learned_masks.py [DATA_ROOT] [ROUNDS]
 """
 
 import sys
@@ -20,6 +22,8 @@ from mosegpipe.data.davis import read_davis_clip
 from mosegpipe.learned.features import LearnedMaskConfig, clip_features
 from mosegpipe.learned.moving import learned_moving
 from mosegpipe.learned.net import load_masknet, predict
+from mosegpipe.learned.which import which_motion
+from mosegpipe.learned.which_train import frame_corners
 from mosegpipe.motion import MotionMaskConfig, moving_from_motion, stack_motion
 from mosegpipe.runtime import set_threads
 
@@ -66,3 +70,37 @@ print(
 print(f"| of which features | {1000 * cpu['features'] / frames:.1f} |")
 print(f"| of which network | {1000 * cpu['network'] / frames:.1f} |")
 print(f"({frames} frames per method; load {open('/proc/loadavg').read().split()[0]})")
+
+
+def _band(x: np.ndarray, width: int, k: int) -> np.ndarray:
+    """Label of each x: 0 (the world) in the left quarter, then k equal bands 1..k."""
+    return np.where(x < width / 4, 0, 1 + np.minimum(((x - width / 4) / (0.75 * width / k)).astype(int), k - 1))
+
+
+def _banded(image: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A frame's mask and corners labelled by vertical bands (`_band`)."""
+    width = image.shape[1]
+    xy = frame_corners(image)
+    mask = _band(np.arange(width, dtype=np.float32), width, k)[None].repeat(image.shape[0], 0).astype(np.uint8)
+    return mask, xy, _band(xy[:, 0], width, k).astype(np.int64)
+
+
+which_cpu = {2: 0.0, 3: 0.0}
+which_frames = 0
+for images, motion in stacks:
+    feats = clip_features(images, motion, learned_cfg.scale)
+    for t, image in enumerate(images):
+        for k in which_cpu:
+            mask, xy, labels = _banded(image, k)
+            which_motion(mask, feats[t], xy, labels)  # torch's first call of this network
+            c0 = time.process_time()
+            for _ in range(rounds):
+                which_motion(mask, feats[t], xy, labels)
+            which_cpu[k] += time.process_time() - c0
+        which_frames += rounds
+print()
+print("| per-motion step (`which_motion`), 640x480, one thread, features apart | CPU ms / frame |")
+print("|---|---|")
+for k, c in which_cpu.items():
+    print(f"| {k} moving motions | {1000 * c / which_frames:.1f} |")
+print(f"({which_frames} frames each; load {open('/proc/loadavg').read().split()[0]})")

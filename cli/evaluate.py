@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, TypeAlias, get_args
+from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, get_args
 
 import typer
 
@@ -33,7 +33,7 @@ from mosegpipe.cli.options import (
 from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
-from mosegpipe.learned import MASKNET_PRESET
+from mosegpipe.learned import MASKNET_PRESET, WHICHNET_PRESET
 from mosegpipe.studies import STUDIES, Budget
 from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, RECIPE_NAMES, TRAIN_PRESETS
 
@@ -70,7 +70,8 @@ def train(
             "--preset",
             help="Named recipe: clip-f5 (the shipped 5-frame model), base-f5 (its starting point), synthetic-f5, "
             "pair-f2 (the shipped two-view model), synthetic-f2, lce (the paper's LCE study); masknet (the shipped "
-            "mask network of --mask-method learned; --steps, --batch-size, --lr, --seed apply).",
+            "mask network of --mask-method learned; --steps, --batch-size, --lr, --seed apply), whichnet (the shipped "
+            "per-motion network of --set mask.which=learned; the same options apply).",
         ),
     ] = TrainPresetChoice(TRAIN_PRESETS[0]),
     out: Annotated[Path, typer.Option("--out", "-o", help="Checkpoint file to write.")] = Path("runs/model.pt"),
@@ -107,8 +108,9 @@ def train(
     synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
     """
     _setup(threads, verbose)
-    if _value(preset) == MASKNET_PRESET:
-        _train_masknet(out, _data_root(data_root), steps, batch_size, lr, seed, (loss, init, exclude, time_budget))
+    if _value(preset) in (MASKNET_PRESET, WHICHNET_PRESET):
+        overrides = {"steps": steps, "batch_size": batch_size, "lr": lr, "seed": seed}
+        _train_mask_networks(_value(preset), out, _data_root(data_root), overrides, (loss, init, exclude, time_budget))
         return
     from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
@@ -138,36 +140,46 @@ def train(
     typer.echo(f"wrote {out} ({result.steps_done} steps, {result.seconds:.0f} s)")
 
 
-def _train_masknet(
-    out: Path,
-    root: Path,
-    steps: int | None,
-    batch_size: int | None,
-    lr: float | None,
-    seed: int | None,
-    unused: tuple[object, ...],
+def _train_mask_networks(
+    preset: str, out: Path, root: Path, overrides: dict[str, int | float | None], unused: tuple[object, ...]
 ) -> None:
-    """train --preset masknet: the mask network's recipe (mosegpipe.learned.train), with the overrides given."""
+    """train --preset masknet / whichnet: the mask network's recipe (mosegpipe.learned.train) or the per-motion
+    network's (mosegpipe.learned.which_train), with the overrides given (--steps, --batch-size, --lr, --seed)."""
     if any(u is not None for u in unused):
-        raise InputError("train --preset masknet: --loss, --init, --exclude and --time-budget do not apply")
+        raise InputError(f"train --preset {preset}: --loss, --init, --exclude and --time-budget do not apply")
     from dataclasses import replace
 
+    command = " ".join(["moseg", *sys.argv[1:]])
+    given: dict[str, Any] = {k: v for k, v in overrides.items() if v is not None}
+    if preset == WHICHNET_PRESET:
+        from mosegpipe.learned.which_train import WhichTrainConfig, train_whichnet
+
+        which_cfg = replace(WhichTrainConfig(), **given)
+        typer.echo(f"training whichnet: {which_cfg.steps} steps × {which_cfg.batch_size} crops")
+        record = train_whichnet(
+            out,
+            root,
+            which_cfg,
+            command,
+            on_log=lambda e: typer.echo(
+                f"step {int(e['step']):>6}  loss {e['loss']:.4f}  held-out accuracy {e['held_out_j']:.3f}  "
+                f"{e['cpu_s']:.0f} CPU s"
+            ),
+        )
+        typer.echo(
+            f"wrote {out} (step {record['chosen_step']}, held-out accuracy {record['held_out_accuracy']}, "
+            f"nearest track {record['nearest_track_accuracy']})"
+        )
+        return
     from mosegpipe.learned.train import MaskTrainConfig, train_masknet
 
-    base = MaskTrainConfig()
-    cfg = replace(
-        base,
-        steps=base.steps if steps is None else steps,
-        batch_size=base.batch_size if batch_size is None else batch_size,
-        lr=base.lr if lr is None else lr,
-        seed=base.seed if seed is None else seed,
-    )
+    cfg = replace(MaskTrainConfig(), **given)
     typer.echo(f"training masknet: {cfg.steps} steps × {cfg.batch_size} crops, sources {dict(cfg.sources)}")
     record = train_masknet(
         out,
         root,
         cfg,
-        command=" ".join(["moseg", *sys.argv[1:]]),
+        command=command,
         on_log=lambda e: typer.echo(
             f"step {int(e['step']):>6}  loss {e['loss']:.4f}  held-out J {e['held_out_j']:.3f} "
             f"(threshold {e['threshold']})  {e['cpu_s']:.0f} CPU s"

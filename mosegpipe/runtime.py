@@ -4,6 +4,7 @@ On small problems (hundreds of points, 5-d embeddings) one BLAS/OpenMP thread is
 two on the 2-core machines we target: sklearn K-means was measured 30-50x slower with 2 threads.
 OpenCV, FFmpeg and libpng print their complaints about a bad input straight to stderr;
 `quiet_native_logs` keeps them off it (the failure they lead to is reported once, in our words).
+`warnings_held` keeps one thread's warnings of a logger back while a block runs.
 Nothing here runs at import; callers (the CLI, benchmarks, tests) opt in.
 """
 
@@ -13,6 +14,7 @@ import atexit
 import contextlib
 import gc
 import importlib
+import logging
 import os
 import queue
 import sys
@@ -264,3 +266,23 @@ def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Gen
     finally:
         stop.set()
         worker.join(timeout=5.0)
+
+
+@contextlib.contextmanager
+def warnings_held(logger: logging.Logger) -> Iterator[None]:
+    """Keeps `logger`'s WARNING records of this thread from its handlers while the block runs.
+
+    Whole-video mode reports automatic K's ambiguity warnings once for all windows, not once per
+    window (hundreds of lines on a long video); the notes themselves are kept (WindowResult.k_note).
+    Other threads' records pass: a clip segmented beside this video keeps its warning.
+    """
+    thread = threading.get_ident()
+
+    def keep(record: logging.LogRecord) -> bool:
+        return record.thread != thread or record.levelno != logging.WARNING
+
+    logger.addFilter(keep)
+    try:
+        yield
+    finally:
+        logger.removeFilter(keep)

@@ -73,8 +73,9 @@ RecipeName = Literal[
 shipped 5-frame model's."""
 RECIPE_NAMES: tuple[RecipeName, ...] = get_args(RecipeName)
 
-TrainPreset = Literal[RecipeName, "masknet"]
-"""`moseg train --preset`: the recipes, then the mask network's (`mosegpipe.learned.train`, mask method "learned")."""
+TrainPreset = Literal[RecipeName, "masknet", "whichnet"]
+"""`moseg train --preset`: the recipes, then the mask network's (`mosegpipe.learned.train`, mask method "learned") and
+the per-motion network's (`mosegpipe.learned.which_train`, `MaskConfig.which` "learned")."""
 TRAIN_PRESETS: tuple[TrainPreset, ...] = get_args(TrainPreset)
 
 LossName = Literal["mimi", "l2", "l2-balanced", "ce", "triplet", "lifted", "facility", "mimi-point", "mimi-mean"]

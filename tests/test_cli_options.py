@@ -468,7 +468,7 @@ def test_choices_come_from_the_library() -> None:
     from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
-    from mosegpipe.learned import MASKNET_PRESET
+    from mosegpipe.learned import MASKNET_PRESET, WHICHNET_PRESET
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.studies import STUDIES, Budget
     from mosegpipe.training.losses import LOSSES
@@ -501,7 +501,7 @@ def test_choices_come_from_the_library() -> None:
     for choice, names in vocabularies.items():
         assert tuple(c.value for c in choice) == tuple(names), choice
     assert (tuple(RECIPES), tuple(LOSSES), tuple(BASELINES)) == (RECIPE_NAMES, LOSS_NAMES, BASELINE_NAMES)
-    assert TRAIN_PRESETS == (*RECIPE_NAMES, MASKNET_PRESET)
+    assert TRAIN_PRESETS == (*RECIPE_NAMES, MASKNET_PRESET, WHICHNET_PRESET)
     defaults = (ClusterConfig().method, MaskConfig().method, PipelineConfig().method, PipelineConfig().tracker)
     assert defaults == (K_METHODS[0], MASK_METHODS[0], SEGMENT_METHODS[0], TRACKERS[0])
     group = typer.main.get_command(app)

@@ -214,3 +214,24 @@ def test_masknet_composites_never_use_the_scored_seed(tmp_path: Path) -> None:
     assert DataConfig().composite_seed != SEED
     with pytest.raises(ConfigError, match="scored development composites"):
         composite_frames(tmp_path, DataConfig(composite_seed=SEED))
+
+
+def test_masknet_water_clips_never_use_the_scored_seeds() -> None:
+    from mosegpipe.learned.data import DataConfig, water_frames
+    from mosegpipe.synth.water import SCORED_SEEDS
+
+    assert DataConfig().water_seed >= SCORED_SEEDS.stop
+    with pytest.raises(ConfigError, match="the benchmark's"):
+        water_frames(DataConfig(water_seed=5))
+
+
+def test_rendered_clips_are_blurred_by_share_and_seed() -> None:
+    from mosegpipe.learned.data import DataConfig, rendered_images
+
+    frames = np.random.default_rng(0).integers(0, 256, (3, 40, 60, 3)).astype(np.uint8)
+    blurred = [i for i in range(40) if rendered_images(DataConfig(motion_blur_share=0.3), i, frames) is not frames]
+    assert 4 <= len(blurred) <= 20  # about 30 % of the clips
+    again = rendered_images(DataConfig(motion_blur_share=0.3), blurred[0], frames)
+    assert np.array_equal(again, rendered_images(DataConfig(motion_blur_share=0.3), blurred[0], frames))
+    assert again.std() < frames.std() * 0.8  # noise smoothed along a line
+    assert all(rendered_images(DataConfig(motion_blur_share=0.0), i, frames) is frames for i in range(10))

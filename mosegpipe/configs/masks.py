@@ -121,6 +121,7 @@ class LearnedMaskConfig:
         temporal_weight: each frame's probability is averaged with weight w with its neighbours' carried along the flow (0 = off).
         refine_scale: the probability goes to this scale of the frame through a guided filter and global smoother (0 = off).
         min_component: moving regions weaker (area x mean residual^2) than this share of the frame's strongest are dropped.
+        which_weights: checkpoint of the per-motion network of `MaskConfig.which` "learned" ("" = the shipped whichnet.pt).
     """
 
     threshold: float = 0.3
@@ -129,6 +130,7 @@ class LearnedMaskConfig:
     temporal_weight: float = 0.5
     refine_scale: float = 0.25
     min_component: float = 0.1
+    which_weights: str = ""
 
     def __post_init__(self) -> None:
         check_fields(self, _LEARNED_CHECKS)
@@ -142,6 +144,10 @@ _LEARNED_CHECKS: tuple[Check, ...] = (
     ("min_component", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
 )
 """LearnedMaskConfig's checks: (field, test, what it must be)."""
+
+
+WHICH_METHODS = ("tracks", "learned")
+"""`MaskConfig.which`: how a moving pixel chooses among a frame's moving motions."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +170,7 @@ class MaskConfig:
         unexplained_area: smallest such region, as a share of the frame's pixels.
         unexplained_rigid: ... and the share of its pixels its own homography must explain (0 = no such test).
         reassign_ratio: a moving pixel takes the moving motion whose affine step misses its flow by < this x its own's (`reassign_by_flow`; 0 = off).
+        which: "motion"/"learned" masks, frames with 2+ moving motions: "tracks" (nearest track, watershed) or "learned" (the per-motion network).
         motion: "motion": the flow and mask settings (mosegpipe.motion); "learned": its flow settings.
         learned: "learned": the mask network's settings (mosegpipe.learned).
     """
@@ -181,6 +188,7 @@ class MaskConfig:
     unexplained_area: float = 0.002
     unexplained_rigid: float = 0.8
     reassign_ratio: float = 0.5
+    which: str = "tracks"
     motion: MotionMaskConfig = field(default_factory=MotionMaskConfig)
     learned: LearnedMaskConfig = field(default_factory=LearnedMaskConfig)
 
@@ -205,5 +213,6 @@ _MASK_CHECKS: tuple[Check, ...] = (
     ("unexplained_area", lambda v: 0 < v <= 1, "lie in (0, 1]"),
     ("unexplained_rigid", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
     ("reassign_ratio", lambda v: 0 <= v < 1, "lie in [0, 1) (0 = off)"),
+    ("which", lambda v: v in WHICH_METHODS, f"be one of {', '.join(WHICH_METHODS)}"),
 )
 """MaskConfig's checks: (field, test, what it must be)."""

@@ -21,6 +21,7 @@ Each source's arrays are cached (`io.default_cache_dir`, keyed by the settings),
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,11 @@ class DataConfig:
         composite_seed: base seed of those composites; never `synth.composite.SEED`, the seed of the
             composites that `moseg eval composite` scores (the same as the embedding's `composite-own`).
         scale: the network's input scale (`LearnedMaskConfig.scale`).
+        motion_blur_share: share of rendered clips whose frames are blurred along a line (a shaking camera's blur;
+            0.3 with `water_clips` 12 scored held-out 0.761 against 0.790: not the default, docs/HISTORY.md).
+        water_clips: clips of rippling water with no object (`synth.water`; hard negatives, every pixel the world;
+            the recipe reads them when `MaskTrainConfig.sources` names "water").
+        water_seed: the first water clip's seed (above `synth.water.SCORED_SEEDS`, which the benchmark scores).
         seed: mixed into every random choice.
     """
 
@@ -70,6 +76,9 @@ class DataConfig:
     composites: int = 20
     composite_seed: int = 1041
     scale: float = 0.25
+    motion_blur_share: float = 0.0
+    water_clips: int = 0
+    water_seed: int = 1000
     seed: int = 42
 
 
@@ -136,35 +145,81 @@ def davis_frames(root: str | Path, clips: tuple[str, ...], scale: float) -> Fram
     return _join(parts)
 
 
+def render_config(cfg: DataConfig, i: int) -> Any:
+    """The `synth.render.RenderConfig` of rendered training clip i (seeded by `cfg.seed` and i)."""
+    from mosegpipe.synth.render import RenderConfig
+
+    rng = np.random.default_rng([cfg.seed, 1, i])
+    empty = rng.random() < cfg.no_object_share
+    return RenderConfig(
+        size_hw=cfg.rendered_sizes[int(rng.integers(len(cfg.rendered_sizes)))],
+        frames=cfg.rendered_frames,
+        num_objects=0 if empty else int(rng.integers(1, 4)),
+        seed=int(rng.integers(2**31)),
+        camera_motion=("static", "pan", "forward", "handheld")[int(rng.integers(4))],
+        texture="photo",
+        object_speed_px=(0.5, 6.0),
+        ground=bool(rng.random() < 0.5),
+        noise_std=float(rng.uniform(0.0, 3.0)),
+    )
+
+
 def rendered_frames(root: str | Path, cfg: DataConfig) -> Frames4Net:
     """Photo-textured rendered clips (the textures of `own_tracks.texture_photos`: no DAVIS frame)."""
-    from mosegpipe.synth.render import RenderConfig, render_clip
+    from mosegpipe.synth.render import render_clip
     from mosegpipe.training.own_tracks import texture_photos
 
     photos = [im for _, im in texture_photos(root)]
     parts = []
     for i in range(cfg.rendered_clips):
-        rng = np.random.default_rng([cfg.seed, 1, i])
-        empty = rng.random() < cfg.no_object_share
-        render_cfg = RenderConfig(
-            size_hw=cfg.rendered_sizes[int(rng.integers(len(cfg.rendered_sizes)))],
-            frames=cfg.rendered_frames,
-            num_objects=0 if empty else int(rng.integers(1, 4)),
-            seed=int(rng.integers(2**31)),
-            camera_motion=("static", "pan", "forward", "handheld")[int(rng.integers(4))],
-            texture="photo",
-            object_speed_px=(0.5, 6.0),
-            ground=bool(rng.random() < 0.5),
-            noise_std=float(rng.uniform(0.0, 3.0)),
-        )
-        clip = render_clip(render_cfg, photos)
-        parts.append(clip_to_net(clip.frames, clip.masks > 0, f"rendered/{i}", cfg.scale))
+        clip = render_clip(render_config(cfg, i), photos)
+        parts.append(clip_to_net(rendered_images(cfg, i, clip.frames), clip.masks > 0, f"rendered/{i}", cfg.scale))
     log.info("masknet data: %d rendered clips", cfg.rendered_clips)
     return _join(parts)
 
 
-def composite_frames(root: str | Path, cfg: DataConfig) -> Frames4Net:
-    """Development composites that use no held-out clip (plate or object), drawn with `cfg.composite_seed`.
+def rendered_images(cfg: DataConfig, i: int, frames: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    """Rendered clip i's frames as the network trains on them: with `cfg.motion_blur_share` chance blurred along a
+    line (3-12 px, one direction per clip, the length varying by frame by x0.5-1.5; seeded by `cfg.seed` and i)."""
+    import cv2
+
+    rng = np.random.default_rng([cfg.seed, 3, i])
+    if rng.random() >= cfg.motion_blur_share:
+        return frames
+    length, angle = rng.uniform(3.0, 12.0), rng.uniform(0.0, np.pi)
+    out = np.empty_like(frames)
+    for t, frame in enumerate(frames):
+        size = max(2, round(length * rng.uniform(0.5, 1.5)))
+        kernel = np.zeros((2 * size + 1, 2 * size + 1), np.float32)
+        d = np.array([np.cos(angle), np.sin(angle)]) * size / 2
+        p0, p1 = np.round(size - d).astype(int), np.round(size + d).astype(int)
+        cv2.line(kernel, (int(p0[0]), int(p0[1])), (int(p1[0]), int(p1[1])), 1.0, 1)
+        out[t] = cv2.filter2D(frame, -1, kernel / kernel.sum(), borderType=cv2.BORDER_REFLECT)
+    return out
+
+
+def water_frames(cfg: DataConfig) -> Frames4Net:
+    """Clips of rippling water with no object (`synth.water`, seeds from `cfg.water_seed`): truth 0 everywhere."""
+    from mosegpipe.synth.water import CAMERAS, SCORED_SEEDS, water_clip
+
+    if cfg.water_seed < SCORED_SEEDS.stop:
+        raise ConfigError(f"masknet water clips: seeds below {SCORED_SEEDS.stop} are the benchmark's; choose another")
+    parts = []
+    for i in range(cfg.water_clips):
+        rng = np.random.default_rng([cfg.seed, 4, i])
+        size = cfg.rendered_sizes[int(rng.integers(len(cfg.rendered_sizes)))]
+        frames = water_clip(cfg.water_seed + i, cfg.rendered_frames, size, CAMERAS[i % len(CAMERAS)])
+        parts.append(clip_to_net(frames, np.zeros(frames.shape[:3], bool), f"water/{i}", cfg.scale))
+    log.info("masknet data: %d water clips", cfg.water_clips)
+    return _join(parts)
+
+
+def training_composites(
+    root: str | Path, cfg: DataConfig, held_out: bool = False
+) -> Iterator[tuple[Any, npt.NDArray[np.uint8]]]:
+    """The development composites drawn with `cfg.composite_seed` that use no held-out clip (plate or object; with
+    `held_out`, those that do), each with its (T, H, W) ids of the objects that move in the world in each frame
+    (0 elsewhere).
 
     Raises:
         ConfigError: the seed is that of the scored development composites.
@@ -173,15 +228,21 @@ def composite_frames(root: str | Path, cfg: DataConfig) -> Frames4Net:
 
     if cfg.composite_seed == SEED:
         raise ConfigError(f"masknet composites: seed {SEED} makes the scored development composites; choose another")
-    parts = []
     for comp in composite_set(root, "dev", count=cfg.composites, seed=cfg.composite_seed):
         used = {comp.plate, *comp.sources}
-        if used & set(HELD_OUT) or used & set(DAVIS_VAL):
+        if bool(used & set(HELD_OUT)) != held_out or used & set(DAVIS_VAL):
             continue
         ids = np.asarray(comp.object_ids)
-        moving_ids = [ids[comp.moving[t]] for t in range(comp.num_frames)]
-        truth = np.stack([np.isin(comp.masks[t], moving_ids[t]) for t in range(comp.num_frames)])
-        parts.append(clip_to_net(comp.frames, truth, f"composite/{comp.name}", cfg.scale))
+        moving = [np.isin(comp.masks[t], ids[comp.moving[t]]) for t in range(comp.num_frames)]
+        yield comp, np.where(np.stack(moving), comp.masks, 0).astype(np.uint8)
+
+
+def composite_frames(root: str | Path, cfg: DataConfig, held_out: bool = False) -> Frames4Net:
+    """`training_composites` as network inputs; truth: the pixels of the objects that move in the world."""
+    parts = [
+        clip_to_net(comp.frames, moving > 0, f"composite/{comp.name}", cfg.scale)
+        for comp, moving in training_composites(root, cfg, held_out)
+    ]
     log.info("masknet data: %d composites", len(parts))
     return _join(parts)
 
@@ -192,7 +253,9 @@ def source_clips(cfg: DataConfig = DataConfig()) -> dict[str, tuple[str, ...]]:
         "davis": TRAIN_DAVIS,
         "composites": tuple(c for c in DAVIS_DEV if c not in HELD_OUT),
         "held-out": HELD_OUT,
+        "composites-held-out": DAVIS_DEV,
         "rendered": (),
+        "water": (),
     }
 
 
@@ -211,7 +274,8 @@ def _from_arrays(arrays: dict[str, npt.NDArray[Any]]) -> Frames4Net:
 def load_source(
     name: str, root: str | Path, cfg: DataConfig = DataConfig(), cache_dir: Path | None = None
 ) -> Frames4Net:
-    """A source's frames ("rendered", "composites", "davis", "held-out"), from the cache when there."""
+    """A source's frames ("rendered", "water", "composites", "davis", "held-out", "composites-held-out": the composites that
+    use a held-out clip, which only the per-motion network's recipe scores), from the cache when there."""
     from mosegpipe.io import default_cache_dir
     from mosegpipe.io_write import write_npz
     from mosegpipe.training.own_tracks import cache_key
@@ -223,8 +287,10 @@ def load_source(
             return _from_arrays({k: z[k] for k in z.files})
     if name == "rendered":
         frames = rendered_frames(root, cfg)
-    elif name == "composites":
-        frames = composite_frames(root, cfg)
+    elif name == "water":
+        frames = water_frames(cfg)
+    elif name in ("composites", "composites-held-out"):
+        frames = composite_frames(root, cfg, held_out=name == "composites-held-out")
     elif name in ("davis", "held-out"):
         frames = davis_frames(root, source_clips(cfg)[name], cfg.scale)
     else:

@@ -37,6 +37,9 @@ CONVS = (1, 1, 2, 2)
 WEIGHTS_FILE = "masknet.pt"
 """The shipped checkpoint's file name in mosegpipe/weights/."""
 
+WHICH_WEIGHTS_FILE = "whichnet.pt"
+"""The shipped per-motion checkpoint's (output "which", mosegpipe.learned.which) file name in mosegpipe/weights/."""
+
 
 def _block(cin: int, cout: int, convs: int = 2) -> nn.Sequential:
     layers: list[nn.Module] = []
@@ -46,13 +49,22 @@ def _block(cin: int, cout: int, convs: int = 2) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class MaskNet(nn.Module):
-    """(B, C, h, w) features -> (B, 1, h, w) logits of "not the world"; any h, w >= 8."""
+OUTPUTS = ("moving", "which")
+"""What a checkpoint's logit means: "moving" = not the world (`features.NUM_CHANNELS` inputs); "which" = the pixel
+is the queried motion's (`which.QUERY_CHANNELS` more inputs, mosegpipe.learned.which)."""
 
-    def __init__(self, in_channels: int = NUM_CHANNELS, widths: tuple[int, ...] = WIDTHS) -> None:
+
+class MaskNet(nn.Module):
+    """(B, C, h, w) features -> (B, 1, h, w) logits of `output` ("not the world", or "the queried motion's");
+    any h, w >= 8."""
+
+    def __init__(
+        self, in_channels: int = NUM_CHANNELS, widths: tuple[int, ...] = WIDTHS, output: str = "moving"
+    ) -> None:
         super().__init__()
         self.in_channels = in_channels
         self.widths = tuple(widths)
+        self.output = output
         self.down = nn.ModuleList()
         cin = in_channels
         for i, w in enumerate(widths):
@@ -95,6 +107,7 @@ class MaskNet(nn.Module):
         """A `torch.load(weights_only=True)`-loadable dict: the weights, the architecture, the recipe."""
         return {
             "kind": "masknet",
+            "output": self.output,
             "in_channels": self.in_channels,
             "widths": list(self.widths),
             "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
@@ -109,11 +122,11 @@ class MaskNet(nn.Module):
         tmp.replace(path)
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path) -> MaskNet:
+    def from_checkpoint(cls, path: str | Path, output: str = "moving") -> MaskNet:
         """The network of a checkpoint written by `save`, in eval mode.
 
         Raises:
-            CheckpointError: the file is missing, unreadable or not a mask network's.
+            CheckpointError: the file is missing, unreadable, not a mask network's or not of `output`.
         """
         path = Path(path)
         if not path.is_file():
@@ -124,8 +137,10 @@ class MaskNet(nn.Module):
             raise CheckpointError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})") from exc
         if not isinstance(ckpt, dict) or ckpt.get("kind") != "masknet":
             raise CheckpointError(f"{path}: not a mask network checkpoint")
+        if ckpt.get("output", "moving") != output:
+            raise CheckpointError(f"{path}: a mask network of output {ckpt.get('output')!r}, not {output!r}")
         try:
-            net = cls(int(ckpt["in_channels"]), tuple(int(w) for w in ckpt["widths"]))
+            net = cls(int(ckpt["in_channels"]), tuple(int(w) for w in ckpt["widths"]), output)
             net.load_state_dict(ckpt["state_dict"])
         except (KeyError, RuntimeError, TypeError, ValueError) as exc:
             raise CheckpointError(f"{path}: mask network checkpoint does not fit ({exc})") from exc
@@ -133,14 +148,15 @@ class MaskNet(nn.Module):
         return net.eval()
 
 
-def shipped_path() -> Path:
-    return weights_dir() / WEIGHTS_FILE
+def shipped_path(output: str = "moving") -> Path:
+    """The shipped checkpoint of `output` (mosegpipe/weights/masknet.pt, whichnet.pt)."""
+    return weights_dir() / (WEIGHTS_FILE if output == "moving" else WHICH_WEIGHTS_FILE)
 
 
 @functools.lru_cache(maxsize=4)
-def load_masknet(path: str = "") -> MaskNet:
-    """The mask network of checkpoint `path` ("" = the shipped one), loaded once per process."""
-    net = MaskNet.from_checkpoint(Path(path) if path else shipped_path()).fused()
+def load_masknet(path: str = "", output: str = "moving") -> MaskNet:
+    """The mask network of checkpoint `path` ("" = the shipped one of `output`), loaded once per process."""
+    net = MaskNet.from_checkpoint(Path(path) if path else shipped_path(output), output).fused()
     # channels last: oneDNN's convolutions without reordering, about half the time on one thread (640x480: 7 ms
     # against 13 per frame)
     return net.to(memory_format=torch.channels_last)  # type: ignore[call-overload]

@@ -124,7 +124,6 @@ def held_out_scores(net: MaskNet, held: Frames4Net, thresholds: tuple[float, ...
     from mosegpipe.learned.net import predict
 
     per_clip: dict[str, list[npt.NDArray[np.float64]]] = {}
-    net.eval()
     for f, t, name in zip(held.features, held.truth, held.names):
         prob = predict(net, f[None].astype(np.float32))[0]
         gt = t.astype(np.float32) > 0.5
@@ -134,7 +133,6 @@ def held_out_scores(net: MaskNet, held: Frames4Net, thresholds: tuple[float, ...
             union = (pred | gt).sum()
             js.append(1.0 if union == 0 else float((pred & gt).sum() / union))
         per_clip.setdefault(name.rsplit("/", 1)[0], []).append(np.array(js))
-    net.train()
     return np.mean([np.mean(v, axis=0) for v in per_clip.values()], axis=0)
 
 
@@ -158,6 +156,59 @@ def train_masknet(
         torch.set_num_threads(threads)
 
 
+def fit(
+    net: MaskNet,
+    steps: int,
+    lr: float,
+    weight_decay: float,
+    eval_every: int,
+    batch: Callable[[], tuple[torch.Tensor, torch.Tensor]],
+    loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    score: Callable[[MaskNet], npt.NDArray[np.float64]],
+    on_log: Callable[[dict[str, float]], None] | None = None,
+) -> tuple[int, int, float, list[dict[str, Any]], float]:
+    """AdamW (5 % warm-up, cosine decay to 2 %) on `batch()`es by `loss_fn`; every `eval_every` steps `score(net)`
+    gives a score per choice (thresholds, ...), and the weights of the best (step, choice) are loaded into `net`.
+
+    Returns:
+        (best step, index of the best choice, its score, the table of scores per evaluation, CPU seconds).
+    """
+    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=weight_decay)
+    warm = max(1, steps // 20)
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda s: min(1.0, (s + 1) / warm) * (0.02 + 0.98 * 0.5 * (1 + np.cos(np.pi * min(s, steps) / steps)))
+    )
+    best: tuple[float, int, int, dict[str, torch.Tensor]] | None = None
+    table = []
+    start, running = time.process_time(), 0.0
+    net.train()
+    for step in range(1, steps + 1):
+        x, t = batch()
+        loss = loss_fn(net(x), t)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        running += loss.item()
+        if step % eval_every == 0 or step == steps:
+            net.eval()
+            scores = score(net)
+            net.train()
+            k = int(np.argmax(scores))
+            table.append({"step": step, "j": [round(float(s), 4) for s in scores]})
+            entry = {"step": float(step), "loss": running / eval_every, "held_out_j": float(scores[k])}
+            entry.update(choice=float(k), cpu_s=time.process_time() - start)
+            log.info("%s step %d: %s", net.output, step, entry)
+            if on_log is not None:
+                on_log(entry)
+            running = 0.0
+            if best is None or scores[k] > best[0]:
+                best = (float(scores[k]), step, k, copy.deepcopy(net.state_dict()))
+    assert best is not None
+    net.load_state_dict(best[3])
+    return best[1], best[2], best[0], table, time.process_time() - start
+
+
 def _train(
     out: Path,
     data_root: Path,
@@ -172,48 +223,32 @@ def _train(
     weights = np.array([w for _, w in cfg.sources], np.float64)
     weights /= weights.sum()
     net = MaskNet(widths=cfg.widths)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    warm = max(1, cfg.steps // 20)
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        opt,
-        lambda s: min(1.0, (s + 1) / warm) * (0.02 + 0.98 * 0.5 * (1 + np.cos(np.pi * min(s, cfg.steps) / cfg.steps))),
+
+    def logged(entry: dict[str, float]) -> None:
+        if on_log is not None:
+            on_log({**entry, "threshold": cfg.thresholds[int(entry["choice"])]})
+
+    step, k, best, table, cpu_s = fit(
+        net,
+        cfg.steps,
+        cfg.lr,
+        cfg.weight_decay,
+        cfg.eval_every,
+        lambda: _batch(rng, data, weights, cfg),
+        lambda logits, t: mask_loss(logits, t, cfg.dice_weight),
+        lambda n: held_out_scores(n, held, cfg.thresholds),
+        logged,
     )
-    best: tuple[float, int, float, dict[str, torch.Tensor]] | None = None
-    table = []
-    start, running = time.process_time(), 0.0
-    net.train()
-    for step in range(1, cfg.steps + 1):
-        x, t = _batch(rng, data, weights, cfg)
-        loss = mask_loss(net(x), t, cfg.dice_weight)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        running += loss.item()
-        if step % cfg.eval_every == 0 or step == cfg.steps:
-            scores = held_out_scores(net, held, cfg.thresholds)
-            k = int(np.argmax(scores))
-            table.append({"step": step, "j": [round(float(s), 4) for s in scores]})
-            entry = {"step": float(step), "loss": running / cfg.eval_every, "held_out_j": float(scores[k])}
-            entry.update(threshold=cfg.thresholds[k], cpu_s=time.process_time() - start)
-            log.info("masknet step %d: %s", step, entry)
-            if on_log is not None:
-                on_log(entry)
-            running = 0.0
-            if best is None or scores[k] > best[0]:
-                best = (float(scores[k]), step, cfg.thresholds[k], copy.deepcopy(net.state_dict()))
-    assert best is not None
-    net.load_state_dict(best[3])
     record = {
         "name": "masknet",
         "command": command,
         "settings": asdict(cfg),
         "frames": {name: len(d.features) for (name, _), d in zip(cfg.sources, data)},
-        "chosen_step": best[1],
-        "threshold": best[2],
-        "held_out_j": round(best[0], 4),
+        "chosen_step": step,
+        "threshold": cfg.thresholds[k],
+        "held_out_j": round(best, 4),
         "held_out_table": table,
-        "cpu_s": round(time.process_time() - start, 1),
+        "cpu_s": round(cpu_s, 1),
     }
     net.eval().save(out, recipe=record)
     return record

@@ -12,7 +12,9 @@ import numpy.typing as npt
 
 from mosegpipe.colours import WORLD
 from mosegpipe.flow import FrameMotion
+from mosegpipe.learned.features import clip_features
 from mosegpipe.learned.moving import learned_moving
+from mosegpipe.learned.which import needs_choice, which_motion
 from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, _nearest, labels_to_mask
 from mosegpipe.motion import moving_masks, stack_motion
 from mosegpipe.types import Tracks
@@ -169,7 +171,10 @@ def motion_masks(
     Returns:
         (T, H, W) uint8 masks.
     """
-    if motion is None and (cfg.unexplained_px > 0 or cfg.reassign_ratio > 0 or cfg.method == "learned"):
+    learned_which = cfg.which == "learned"
+    if motion is None and (
+        cfg.unexplained_px > 0 or cfg.reassign_ratio > 0 or cfg.method == "learned" or learned_which
+    ):
         motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
     if cfg.method == "learned" and motion is not None:  # the mask network in place of the hand-made chain
         moving = learned_moving(images, motion, cfg.learned)
@@ -179,9 +184,16 @@ def motion_masks(
     background = WORLD
     out = np.empty(moving.shape, dtype=np.uint8)
     num = len(moving)
+    features = None
     for t in range(num):
         seen = tracks.visible[track_ids, t]
         out[t] = moving_to_labels(moving[t], tracks.xy[track_ids[seen], t], labels[seen], background, images[t], cfg)
+        if learned_which and motion is not None and needs_choice(labels[seen]):
+            if features is None:  # once per clip, when a frame first needs it
+                features = clip_features(images, motion, cfg.learned.scale)
+            out[t] = which_motion(
+                out[t], features[t], tracks.xy[track_ids[seen], t], labels[seen], cfg.learned.which_weights
+            )
         if motion is None or motion.forward is None or motion.backward is None:
             continue
         other = t + 1 if t + 1 < num else t - 1

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -35,6 +34,7 @@ from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
 from mosegpipe.learned.moving import learned_moving
+from mosegpipe.learned.which import which_motion, window_features
 from mosegpipe.masks import (
     MOVING_UNCLUSTERED,
     UNKNOWN,
@@ -55,7 +55,7 @@ from mosegpipe.pipeline.common import (
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels, small_guard
 from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
-from mosegpipe.runtime import run_ahead
+from mosegpipe.runtime import run_ahead, warnings_held
 from mosegpipe.track import KLTTracker, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import FLOW_MASK_METHODS, Trajectories
@@ -357,7 +357,7 @@ def _cluster_window(
         sweep_k = clustering.k
     else:
         emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
-        with _warnings_held(logging.getLogger(cluster_auto_k.__module__)):
+        with warnings_held(logging.getLogger(cluster_auto_k.__module__)):
             sweep = _window_sweep(cfg, run.prev_k)
             clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
         sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
@@ -440,27 +440,16 @@ def _label_window(
     labs = [
         np.array([by_id.get(int(i), before.get(int(i), -1)) for i in ids], np.int64) for _, _, ids, _ in window[skip:]
     ]
-    moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
-    if stream is not None and motion is not None:
-        if found.track_ids.size and cfg.mask.method == "motion":  # the world's 3D structure: its parallax is not motion
-            motion = explain_parallax(motion, found.xy, found.labels, cfg.world)
-        indices = [t for t, _, _, _ in window]
-        images = np.stack([img for _, img, _, _ in window])
-        shown = _shown_motions(run.last_mask)
-        anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
-        moving = (
-            learned_moving(images, motion, cfg.mask.learned, first=skip)
-            if cfg.mask.method == "learned"
-            else moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
-        )
-        stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
-        run.frame_before = indices[-2]
+    moving, which, motion = _window_pixels(window, skip, labs, cfg, run, stream, motion, found)
     labelled = []
     for at, (item, lab, moved) in enumerate(zip(window[skip:], labs, moving), start=skip):
         # the motion masks need the frame before's mask: computed here, in order, whatever `masks` says
         frame = _labelled_frame(item, lab, cfg.mask, masks or moved is not None, moved)
         if frame.mask is not None:
-            frame = replace(frame, mask=_final_mask(frame.mask, run.last_mask, window, at, lab, motion, cfg.mask))
+            feats = None if which is None else which[at - skip]
+            frame = replace(
+                frame, mask=_final_mask(frame.mask, run.last_mask, window, at, lab, motion, cfg.mask, feats)
+            )
             run.last_mask = frame.mask
         labelled.append(frame)
     run.num_windows += 1
@@ -485,6 +474,40 @@ def _label_window(
     return result
 
 
+def _window_pixels(
+    window: list[_Frame],
+    skip: int,
+    labs: list[npt.NDArray[np.int64]],
+    cfg: PipelineConfig,
+    run: _VideoRun,
+    stream: FlowStream | None,
+    motion: FrameMotion | None,
+    found: _WindowLabels,
+) -> tuple[npt.NDArray[np.bool_] | list[None], npt.NDArray[np.float32] | None, FrameMotion | None]:
+    """The moving pixels of frames skip.. of a window (None each without the motion masks' flows), the per-motion
+    network's inputs when it has something to choose (`window_features`), and the window's flow evidence (the
+    world's parallax explained for the "motion" masks)."""
+    moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
+    which = None
+    if stream is None or motion is None:
+        return moving, which, motion
+    if found.track_ids.size and cfg.mask.method == "motion":  # the world's 3D structure: its parallax is not motion
+        motion = explain_parallax(motion, found.xy, found.labels, cfg.world)
+    indices = [t for t, _, _, _ in window]
+    images = np.stack([img for _, img, _, _ in window])
+    shown = _shown_motions(run.last_mask)
+    anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
+    moving = (
+        learned_moving(images, motion, cfg.mask.learned, first=skip)
+        if cfg.mask.method == "learned"
+        else moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
+    )
+    stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
+    run.frame_before = indices[-2]
+    which = window_features(images, motion, cfg.mask, labs, skip)
+    return moving, which, motion
+
+
 def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
     """The moving motions a frame's mask shows: its labels but the world, the unclustered and unknown."""
     if mask is None:
@@ -502,10 +525,14 @@ def _final_mask(
     labels: npt.NDArray[np.int64],
     motion: FrameMotion | None,
     cfg: MaskConfig,
+    features: npt.NDArray[np.float32] | None = None,
 ) -> npt.NDArray[np.uint8]:
-    """Frame `at` of the window: its mask with its moving pixels given the motion that explains their flow (`reassign_along`
-    the flow to the window's next frame, or to the frame before for its last one) and its unclustered regions
-    their label before (`carry_unclustered`, `last_mask`: the frame before's final mask)."""
+    """Frame `at` of the window: its mask with its moving pixels given the motion the per-motion network picks
+    (`which_motion`, with its `features`), then the motion that explains their flow (`reassign_along` the flow to
+    the window's next frame, or to the frame before for its last one), and its unclustered regions their label
+    before (`carry_unclustered`, `last_mask`: the frame before's final mask)."""
+    if features is not None:
+        mask = which_motion(mask, features, window[at][3], labels, cfg.learned.which_weights)
     if motion is not None and motion.forward is not None and motion.backward is not None and cfg.reassign_ratio > 0:
         near = at + 1 if at < len(motion.forward) else at - 1
         flow = motion.forward[at] if near > at else motion.backward[near]
@@ -557,26 +584,6 @@ def _report_video_end(
             _ranges(run.ambiguous),
             cfg.cluster.ambiguity_margin,
         )
-
-
-@contextlib.contextmanager
-def _warnings_held(logger: logging.Logger) -> Iterator[None]:
-    """Keeps `logger`'s WARNING records of this thread from its handlers while the block runs.
-
-    Whole-video mode reports automatic K's ambiguity warnings once for all windows, not once per
-    window (hundreds of lines on a long video); the notes themselves are kept (WindowResult.k_note).
-    Other threads' records pass: a clip segmented beside this video keeps its warning.
-    """
-    thread = threading.get_ident()
-
-    def keep(record: logging.LogRecord) -> bool:
-        return record.thread != thread or record.levelno != logging.WARNING
-
-    logger.addFilter(keep)
-    try:
-        yield
-    finally:
-        logger.removeFilter(keep)
 
 
 def _ranges(spans: list[tuple[int, int]], shown: int = 3) -> str:
