@@ -151,43 +151,32 @@ def _train_mask_networks(
 
     command = " ".join(["moseg", *sys.argv[1:]])
     given: dict[str, Any] = {k: v for k, v in overrides.items() if v is not None}
+    recipe: Any
+    trainer: Any
     if preset == WHICHNET_PRESET:
-        from mosegpipe.learned.which_train import WhichTrainConfig, train_whichnet
+        from mosegpipe.learned.which_train import WhichTrainConfig as recipe
+        from mosegpipe.learned.which_train import train_whichnet as trainer
 
-        which_cfg = replace(WhichTrainConfig(), **given)
-        typer.echo(f"training whichnet: {which_cfg.steps} steps × {which_cfg.batch_size} crops")
-        record = train_whichnet(
-            out,
-            root,
-            which_cfg,
-            command,
-            on_log=lambda e: typer.echo(
-                f"step {int(e['step']):>6}  loss {e['loss']:.4f}  held-out accuracy {e['held_out_j']:.3f}  "
-                f"{e['cpu_s']:.0f} CPU s"
-            ),
-        )
-        typer.echo(
-            f"wrote {out} (step {record['chosen_step']}, held-out accuracy {record['held_out_accuracy']}, "
-            f"nearest track {record['nearest_track_accuracy']})"
-        )
-        return
-    from mosegpipe.learned.train import MaskTrainConfig, train_masknet
+        score = "held-out accuracy {held_out_j:.3f}"
+        done = "step {chosen_step}, held-out accuracy {held_out_accuracy}, nearest track {nearest_track_accuracy}"
+    else:
+        from mosegpipe.learned.train import MaskTrainConfig as recipe
+        from mosegpipe.learned.train import train_masknet as trainer
 
-    cfg = replace(MaskTrainConfig(), **given)
-    typer.echo(f"training masknet: {cfg.steps} steps × {cfg.batch_size} crops, sources {dict(cfg.sources)}")
-    record = train_masknet(
+        score = "held-out J {held_out_j:.3f} (threshold {threshold})"
+        done = "step {chosen_step}, threshold {threshold}, held-out J {held_out_j}"
+    cfg = replace(recipe(), **given)
+    typer.echo(f"training {preset}: {cfg.steps} steps × {cfg.batch_size} crops")
+    record = trainer(
         out,
         root,
         cfg,
-        command=command,
+        command,
         on_log=lambda e: typer.echo(
-            f"step {int(e['step']):>6}  loss {e['loss']:.4f}  held-out J {e['held_out_j']:.3f} "
-            f"(threshold {e['threshold']})  {e['cpu_s']:.0f} CPU s"
+            f"step {int(e['step']):>6}  loss {e['loss']:.4f}  {score.format(**e)}  {e['cpu_s']:.0f} CPU s"
         ),
     )
-    typer.echo(
-        f"wrote {out} (step {record['chosen_step']}, threshold {record['threshold']}, held-out J {record['held_out_j']})"
-    )
+    typer.echo(f"wrote {out} ({done.format(**record)})")
 
 
 @_friendly

@@ -15,6 +15,7 @@ labels) scores the network, and the best step is kept. Seeded, one torch thread:
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -267,7 +268,11 @@ def held_out_accuracy(net: MaskNet, held: WhichFrames, cfg: WhichTrainConfig) ->
 
 
 def train_whichnet(
-    out: Path, data_root: Path, cfg: WhichTrainConfig = WhichTrainConfig(), command: str = "", on_log: Any = None
+    out: Path,
+    data_root: Path,
+    cfg: WhichTrainConfig = WhichTrainConfig(),
+    command: str = "",
+    on_log: Callable[[dict[str, float]], None] | None = None,
 ) -> dict[str, Any]:
     """Trains the per-motion network by recipe `cfg` and writes the held-out-best checkpoint to `out`."""
     threads = torch.get_num_threads()
