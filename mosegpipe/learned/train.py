@@ -13,10 +13,11 @@ Seeded (numpy and torch) and on one torch thread, the same data give the same we
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -148,10 +149,18 @@ def train_masknet(
     Returns:
         The recipe record stored in the checkpoint (settings, chosen step and threshold, scores).
     """
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the recipe's: one thread gives the same sums in the same order every time
-    try:
+    with one_thread():
         return _train(out, data_root, cfg, command, on_log)
+
+
+@contextlib.contextmanager
+def one_thread() -> Iterator[None]:
+    """Torch on one thread while a recipe trains (one thread gives the same sums in the same order every time);
+    the thread count before comes back after."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
     finally:
         torch.set_num_threads(threads)
 

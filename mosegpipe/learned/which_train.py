@@ -31,7 +31,7 @@ from mosegpipe.learned import WHICHNET_PRESET
 from mosegpipe.learned.data import DataConfig, load_source, render_config, rendered_images, training_composites
 from mosegpipe.learned.features import NUM_CHANNELS, net_size
 from mosegpipe.learned.net import WIDTHS, MaskNet
-from mosegpipe.learned.train import fit
+from mosegpipe.learned.train import fit, one_thread
 from mosegpipe.learned.which import QUERY_CHANNELS, query_channels
 
 log = logging.getLogger(__name__)
@@ -275,9 +275,7 @@ def train_whichnet(
     on_log: Callable[[dict[str, float]], None] | None = None,
 ) -> dict[str, Any]:
     """Trains the per-motion network by recipe `cfg` and writes the held-out-best checkpoint to `out`."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with one_thread():
         rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
         train, held = which_frames(data_root, cfg)
@@ -299,8 +297,6 @@ def train_whichnet(
             lambda n: held_out_accuracy(n, held, cfg)[:1],
             on_log,
         )
-    finally:
-        torch.set_num_threads(threads)
     record = {
         "name": WHICHNET_PRESET,
         "command": command,
