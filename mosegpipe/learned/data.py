@@ -62,7 +62,7 @@ class DataConfig:
             composites that `moseg eval composite` scores (the same as the embedding's `composite-own`).
         scale: the network's input scale (`LearnedMaskConfig.scale`).
         motion_blur_share: share of rendered clips whose frames are blurred along a line (a shaking camera's blur;
-            0.3 with `water_clips` 12 scored held-out 0.761 against 0.790: not the default, docs/HISTORY.md).
+            0.3 with `water_clips` 12 scored held-out 0.738 / 0.743 against 0.790 / 0.761 on two seeds: off).
         water_clips: clips of rippling water with no object (`synth.water`; hard negatives, every pixel the world;
             the recipe reads them when `MaskTrainConfig.sources` names "water").
         water_seed: the first water clip's seed (above `synth.water.SCORED_SEEDS`, which the benchmark scores).

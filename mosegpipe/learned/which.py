@@ -4,9 +4,9 @@ The moving pixels are decided first (the "motion" chain or the "learned" network
 more moving motions then asks, per motion m, a second network (`net.MaskNet` with `QUERY_CHANNELS` more inputs,
 checkpoint output "which", mosegpipe/weights/whichnet.pt) for each pixel's probability of being m's, given the frame's
 `features.clip_features` and two query channels drawn from the tracks (`query_channels`). Each moving pixel of those
-motions takes the motion of the highest probability (`which_motion`), in place of the nearest track, the watershed
-between them and the flow's affine reassignment (`MaskConfig.which` "learned"; the recipe:
-`moseg train --preset whichnet`, mosegpipe.learned.which_train).
+motions takes the motion of the highest probability (`which_motion`), in place of the choice of the nearest track
+and the watershed between them; the flow's affine reassignment (`MaskConfig.reassign_ratio`) still runs after it
+(`MaskConfig.which` "learned"; the recipe: `moseg train --preset whichnet`, mosegpipe.learned.which_train).
 """
 
 from __future__ import annotations
