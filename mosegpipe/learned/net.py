@@ -3,11 +3,12 @@
 A U-Net of four levels (the input's size, 1/2, 1/4, 1/8 of it), each one or two 3x3 convolutions (`CONVS`)
 with batch norm and ReLU, the decoder upsampling (bilinear) and joining the encoder's level of the same size.
 Input: `features.NUM_CHANNELS` channels at 1/4 of the frame size (`features.clip_features`); output:
-one logit per pixel of the same size. About 190 thousand parameters (0.8 MB of float32).
+one logit per pixel of the same size. About 52 thousand parameters (0.2 MB of float32). The per-motion network
+(mosegpipe.learned.which) is the same class with more inputs and output "which".
 
 Inference runs in torch on the CPU with the process's thread count (`runtime.set_threads`; one by
-default). The shipped weights (mosegpipe/weights/masknet.pt) are a plain dict of tensors and settings,
-read with `torch.load(weights_only=True)`, offline.
+default). The shipped weights (mosegpipe/weights/masknet.pt, whichnet.pt) are a plain dict of tensors and
+settings, read with `torch.load(weights_only=True)`, offline.
 """
 
 from __future__ import annotations
@@ -34,11 +35,10 @@ network")."""
 CONVS = (1, 1, 2, 2)
 """3x3 convolutions per level (the decoder's too): one at the two largest sizes, where they cost most."""
 
-WEIGHTS_FILE = "masknet.pt"
-"""The shipped checkpoint's file name in mosegpipe/weights/."""
-
-WHICH_WEIGHTS_FILE = "whichnet.pt"
-"""The shipped per-motion checkpoint's (output "which", mosegpipe.learned.which) file name in mosegpipe/weights/."""
+WEIGHTS_FILES = {"moving": "masknet.pt", "which": "whichnet.pt"}
+"""The shipped checkpoint's file name in mosegpipe/weights/ per output: what a checkpoint's logit means, "moving" = not
+the world (`features.NUM_CHANNELS` inputs), "which" = the pixel is the queried motion's (`which.QUERY_CHANNELS`
+more inputs, mosegpipe.learned.which)."""
 
 
 def _block(cin: int, cout: int, convs: int = 2) -> nn.Sequential:
@@ -47,11 +47,6 @@ def _block(cin: int, cout: int, convs: int = 2) -> nn.Sequential:
         layers += [nn.Conv2d(cin if i == 0 else cout, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout)]
         layers.append(nn.ReLU(inplace=True))
     return nn.Sequential(*layers)
-
-
-OUTPUTS = ("moving", "which")
-"""What a checkpoint's logit means: "moving" = not the world (`features.NUM_CHANNELS` inputs); "which" = the pixel
-is the queried motion's (`which.QUERY_CHANNELS` more inputs, mosegpipe.learned.which)."""
 
 
 class MaskNet(nn.Module):
@@ -150,7 +145,7 @@ class MaskNet(nn.Module):
 
 def shipped_path(output: str = "moving") -> Path:
     """The shipped checkpoint of `output` (mosegpipe/weights/masknet.pt, whichnet.pt)."""
-    return weights_dir() / (WEIGHTS_FILE if output == "moving" else WHICH_WEIGHTS_FILE)
+    return weights_dir() / WEIGHTS_FILES[output]
 
 
 @functools.lru_cache(maxsize=4)

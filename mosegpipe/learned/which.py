@@ -11,7 +11,7 @@ and the watershed between them; the flow's affine reassignment (`MaskConfig.reas
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 import cv2
@@ -104,14 +104,18 @@ def which_motion(
     asked = np.isin(mask, motions)
     if not asked.any():
         return mask
-    net = load_masknet(weights, output="which")
-    inputs = np.concatenate([np.broadcast_to(features, (len(motions), *features.shape)), queries], axis=1)
-    prob = predict(net, inputs)
+    prob = predict(load_masknet(weights, output="which"), asked_inputs(features, queries))
     height, width = mask.shape
     full = np.stack([cv2.resize(p, (width, height), interpolation=cv2.INTER_LINEAR) for p in prob])
     out = mask.copy()
     out[asked] = motions[np.argmax(full[:, asked], axis=0)].astype(np.uint8)
     return out
+
+
+def asked_inputs(features: npt.NDArray[np.floating], queries: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+    """(M, NUM_CHANNELS + QUERY_CHANNELS, h, w) float32: a frame's features beside each of its M queries."""
+    shared = np.broadcast_to(features.astype(np.float32, copy=False), (len(queries), *features.shape))
+    return np.concatenate([shared, queries], axis=1)
 
 
 def taking_part(labels: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
@@ -136,7 +140,7 @@ def window_features(
     images: npt.NDArray[np.uint8],
     motion: FrameMotion,
     cfg: MaskConfig,
-    labels: Sequence[npt.NDArray[np.int64]],
+    labels: Iterable[npt.NDArray[np.int64]],
     first: int = 0,
 ) -> npt.NDArray[np.float32] | None:
     """The `clip_features` of frames first..T-1 of a stack when `cfg.which` is "learned" and one of those frames'

@@ -32,7 +32,7 @@ from mosegpipe.learned.data import DataConfig, load_source, render_config, rende
 from mosegpipe.learned.features import NUM_CHANNELS, net_size
 from mosegpipe.learned.net import WIDTHS, MaskNet
 from mosegpipe.learned.train import fit, one_thread
-from mosegpipe.learned.which import QUERY_CHANNELS, query_channels
+from mosegpipe.learned.which import QUERY_CHANNELS, asked_inputs, query_channels
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +103,11 @@ class WhichFrames:
     names: list[str] = field(default_factory=list)
 
 
+def _present(ids: npt.NDArray[np.uint8], min_pixels: int) -> npt.NDArray[np.int64]:
+    """The object ids (1..255) of an id image with at least `min_pixels` pixels."""
+    return np.flatnonzero(np.bincount(ids.ravel(), minlength=256)[1:] >= min_pixels) + 1
+
+
 def frame_corners(image: npt.NDArray[np.uint8], track: TrackConfig = TrackConfig()) -> npt.NDArray[np.float32]:
     """(N, 2) float32 Shi-Tomasi corners of an RGB frame with the tracker's settings (full-resolution pixels)."""
     grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
@@ -126,8 +131,7 @@ def add_clip(
     to_net = np.array([hw[1] / images.shape[2], hw[0] / images.shape[1]], np.float32)
     for t in range(len(images)):
         small = cv2.resize(ids[t], (hw[1], hw[0]), interpolation=cv2.INTER_NEAREST)
-        present = np.bincount(small.ravel(), minlength=256)[1:]
-        if (present >= cfg.min_pixels).sum() < 2 or f"{name}/{t}" not in features:
+        if len(_present(small, cfg.min_pixels)) < 2 or f"{name}/{t}" not in features:
             continue
         xy = frame_corners(images[t])
         p = np.clip(np.round(xy).astype(np.int64), 0, [images.shape[2] - 1, images.shape[1] - 1])
@@ -210,7 +214,7 @@ def sample(
 ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """One crop of frame i: (NUM_CHANNELS + QUERY_CHANNELS, ch, cw) inputs and (2, ch, cw) target and loss weight."""
     ids, hw = data.ids[i], data.ids[i].shape
-    present = np.flatnonzero(np.bincount(ids.ravel(), minlength=256)[1:] >= cfg.min_pixels) + 1
+    present = _present(ids, cfg.min_pixels)
     labels = spoiled(rng, data.corner_ids[i], present, cfg)
     moving = labels > 0
     groups = np.unique(labels[moving])
@@ -250,7 +254,7 @@ def held_out_accuracy(net: MaskNet, held: WhichFrames, cfg: WhichTrainConfig) ->
     scores = []
     clean = replace(cfg, merge_share=0.0)
     for i, (f, ids, xy, cid) in enumerate(zip(held.features, held.ids, held.corners, held.corner_ids)):
-        present = np.flatnonzero(np.bincount(ids.ravel(), minlength=256)[1:] >= cfg.min_pixels) + 1
+        present = _present(ids, cfg.min_pixels)
         labels = spoiled(np.random.default_rng([cfg.seed, 7, i]), cid, present, clean)
         motions = np.unique(labels[labels > 0])
         on = ids > 0
@@ -258,9 +262,7 @@ def held_out_accuracy(net: MaskNet, held: WhichFrames, cfg: WhichTrainConfig) ->
             continue
         moving = labels > 0
         queries = np.stack([query_channels(xy[moving], labels[moving], int(m), ids.shape) for m in motions])
-        prob = predict(
-            net, np.concatenate([np.broadcast_to(f.astype(np.float32), (len(motions), *f.shape)), queries], 1)
-        )
+        prob = predict(net, asked_inputs(f, queries))
         by_net = motions[np.argmax(prob[:, on], axis=0)]
         by_nearest = motions[np.argmax(queries[:, 1][:, on], axis=0)]
         scores.append([np.mean(by_net == ids[on]), np.mean(by_nearest == ids[on])])

@@ -12,9 +12,8 @@ import numpy.typing as npt
 
 from mosegpipe.colours import WORLD
 from mosegpipe.flow import FrameMotion
-from mosegpipe.learned.features import clip_features
 from mosegpipe.learned.moving import learned_moving
-from mosegpipe.learned.which import needs_choice, which_motion
+from mosegpipe.learned.which import which_motion, window_features
 from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, _nearest, labels_to_mask
 from mosegpipe.motion import moving_masks, stack_motion
 from mosegpipe.types import Tracks
@@ -171,9 +170,8 @@ def motion_masks(
     Returns:
         (T, H, W) uint8 masks.
     """
-    learned_which = cfg.which == "learned"
     if motion is None and (
-        cfg.unexplained_px > 0 or cfg.reassign_ratio > 0 or cfg.method == "learned" or learned_which
+        cfg.unexplained_px > 0 or cfg.reassign_ratio > 0 or cfg.method == "learned" or cfg.which == "learned"
     ):
         motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
     if cfg.method == "learned" and motion is not None:  # the mask network in place of the hand-made chain
@@ -181,16 +179,15 @@ def motion_masks(
     else:
         moving = moving_masks(images, cfg.motion, before=before, after=after, motion=motion)
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+    visible = tracks.visible[track_ids]  # (M, T)
     background = WORLD
     out = np.empty(moving.shape, dtype=np.uint8)
     num = len(moving)
-    features = None
+    features = None if motion is None else window_features(images, motion, cfg, (labels[s] for s in visible.T))
     for t in range(num):
-        seen = tracks.visible[track_ids, t]
+        seen = visible[:, t]
         out[t] = moving_to_labels(moving[t], tracks.xy[track_ids[seen], t], labels[seen], background, images[t], cfg)
-        if learned_which and motion is not None and needs_choice(labels[seen]):
-            if features is None:  # once per clip, when a frame first needs it
-                features = clip_features(images, motion, cfg.learned.scale)
+        if features is not None:
             out[t] = which_motion(
                 out[t], features[t], tracks.xy[track_ids[seen], t], labels[seen], cfg.learned.which_weights
             )
@@ -198,7 +195,7 @@ def motion_masks(
             continue
         other = t + 1 if t + 1 < num else t - 1
         flow = motion.forward[t] if other > t else motion.backward[t - 1]
-        both = seen & tracks.visible[track_ids, other]
+        both = seen & visible[:, other]
         step = (tracks.xy[track_ids[both], t], tracks.xy[track_ids[both], other])
         if cfg.reassign_ratio > 0:
             out[t] = reassign_by_flow(out[t], step, labels[both], flow, motion.scale, cfg.reassign_ratio)
