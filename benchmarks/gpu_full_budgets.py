@@ -63,7 +63,7 @@ def _quiet_logs() -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # Only the first frame of each KT3DMoSeg sequence travels (for the image size): no warning per load.
     logging.getLogger("mosegpipe.data.kt3dmoseg").setLevel(logging.ERROR)
-    logging.getLogger("mosegpipe.cluster").setLevel(logging.ERROR)
+    logging.getLogger("mosegpipe.group.cluster").setLevel(logging.ERROR)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -77,8 +77,8 @@ def main() -> None:
     from mosegpipe.runtime import set_threads
 
     set_threads(1)
-    logging.getLogger("mosegpipe.cluster").setLevel(logging.ERROR)
-    from mosegpipe.model import ModelConfig
+    logging.getLogger("mosegpipe.group.cluster").setLevel(logging.ERROR)
+    from mosegpipe.embed.model import ModelConfig
     from mosegpipe.studies.lce import _train, _train_sampler, score_clips
     from mosegpipe.synth.lce import LCEConfig, lce_splits
     from mosegpipe.training.loop import train_model

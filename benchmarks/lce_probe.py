@@ -29,9 +29,9 @@ def main() -> None:
     from mosegpipe.runtime import set_threads
 
     set_threads(1)
-    logging.getLogger("mosegpipe.cluster").setLevel(logging.ERROR)  # K-ambiguity warnings per clip
+    logging.getLogger("mosegpipe.group.cluster").setLevel(logging.ERROR)  # K-ambiguity warnings per clip
 
-    from mosegpipe.model import ModelConfig
+    from mosegpipe.embed.model import ModelConfig
     from mosegpipe.studies.lce import _train, _train_sampler, score_clips
     from mosegpipe.synth.lce import lce_splits
     from mosegpipe.training.loop import train_model

@@ -30,7 +30,7 @@ def _frames(video: Path, size: tuple[int, int]) -> list[bytes]:
     """The video's frames resized, as raw BGR (what `moseg live -` reads), then the same backwards."""
     import cv2
 
-    from mosegpipe.io import iter_video
+    from mosegpipe.io.read import iter_video
 
     frames = [cv2.resize(rgb[..., ::-1], size, interpolation=cv2.INTER_AREA).tobytes() for _, rgb in iter_video(video)]
     if not frames:

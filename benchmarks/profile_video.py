@@ -42,14 +42,14 @@ from typing import Any
 import cv2
 import numpy as np
 
-import mosegpipe.flow as flow_mod
-import mosegpipe.motion as motion_mod
-import mosegpipe.outputs as outputs_mod
+import mosegpipe.apps.outputs as outputs_mod
+import mosegpipe.masks.moving_pixels as motion_mod
 import mosegpipe.pipeline.video as video_mod
 import mosegpipe.pipeline.window as window_mod
-import mosegpipe.track as track_mod
-from mosegpipe.inference import load_embedder
-from mosegpipe.io import iter_video
+import mosegpipe.points.flow as flow_mod
+import mosegpipe.points.klt as track_mod
+from mosegpipe.embed.numpy_net import load_embedder
+from mosegpipe.io.read import iter_video
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.runtime import set_threads
 

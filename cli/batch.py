@@ -144,8 +144,8 @@ def batch(
     from rich.markup import escape
     from rich.progress import Progress
 
-    from mosegpipe.batch import check_ray, plan, run_batch
-    from mosegpipe.inference import load_model
+    from mosegpipe.apps.batch.run import check_ray, plan, run_batch
+    from mosegpipe.embed.numpy_net import load_model
 
     cfg = _pipeline_cfg(
         frames,

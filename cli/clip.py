@@ -120,9 +120,9 @@ def run(
     if whole and _value(points) != "klt":
         raise InputError(f"--points {_value(points)}: clips only (--whole tracks KLT corners from window to window)")
     _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
+    _setup(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.outputs import check_output_dir, write_clip_outputs, write_video_outputs
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import segment_clip
 
     cfg = _pipeline_cfg(
@@ -199,9 +199,9 @@ def pair(
         if not p.is_file():
             raise InputError(f"{p}: no such image file")
     _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import check_output_dir, write_pair_outputs
+    _setup(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.outputs import check_output_dir, write_pair_outputs
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import segment_pair
 
     cfg = _pipeline_cfg(2, clustering, masks=masks)
@@ -302,9 +302,9 @@ def tracks(
     if video is not None and not video.exists():
         raise InputError(f"{video}: no such file or folder")
     _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import check_output_dir, write_tracks_outputs
+    _setup(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.outputs import check_output_dir, write_tracks_outputs
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import segment_tracks, tracks_clip
 
     xy, visible = read_tracks_file(file)

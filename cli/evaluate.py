@@ -33,9 +33,8 @@ from mosegpipe.cli.options import (
 from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
-from mosegpipe.learned import MASKNET_PRESET, WHICHNET_PRESET
 from mosegpipe.studies import STUDIES, Budget
-from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, RECIPE_NAMES, TRAIN_PRESETS
+from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, MASKNET_PRESET, RECIPE_NAMES, TRAIN_PRESETS, WHICHNET_PRESET
 
 if TYPE_CHECKING:
     PresetChoice: TypeAlias = StrEnum
@@ -143,8 +142,8 @@ def train(
 def _train_mask_networks(
     preset: str, out: Path, root: Path, overrides: dict[str, int | float | None], unused: tuple[object, ...]
 ) -> None:
-    """train --preset masknet / whichnet: the mask network's recipe (mosegpipe.learned.train) or the per-motion
-    network's (mosegpipe.learned.which_train), with the overrides given (--steps, --batch-size, --lr, --seed)."""
+    """train --preset masknet / whichnet: the mask network's recipe (mosegpipe.training.masks.masknet) or the per-motion
+    network's (mosegpipe.training.masks.whichnet), with the overrides given (--steps, --batch-size, --lr, --seed)."""
     if any(u is not None for u in unused):
         raise InputError(f"train --preset {preset}: --loss, --init, --exclude and --time-budget do not apply")
     from dataclasses import replace
@@ -154,14 +153,14 @@ def _train_mask_networks(
     recipe: Any
     trainer: Any
     if preset == WHICHNET_PRESET:
-        from mosegpipe.learned.which_train import WhichTrainConfig as recipe
-        from mosegpipe.learned.which_train import train_whichnet as trainer
+        from mosegpipe.training.masks.whichnet import WhichTrainConfig as recipe
+        from mosegpipe.training.masks.whichnet import train_whichnet as trainer
 
         score = "held-out accuracy {held_out_j:.3f}"
         done = "step {chosen_step}, held-out accuracy {held_out_accuracy}, nearest track {nearest_track_accuracy}"
     else:
-        from mosegpipe.learned.train import MaskTrainConfig as recipe
-        from mosegpipe.learned.train import train_masknet as trainer
+        from mosegpipe.training.masks.masknet import MaskTrainConfig as recipe
+        from mosegpipe.training.masks.masknet import train_masknet as trainer
 
         score = "held-out J {held_out_j:.3f} (threshold {threshold})"
         done = "step {chosen_step}, threshold {threshold}, held-out J {held_out_j}"

@@ -172,7 +172,7 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
 def _stdin_size_value(value: str | None) -> str | None:
     """--stdin-size checked as the option is parsed: a bad one is a usage error (exit code 2)."""
     if value is not None:
-        from mosegpipe.live import parse_size  # here: parsing any other live command line stays light
+        from mosegpipe.apps.live.run import parse_size  # here: parsing any other live command line stays light
 
         try:
             parse_size(value)
@@ -347,10 +347,10 @@ def live(
     started = time.perf_counter()
     src = _live_source(ctx, source, stdin_size, realtime, fps, drop, viewer, connect, serve, out, no_rrd)
     _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.live import LiveView, run_live
-    from mosegpipe.outputs import check_output_dir
+    _setup(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.live.run import LiveView, run_live
+    from mosegpipe.apps.outputs import check_output_dir
+    from mosegpipe.embed.numpy_net import load_embedder
 
     cfg = _pipeline_cfg(
         frames,
@@ -421,8 +421,8 @@ def _live_source(
     out: Path | None,
     no_rrd: bool,
 ) -> Any:
-    """The parsed SOURCE (mosegpipe.live.LiveSource), once the options that go with it are checked."""
-    from mosegpipe.live import parse_size, parse_source
+    """The parsed SOURCE (mosegpipe.apps.live.run.LiveSource), once the options that go with it are checked."""
+    from mosegpipe.apps.live.run import parse_size, parse_source
 
     if (source == "-") != (stdin_size is not None):
         raise _click.exceptions.UsageError(

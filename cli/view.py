@@ -119,7 +119,7 @@ def _check_source_identity(path: Path, recorded: dict[str, Any]) -> str:
     Raises:
         InputError: the source is gone, or its size, first MiB or files differ from the recorded ones.
     """
-    from mosegpipe.provenance import identity_differences, source_identity
+    from mosegpipe.io.provenance import identity_differences, source_identity
 
     where = recorded["path"]
     now = source_identity(where)
@@ -180,14 +180,14 @@ def replay(
     started = time.perf_counter()
     recorded = _read_run_summary(summary)
     _setup(threads, verbose)
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import (
+    from mosegpipe.apps.outputs import (
         check_output_dir,
         write_clip_outputs,
         write_pair_outputs,
         write_tracks_outputs,
         write_video_outputs,
     )
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_pair, segment_tracks, tracks_clip
 
     kind, source = recorded["kind"], recorded["source"]

@@ -160,9 +160,9 @@ def test_a_failed_run_leaves_no_reader_thread_behind(
     tmp_path: Path, video: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A reader still inside OpenCV when Python exits aborted the process (rc 134) after the right line."""
-    from mosegpipe import outputs
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.live import parse_source, run_live
+    from mosegpipe.apps import outputs
+    from mosegpipe.apps.live.run import parse_source, run_live
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import PipelineConfig
 
     def read_only(self: object) -> None:
@@ -178,7 +178,7 @@ def test_a_failed_run_leaves_no_reader_thread_behind(
 def test_a_read_only_output_folder_is_one_line_and_no_abort(tmp_path: Path, video: Path) -> None:
     code = f"""
 import errno, os, sys
-from mosegpipe import outputs
+from mosegpipe.apps import outputs
 def read_only(self):
     raise OSError(errno.EROFS, os.strerror(errno.EROFS), {str(tmp_path / "o")!r})
 outputs._OutputDir.__enter__ = read_only
@@ -204,7 +204,7 @@ app()
 
 
 def _find_clips_within(root: Path, seconds: float = 30.0) -> list[Path]:
-    from mosegpipe.batch import find_clips
+    from mosegpipe.apps.batch.run import find_clips
 
     found: list[list[Path]] = []
     walker = threading.Thread(target=lambda: found.append(find_clips(root)), daemon=True)
@@ -223,7 +223,7 @@ def test_batch_discovery_searches_each_folder_once(tmp_path: Path, caplog: pytes
     (root / "dangling.avi").symlink_to("nowhere.avi")
     (root / "a").symlink_to("b")  # a loop of two links: neither leads anywhere
     (root / "b").symlink_to("a")
-    with caplog.at_level(logging.WARNING, logger="mosegpipe.batch"):
+    with caplog.at_level(logging.WARNING, logger="mosegpipe.apps.batch.run"):
         assert _find_clips_within(root) == [root / "sub"]
     said = caplog.text
     assert "dangling.avi: a broken symbolic link (to nowhere.avi); skipped" in said
@@ -274,7 +274,7 @@ def test_bad_live_options_are_one_line(
 
 
 def test_a_huge_stdin_size_is_refused_before_a_frame_is_allocated() -> None:
-    from mosegpipe.live import parse_source
+    from mosegpipe.apps.live.run import parse_source
 
     with pytest.raises(InputError, match="too large"):
         parse_source("-", stdin_size=(99_999, 99_999))  # 30 GB a frame
@@ -341,8 +341,8 @@ def test_frames_of_another_size_than_declared_are_named(tmp_path: Path) -> None:
 
 
 def test_the_size_check_passes_frames_of_the_declared_size() -> None:
-    from mosegpipe.io import read_image
-    from mosegpipe.live import stdin_size_suspect
+    from mosegpipe.apps.live.run import stdin_size_suspect
+    from mosegpipe.io.read import read_image
 
     photo = read_image(Path(__file__).resolve().parents[1] / "samples" / "basketball1.png")
     h, w = photo.shape[:2]

@@ -15,8 +15,8 @@ from typing import Any
 
 import pytest
 
-from mosegpipe.cluster import ClusterConfig
 from mosegpipe.errors import ConfigError
+from mosegpipe.group.cluster import ClusterConfig
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.settings import MAX_THREADS
 

@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 from mosegpipe import __version__
 from mosegpipe.cli import view as cli_view
 from mosegpipe.cli.main import app
-from mosegpipe.io import read_palette_png
-from mosegpipe.model import available_default_frames
+from mosegpipe.embed.model import available_default_frames
+from mosegpipe.io.read import read_palette_png
 from mosegpipe.synth.render import RenderedClip
 
 from helpers import motion_checkpoint, read_rrd, render_scene, write_avi, write_frames
@@ -423,7 +423,7 @@ def test_a_closed_stdout_ends_quietly(tmp_path: Path, clip_avi: Path, models: di
 
 def test_ctrl_c_exits_130_with_one_line(tmp_path: Path, clip_avi: Path, models: dict[int, Path]) -> None:
     patch = (
-        "import os, signal\nimport mosegpipe.outputs as outputs\n"
+        "import os, signal\nimport mosegpipe.apps.outputs as outputs\n"
         "def interrupted(*args, **kwargs):\n    os.kill(os.getpid(), signal.SIGINT)\n"
         "outputs.write_npz = interrupted"
     )

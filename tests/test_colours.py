@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from mosegpipe import colours, masks
-from mosegpipe.outputs import write_clip_outputs, write_mask_png, write_pair_outputs
+from mosegpipe.apps.outputs import write_clip_outputs, write_mask_png, write_pair_outputs
 from mosegpipe.pipeline import ClipResult, PairResult, PipelineConfig
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
 

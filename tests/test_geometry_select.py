@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import ConfigError
-from mosegpipe.geometry_select import (
+from mosegpipe.group.joint import (
     JointConfig,
     best_model,
     choose_partition,
     geometry_supported,
-    gric,
     select_models,
 )
+from mosegpipe.group.twoview import gric
 
 FRAMES = 5
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,8 +123,8 @@ def test_config_is_checked() -> None:
 
 
 def test_joint_method_on_a_clip_and_a_whole_video(tmp_path: Path) -> None:
-    from mosegpipe.io import read_video
-    from mosegpipe.outputs import write_clip_outputs
+    from mosegpipe.apps.outputs import write_clip_outputs
+    from mosegpipe.io.read import read_video
     from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_video
 
     clip = ROOT / "samples" / "rendered" / "frames"
@@ -194,7 +194,7 @@ def _three_motions(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_k_by_gric_finds_the_three_motions_kmeans_joins_in_two() -> None:
-    from mosegpipe.cluster import cluster_auto_k
+    from mosegpipe.group.cluster import cluster_auto_k
     from mosegpipe.pipeline import PipelineConfig, check_rigid
 
     points, emb = _three_motions(np.random.default_rng(7))

@@ -24,36 +24,6 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = {"mosegpipe": ROOT / "mosegpipe", "mosegpipe.cli": ROOT / "cli"}
 """Import name -> source folder of each package root read (the cli is mapped in by package-dir)."""
 
-INFERENCE = (
-    "mosegpipe.track",
-    "mosegpipe.match",
-    "mosegpipe.trajectories",
-    "mosegpipe.model",
-    "mosegpipe.architecture",
-    "mosegpipe.cluster",
-    "mosegpipe.rigid",
-    "mosegpipe.masks",
-    "mosegpipe.io",
-    "mosegpipe.io_write",
-    "mosegpipe.types",
-    "mosegpipe.errors",
-    "mosegpipe.runtime",
-    "mosegpipe.inference",
-    "mosegpipe.pipeline",
-    "mosegpipe.flow",
-    "mosegpipe.motion",
-    "mosegpipe.outputs",
-    "mosegpipe.viz",
-    "mosegpipe.colours",
-    "mosegpipe.batch",
-    "mosegpipe.batch_plan",
-    "mosegpipe.batch_pool",
-    "mosegpipe.batch_ray",
-    "mosegpipe.live",
-    "mosegpipe.live_source",
-    "mosegpipe.live_reader",
-)
-"""The inference stages (a package stands for all its modules; one not written yet is skipped)."""
 FORBIDDEN = ("mosegpipe.training", "mosegpipe.evaluation", "mosegpipe.studies", "mosegpipe.synth")
 
 
@@ -207,8 +177,10 @@ def test_no_import_circles(graph: dict[str, set[str]]) -> None:
 
 
 def test_inference_stages_never_import_training_evaluation_or_synth(graph: dict[str, set[str]]) -> None:
-    stages = [m for m in graph if any(m == s or m.startswith(f"{s}.") for s in INFERENCE)]
-    assert "mosegpipe.pipeline.clip" in stages and "mosegpipe.outputs" in stages
+    # Every module but the training side and the CLI (whose train/eval commands load it on demand): computed, so
+    # that a new module is held to the rule without being listed anywhere.
+    stages = [m for m in graph if not m.startswith((*FORBIDDEN, "mosegpipe.cli"))]
+    assert "mosegpipe.pipeline.clip" in stages and "mosegpipe.apps.outputs" in stages
     for module in stages:
         bad = sorted(m for m in reachable(graph, module) if m.startswith(FORBIDDEN))
         assert not bad, f"{module} imports {', '.join(bad)}"

@@ -18,8 +18,8 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from mosegpipe.apps.live.run import Capture, FrameBuffer, LiveFrames, RawCapture, SourceReader, parse_source
 from mosegpipe.errors import InputError
-from mosegpipe.live import Capture, FrameBuffer, LiveFrames, RawCapture, SourceReader, parse_source
 
 from helpers import moseg, one_error_line
 
@@ -142,7 +142,7 @@ def test_sources_are_told_apart(tmp_path: Path, video: Path) -> None:
 
 def test_segment_video_takes_the_frames_themselves(video: Path) -> None:
     """A live source is an iterator of frames in place of a path: the same windows and labels."""
-    from mosegpipe.io import iter_video
+    from mosegpipe.io.read import iter_video
     from mosegpipe.pipeline import segment_video
 
     from_file = list(segment_video(video))

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from mosegpipe.embed.model import ModelConfig
 from mosegpipe.errors import ConfigError
-from mosegpipe.model import ModelConfig
 from mosegpipe.studies import STUDIES, StudyRequest, get_study
 from mosegpipe.studies import training as st
 from mosegpipe.training import recipes

@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from mosegpipe.apps.outputs import _WINDOWS_AHEAD, write_video_outputs
+from mosegpipe.apps.window_log import WindowLog
 from mosegpipe.cli.main import app
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.io import iter_video, read_palette_png
-from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import _WINDOWS_AHEAD, write_video_outputs
+from mosegpipe.io.read import iter_video, read_palette_png
 from mosegpipe.pipeline import LabelBook, PipelineConfig, WindowResult, match_labels
 from mosegpipe.pipeline import video as video_module
 from mosegpipe.synth.render import RenderedClip
-from mosegpipe.window_log import WindowLog
 
 from helpers import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 
@@ -359,7 +359,7 @@ def test_the_colour_model_is_carried_from_window_to_window_and_starts_afresh_at_
 def test_a_windows_first_frame_takes_the_flow_back_to_the_frame_before_it_inside_a_shot(
     tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from mosegpipe.flow import frame_motion
+    from mosegpipe.points.flow import frame_motion
 
     folder, model = _two_shots(tmp_path), SubspaceNet.from_checkpoint(model_path)
     frames = np.stack([image for _, image in iter_video(folder)])

@@ -4,7 +4,7 @@ Each folder is built under a temporary name and renamed when complete, so a fail
 an output behind; `check_output_dir` lets a caller refuse an occupied folder before spending time on
 segmentation. One summary builder per kind of result (clip, pair, video); the folder layout and the
 summary.json schema are in docs/OUTPUTS.md; each summary records its source's identity (absolute
-path and a fingerprint, mosegpipe.provenance) so that `moseg replay` reads the same input.
+path and a fingerprint, mosegpipe.io.provenance) so that `moseg replay` reads the same input.
 """
 
 from __future__ import annotations
@@ -22,10 +22,12 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe import __version__
+from mosegpipe.apps.window_log import WindowLog
 from mosegpipe.colours import mask_palette
+from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.errors import InputError, OutputExistsError
-from mosegpipe.inference import load_embedder
-from mosegpipe.io import video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
+from mosegpipe.io.provenance import source_identity
+from mosegpipe.io.read import video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
 from mosegpipe.masks import overlay_image
 from mosegpipe.pipeline import (
     ClipResult,
@@ -40,13 +42,11 @@ from mosegpipe.pipeline import (
     model_info,
     segment_video,
 )
-from mosegpipe.provenance import source_identity
 from mosegpipe.runtime import run_ahead
 from mosegpipe.viz import k_statement
-from mosegpipe.window_log import WindowLog
 
 if TYPE_CHECKING:
-    from mosegpipe.inference import Embedder
+    from mosegpipe.embed.numpy_net import Embedder
     from mosegpipe.viz import VideoRecorder, VizConfig
 
 SUMMARY_SCHEMA = "mosegpipe.summary/2"

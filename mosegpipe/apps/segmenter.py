@@ -1,7 +1,7 @@
 """One object, one call: `Segmenter` segments a clip, a whole video, an image pair or tracks made
 elsewhere and, given `out`, writes every output at once (summary.json, labels.npz, masks/, overlays,
 overlay.mp4, recording.rrd; docs/OUTPUTS.md). It joins the compute (`mosegpipe.pipeline`) and the
-writing (`mosegpipe.outputs`) and keeps each model loaded between calls."""
+writing (`mosegpipe.apps.outputs`) and keeps each model loaded between calls."""
 
 from __future__ import annotations
 
@@ -11,14 +11,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy.typing as npt
 
-from mosegpipe.inference import load_embedder
-from mosegpipe.outputs import (
+from mosegpipe.apps.outputs import (
     check_output_dir,
     write_clip_outputs,
     write_pair_outputs,
     write_tracks_outputs,
     write_video_outputs,
 )
+from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.pipeline import (
     ClipResult,
     PairResult,
@@ -31,7 +31,7 @@ from mosegpipe.pipeline import (
 )
 
 if TYPE_CHECKING:
-    from mosegpipe.inference import Embedder
+    from mosegpipe.embed.numpy_net import Embedder
 
 
 class Segmenter:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mosegpipe.io import write_npz
+from mosegpipe.io.read import write_npz
 from mosegpipe.pipeline import WindowResult
 
 _RECORD_FIELDS = ("start", "frames", "num_tracks", "k", "k_ambiguous", "shot_start")

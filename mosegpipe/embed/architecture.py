@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import ConfigError, InputError
-from mosegpipe.trajectories import resample_frames
+from mosegpipe.points.trajectories import resample_frames
 from mosegpipe.types import Trajectories
 
 CHECKPOINT_FORMAT = "mosegpipe.subspacenet/1"

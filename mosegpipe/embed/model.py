@@ -41,8 +41,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from mosegpipe import architecture
-from mosegpipe.architecture import (
+from mosegpipe.embed import architecture
+from mosegpipe.embed.architecture import (
     _CN_EPS,
     _INPUT_EPS,
     ARCHITECTURES,
@@ -56,7 +56,7 @@ from mosegpipe.architecture import (
     weights_dir,
 )
 from mosegpipe.errors import CheckpointError, InputError
-from mosegpipe.io import atomic_write
+from mosegpipe.io.read import atomic_write
 from mosegpipe.runtime import requested_threads
 from mosegpipe.types import Trajectories
 

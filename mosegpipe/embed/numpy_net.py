@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.architecture import (
+from mosegpipe.embed.architecture import (
     _CN_EPS,
     _INPUT_EPS,
     CHECKPOINT_FORMAT,
@@ -37,11 +37,11 @@ from mosegpipe.architecture import (
     weights_dir,
 )
 from mosegpipe.errors import CheckpointError, InputError
-from mosegpipe.io import atomic_write, default_cache_dir
+from mosegpipe.io.read import atomic_write, default_cache_dir
 from mosegpipe.types import Trajectories
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
 
 log = logging.getLogger(__name__)
 
@@ -276,7 +276,7 @@ def load_model(frames: int, checkpoint: str | Path | None = None) -> SubspaceNet
     Raises:
         CheckpointError: the checkpoint is missing, corrupt or not a SubspaceNet, or no weights are shipped.
     """
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
 
     if checkpoint is not None:
         model = SubspaceNet.from_checkpoint(checkpoint)
@@ -329,7 +329,7 @@ def load_embedder(frames: int, checkpoint: str | Path | None = None, cache_dir: 
     from mosegpipe.runtime import collector_paused
 
     with collector_paused("torch"):
-        import mosegpipe.model  # noqa: F401  (torch: imported like the start-up imports, see collector_paused)
+        import mosegpipe.embed.model  # noqa: F401  (torch: imported like the start-up imports, see collector_paused)
     net = load_model(frames, checkpoint)
     if copy is not None and net.cfg.arch == "subspacenet":
         try:

@@ -8,7 +8,7 @@ All baselines first z-score every column over the points (:func:`zscore_columns`
 affine map of R^D, so points on a common affine motion subspace stay on one, and it puts
 trajectories of any image size on one scale.
 
-- ``kmeans-raw``: K-means on the z-scored matrix; K by :func:`mosegpipe.cluster.cluster_auto_k`
+- ``kmeans-raw``: K-means on the z-scored matrix; K by :func:`mosegpipe.group.cluster.cluster_auto_k`
   with its default rule (``ClusterConfig().method``: the silhouette).
 - ``spectral-raw``: spectral clustering with a self-tuning Gaussian affinity; K by the eigengap.
 - ``ssc``: Sparse Subspace Clustering (Elhamifar & Vidal, PAMI 2013) with the affine constraint,
@@ -27,8 +27,8 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans
 from mosegpipe.errors import InputError
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k, kmeans
 
 logger = logging.getLogger(__name__)
 
@@ -124,7 +124,7 @@ def kmeans_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray
 
     Args:
         traj: (N, D) trajectory matrix, pixels.
-        k: number of motions, or None for the choice of :func:`mosegpipe.cluster.cluster_auto_k`
+        k: number of motions, or None for the choice of :func:`mosegpipe.group.cluster.cluster_auto_k`
             with its default rule (``ClusterConfig().method``: the silhouette; K in 1..8).
         seed: K-means seed.
 

@@ -52,8 +52,8 @@ from mosegpipe.evaluation.metrics import jaccard, misclassification_error
 from mosegpipe.masks import UNKNOWN, WORLD
 
 if TYPE_CHECKING:
+    from mosegpipe.embed.numpy_net import Embedder
     from mosegpipe.evaluation.records import EvalRequest, EvalResult
-    from mosegpipe.inference import Embedder
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.synth.composite import Composite
 
@@ -345,7 +345,7 @@ def composite_rows(
     clips: Sequence[Composite], mode: str, cfg: PipelineConfig, model: Embedder | None = None
 ) -> list[dict[str, Any]]:
     """The pipeline on each composite, scored: one row per clip (name, plate, kinds, the scores, seconds, error)."""
-    from mosegpipe.inference import load_embedder
+    from mosegpipe.embed.numpy_net import load_embedder
 
     net = model or load_embedder(cfg.frames if mode == "whole" else CLIP_FRAMES)
     rows = []
@@ -422,9 +422,9 @@ def _pick(folds: Sequence[str] | None) -> list[tuple[str, list[str] | None]]:
 def run_composite(name: str, req: EvalRequest, cfg: PipelineConfig) -> EvalResult:
     """`moseg eval composite` / `composite-clip5` (`name`): generates the composites of the parts or names
     that --folds picks (default: dev), runs the pipeline with `cfg` on each, writes results.md/csv/json."""
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.evaluation.records import EvalResult
     from mosegpipe.evaluation.report import write_results
-    from mosegpipe.inference import load_embedder
     from mosegpipe.synth.composite import composite_set
 
     if req.data_root is None:

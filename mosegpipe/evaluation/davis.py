@@ -52,13 +52,13 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
+from mosegpipe.apps.outputs import write_clip_outputs, write_video_outputs
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
 from mosegpipe.evaluation.flow_baseline import FlowHomographyConfig as FlowHomographyConfig  # re-exported
 from mosegpipe.evaluation.flow_baseline import flow_homography_labels
 from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard
 from mosegpipe.masks import UNKNOWN, WORLD
-from mosegpipe.outputs import write_clip_outputs, write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.runtime import set_threads
 
@@ -229,7 +229,7 @@ def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | 
             from the clip.
         checkpoint: a checkpoint instead of the shipped weights.
     """
-    from mosegpipe.inference import Embedder, load_embedder
+    from mosegpipe.embed.numpy_net import Embedder, load_embedder
 
     base = cfg if cfg is not None else PipelineConfig()
     models: dict[int, Embedder] = {}

@@ -41,13 +41,13 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import MosegError
 from mosegpipe.evaluation.label_transfer import nearest_within
 from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, mask_scores, misclassification_error
 from mosegpipe.masks import UNKNOWN
-from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, clip_masks, segment_frames, segment_pair
-from mosegpipe.trajectories import trajectories_from_matches
+from mosegpipe.points.trajectories import trajectories_from_matches
 from mosegpipe.types import Frames
 
 log = logging.getLogger(__name__)
@@ -101,8 +101,8 @@ def same_point_scores(
     Returns:
         {"error_true_k": ..., "<baseline>@K": ...}; NaN when nothing is scored.
     """
-    from mosegpipe.cluster import cluster_auto_k
     from mosegpipe.evaluation.baselines import BASELINES
+    from mosegpipe.group.cluster import cluster_auto_k
 
     k = int(np.unique(gt).size)
     if k == 0:
@@ -148,7 +148,7 @@ def kt3d_video_rows(
         DatasetError: the KT3DMoSeg folder is missing or malformed.
     """
     from mosegpipe.data.kt3dmoseg import kt3d_frame_paths, list_kt3d_sequences, read_kt3d_sequence
-    from mosegpipe.io import read_image
+    from mosegpipe.io.read import read_image
 
     f = cfg.frames if frames is None else frames
     cfg = replace(cfg, frames=f)

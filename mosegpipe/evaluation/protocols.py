@@ -27,7 +27,7 @@ from mosegpipe.types import KMethodName
 __all__ = ["PROTOCOLS", "EndToEnd", "EvalRequest", "EvalResult", "Protocol", "Variant", "get_protocol"]
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.training.loop import TrainConfig
     from mosegpipe.training.recipes import Recipe
@@ -43,10 +43,10 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """Runs a benchmark protocol (see benchmark.run_protocol) with the request's settings."""
     from dataclasses import replace
 
-    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.embed.model import SubspaceNet
+    from mosegpipe.embed.numpy_net import load_model
     from mosegpipe.evaluation.benchmark import EvalConfig, run_protocol
-    from mosegpipe.inference import load_model
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.group.cluster import ClusterConfig
     from mosegpipe.training.loop import TrainConfig, resolve_device, with_overrides
 
     if req.settings:
@@ -107,8 +107,8 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
 def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
 
+    from mosegpipe.embed.numpy_net import load_model
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
-    from mosegpipe.inference import load_model
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
     f = req.frames or protocol.default_frames
@@ -269,7 +269,7 @@ def _fold_init(
     `req.init`, else out_dir/<recipe.init>.pt, trained first by its own recipe when missing."""
     import hashlib
 
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.training.run import train_recipe
 
     init: SubspaceNet | None = None
@@ -303,8 +303,8 @@ def _fold_model(
     from fold_dir when trained earlier with the same config hash, else trained now and stored there."""
     import json
 
-    from mosegpipe.io import write_text
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
+    from mosegpipe.io.read import write_text
     from mosegpipe.training.run import train_sources
 
     meta_path, model_path = fold_dir / f"{name}.json", fold_dir / f"{name}.pt"

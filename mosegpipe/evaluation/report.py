@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from mosegpipe.evaluation.metrics import correct_k_rate
-from mosegpipe.io import write_csv, write_text
+from mosegpipe.io.read import write_csv, write_text
 
 
 def _mean_median(vals: np.ndarray) -> dict[str, float]:

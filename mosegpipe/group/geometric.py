@@ -39,10 +39,10 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import kmeans, relabel_by_size
 from mosegpipe.configs.grouping import GeometricConfig
 from mosegpipe.errors import InputError
-from mosegpipe.rigid import _MIN_FUNDAMENTAL, _h_residual_px, _sampson_px
+from mosegpipe.group.cluster import kmeans, relabel_by_size
+from mosegpipe.group.twoview import MIN_FUNDAMENTAL, least_squares, robust_fit, sampson_px, transfer_px
 from mosegpipe.types import Clustering
 
 logger = logging.getLogger(__name__)
@@ -61,47 +61,29 @@ class _Model:
 
     def residuals(self, xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """(M, F, 2) positions -> (M,) largest residual over the frame pairs, pixels."""
-        pair = _h_residual_px if self.kind == "homography" else _sampson_px
+        pair = transfer_px if self.kind == "homography" else sampson_px
         a = np.ascontiguousarray(xy[:, 0])
         res = [pair(m, a, np.ascontiguousarray(xy[:, t + 1])) for t, m in enumerate(self.mats)]
         return np.asarray(np.max(res, axis=0))
-
-
-def _least_squares(
-    kind: ModelKind, a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
-) -> npt.NDArray[np.float64] | None:
-    """The model of all correspondences a -> b (no RANSAC), None when degenerate."""
-    if kind == "homography":
-        mat, _ = cv2.findHomography(a, b, 0)
-    else:
-        mat, _ = cv2.findFundamentalMat(a, b, cv2.FM_8POINT)
-    if mat is None or mat.shape != (3, 3) or not np.all(np.isfinite(mat)):
-        return None
-    return np.asarray(mat, dtype=np.float64)
 
 
 def _fit(
     kind: ModelKind, xy: npt.NDArray[np.float64], cfg: GeometricConfig
 ) -> tuple[_Model, npt.NDArray[np.bool_]] | None:
     """The model of most of the tracks xy (M, F, 2) and its inliers (M,), or None (too few / degenerate)."""
-    least = _MIN_HOMOGRAPHY if kind == "homography" else _MIN_FUNDAMENTAL
+    least = _MIN_HOMOGRAPHY if kind == "homography" else MIN_FUNDAMENTAL
     if len(xy) < least:
         return None
     a, b = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, -1])
-    if kind == "homography":
-        mat, mask = cv2.findHomography(
-            a, b, cv2.USAC_MAGSAC, cfg.residual_px, maxIters=cfg.ransac_iters, confidence=cfg.confidence
-        )
-    else:
-        mat, mask = cv2.findFundamentalMat(a, b, cv2.USAC_MAGSAC, cfg.residual_px, cfg.confidence, cfg.ransac_iters)
-    if mat is None or mat.shape != (3, 3) or mask is None:
+    mat, found = robust_fit(kind, a, b, "magsac", cfg.residual_px, cfg.ransac_iters, cfg.confidence)
+    if mat is None or found is None:
         return None
-    inliers = mask.ravel().astype(bool)
+    inliers = found
     best: tuple[_Model, npt.NDArray[np.bool_]] | None = None
     for _ in range(2):  # least squares on every frame pair from the inliers, then once more from its own
         if inliers.sum() < least:
             break
-        mats = [_least_squares(kind, a[inliers], np.ascontiguousarray(xy[inliers, t])) for t in range(1, xy.shape[1])]
+        mats = [least_squares(kind, a[inliers], np.ascontiguousarray(xy[inliers, t])) for t in range(1, xy.shape[1])]
         if any(m is None for m in mats):
             break
         model = _Model(kind, tuple(m for m in mats if m is not None))

@@ -57,7 +57,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.configs.grouping import JointConfig
-from mosegpipe.rigid import _h_residual_px, _sampson_px
+from mosegpipe.group.twoview import gric, least_squares, robust_fit, sampson_px, transfer_px
 
 logger = logging.getLogger(__name__)
 
@@ -73,21 +73,6 @@ _DIM_PARAMS: dict[str, tuple[int, int]] = {
 }
 # the fewest points each model is fitted to (a fundamental matrix needs 8; 15 to constrain it at all)
 _LEAST: dict[str, int] = {"translation": 2, "affine": 4, "homography": 6, "fundamental": 15}
-
-
-def gric(errors_sq: npt.NDArray[np.float64], sigma_px: float, d: int, k: int, r: int = 4) -> float:
-    """Torr's geometric robust information criterion of a two-view model (lower is better).
-
-    Args:
-        errors_sq: (n,) squared residuals of the correspondences, pixels^2.
-        sigma_px: the noise of a correspondence, pixels.
-        d: the dimension of the model's manifold (homography, affine, translation 2, fundamental matrix 3).
-        k: the model's parameters (homography 8, fundamental matrix 7, affine 6, translation 2).
-        r: the dimension of a correspondence (4: two image points).
-    """
-    n = errors_sq.size
-    rho = np.minimum(errors_sq / sigma_px**2, 2.0 * (r - d))
-    return float(rho.sum() + np.log(r) * d * n + np.log(r * max(n, 1)) * k)
 
 
 @dataclass(frozen=True)
@@ -108,7 +93,7 @@ class GroupModel:
 
     def residuals(self, xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         """(M, P + 1, 2) positions in the fitted frames -> (M, P) residual per frame pair, pixels."""
-        pair = _sampson_px if self.kind == "fundamental" else _h_residual_px
+        pair = sampson_px if self.kind == "fundamental" else transfer_px
         a = np.ascontiguousarray(xy[:, 0])
         return np.stack([pair(m, a, np.ascontiguousarray(xy[:, t + 1])) for t, m in enumerate(self.mats)], axis=1)
 
@@ -125,13 +110,7 @@ def _pair_fit(kind: str, a: npt.NDArray[np.float64], b: npt.NDArray[np.float64])
         if rank < 3:
             return None
         return np.vstack([sol.T, [0.0, 0.0, 1.0]])
-    if kind == "homography":
-        found, _ = cv2.findHomography(a, b, 0)
-    else:
-        found, _ = cv2.findFundamentalMat(a, b, cv2.FM_8POINT)
-    if found is None or found.shape != (3, 3) or not np.all(np.isfinite(found)):
-        return None
-    return np.asarray(found, dtype=np.float64)
+    return least_squares("homography" if kind == "homography" else "fundamental", a, b)
 
 
 def _ransac_inliers(
@@ -144,10 +123,10 @@ def _ransac_inliers(
         return np.asarray(np.linalg.norm(d - np.median(d, axis=0), axis=1) <= thr)
     if kind == "affine":
         _, mask = cv2.estimateAffine2D(a, b, method=cv2.RANSAC, ransacReprojThreshold=thr, maxIters=cfg.ransac_iters)
-    elif kind == "homography":
-        _, mask = cv2.findHomography(a, b, cv2.RANSAC, thr, maxIters=cfg.ransac_iters, confidence=0.999)
     else:
-        _, mask = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, thr, 0.999, cfg.ransac_iters)
+        return robust_fit(
+            "homography" if kind == "homography" else "fundamental", a, b, "ransac", thr, cfg.ransac_iters, 0.999
+        )[1]
     if mask is None or len(mask) != len(a):
         return None
     return np.asarray(mask.ravel().astype(bool))

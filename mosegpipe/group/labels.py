@@ -107,7 +107,7 @@ def match_labels(
        candidate. Only when a candidate splits off again in the next window (at least half of the
        cluster's shared tracks were one candidate's) does it get a new label: a motion that
        separates from another is labelled one window late, a split that comes and goes never.
-    With `world`, cluster 0 is the world's motion (`mosegpipe.world`): it takes label 0 whatever its
+    With `world`, cluster 0 is the world's motion (`mosegpipe.group.world`): it takes label 0 whatever its
     tracks carried, and no other cluster continues label 0 in step 1 (a cluster most of whose tracks
     were the world is a piece of it, step 2: it stays 0 until it splits off twice). Without it, the
     cluster that continues label 0 is the world, and after a shot cut cluster 0 takes 0.

@@ -49,31 +49,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import relabel_by_size
 from mosegpipe.configs.grouping import RigidCheckConfig
+from mosegpipe.group.cluster import relabel_by_size
+from mosegpipe.group.twoview import MIN_FUNDAMENTAL, robust_fit, sampson_px, transfer_px
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
-
-_MIN_FUNDAMENTAL = 15  # fewer points: only the homography is fitted (8 would do, but barely constrain it)
-
-
-def _sampson_px(
-    f_mat: npt.NDArray[np.float64], a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
-) -> npt.NDArray[np.float64]:
-    """First-order geometric distance of each correspondence a -> b to the epipolar constraint, pixels."""
-    a1 = np.c_[a, np.ones(len(a))]
-    b1 = np.c_[b, np.ones(len(b))]
-    fa = a1 @ f_mat.T
-    ftb = b1 @ f_mat
-    num = np.sum(b1 * fa, axis=1) ** 2
-    den = fa[:, 0] ** 2 + fa[:, 1] ** 2 + ftb[:, 0] ** 2 + ftb[:, 1] ** 2
-    return np.asarray(np.sqrt(num / np.maximum(den, 1e-12)))
-
 
 Residuals = Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
 """A fitted rigid motion: (M, F, 2) positions -> (M,) residuals, pixels."""
@@ -82,28 +66,19 @@ PairResiduals = Callable[[npt.NDArray[np.float64], npt.NDArray[np.float64]], npt
 """A fitted two-view model: (M, 2) points a, (M, 2) points b -> (M,) residuals of a -> b, pixels."""
 
 
-def _h_residual_px(
-    h_mat: npt.NDArray[np.float64], a: npt.NDArray[np.float64], b: npt.NDArray[np.float64]
-) -> npt.NDArray[np.float64]:
-    """Transfer error of each correspondence a -> b under the homography, pixels."""
-    p = np.c_[a, np.ones(len(a))] @ h_mat.T
-    w = np.where(np.abs(p[:, 2:]) < 1e-12, 1e-12, p[:, 2:])
-    return np.asarray(np.linalg.norm(p[:, :2] / w - b, axis=1))
-
-
 def _fit_pair(a: npt.NDArray[np.float64], b: npt.NDArray[np.float64], cfg: RigidCheckConfig) -> PairResiduals | None:
     """The rigid model of most correspondences a -> b as a residual function (None: no model fits)."""
-    h_mat, _ = cv2.findHomography(a, b, cv2.RANSAC, cfg.residual_px, maxIters=1000, confidence=0.999)
+    h_mat, _ = robust_fit("homography", a, b, "ransac", cfg.residual_px, 1000, 0.999)
     # With homography_ratio 0 a fitted homography always wins: no fundamental matrix to fit.
-    if len(a) >= _MIN_FUNDAMENTAL and (cfg.homography_ratio > 0 or h_mat is None):
-        f_mat, _ = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, cfg.residual_px, 0.999, 1000)
-        if f_mat is not None and f_mat.shape == (3, 3):
-            f_in = (_sampson_px(f_mat, a, b) <= cfg.residual_px).sum()
-            if h_mat is None or (_h_residual_px(h_mat, a, b) <= cfg.residual_px).sum() < cfg.homography_ratio * f_in:
-                return lambda a2, b2: _sampson_px(f_mat, a2, b2)
+    if len(a) >= MIN_FUNDAMENTAL and (cfg.homography_ratio > 0 or h_mat is None):
+        f_mat, _ = robust_fit("fundamental", a, b, "ransac", cfg.residual_px, 1000, 0.999)
+        if f_mat is not None:
+            f_in = (sampson_px(f_mat, a, b) <= cfg.residual_px).sum()
+            if h_mat is None or (transfer_px(h_mat, a, b) <= cfg.residual_px).sum() < cfg.homography_ratio * f_in:
+                return lambda a2, b2: sampson_px(f_mat, a2, b2)
     if h_mat is None:
         return None
-    return lambda a2, b2: _h_residual_px(h_mat, a2, b2)
+    return lambda a2, b2: transfer_px(h_mat, a2, b2)
 
 
 def fit_rigid_motion(xy: npt.NDArray[np.float64], cfg: RigidCheckConfig = RigidCheckConfig()) -> Residuals | None:

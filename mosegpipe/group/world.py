@@ -31,8 +31,8 @@ import numpy.typing as npt
 
 from mosegpipe.colours import WORLD
 from mosegpipe.configs.grouping import WorldConfig
-from mosegpipe.flow import FrameMotion
-from mosegpipe.geometry_select import gric
+from mosegpipe.group.twoview import gric, robust_fit, sampson_sq, transfer_sq
+from mosegpipe.points.flow import FrameMotion
 
 
 def world_scores(
@@ -144,24 +144,12 @@ def world_first(labels: npt.NDArray[np.int64], world: int) -> npt.NDArray[np.int
     return out
 
 
-def _sampson_sq(
-    fm: npt.NDArray[np.float64], p: npt.NDArray[np.float64], q: npt.NDArray[np.float64]
-) -> npt.NDArray[np.float64]:
-    """(n,) squared Sampson distances of correspondences p -> q ((n, 2) pixels) to the fundamental matrix fm."""
-    ph = np.concatenate([p, np.ones((len(p), 1))], axis=1)
-    qh = np.concatenate([q, np.ones((len(q), 1))], axis=1)
-    fp = ph @ fm.T  # epipolar lines in the second image
-    fq = qh @ fm  # in the first
-    num = np.einsum("ij,ij->i", qh, fp) ** 2
-    return num / np.maximum(fp[:, 0] ** 2 + fp[:, 1] ** 2 + fq[:, 0] ** 2 + fq[:, 1] ** 2, 1e-12)
-
-
 def world_epipolar(
     p: npt.NDArray[np.float32], q: npt.NDArray[np.float32], cfg: WorldConfig = WorldConfig()
 ) -> npt.NDArray[np.float64] | None:
     """The fundamental matrix of the world's correspondences p -> q when the scene needs one (parallax).
 
-    A homography and a fundamental matrix are fitted by RANSAC and compared by GRIC (`geometry_select.gric`, shared with method "joint"): a planar or
+    A homography and a fundamental matrix are fitted by RANSAC and compared by GRIC (`twoview.gric`): a planar or
     distant scene, or a camera that only rotates, keeps the homography (None); a scene whose depth makes the
     world's points move differently (near walls, rocks, poles) takes the fundamental matrix.
 
@@ -175,15 +163,14 @@ def world_epipolar(
     if len(p) < max(cfg.parallax_min_points, 8):
         return None
     a, b = np.asarray(p, np.float64), np.asarray(q, np.float64)
-    hom, _ = cv2.findHomography(a, b, cv2.RANSAC, 3.0 * cfg.parallax_sigma_px)
-    fm, _ = cv2.findFundamentalMat(a, b, cv2.FM_RANSAC, 1.5 * cfg.parallax_sigma_px, 0.999)
-    if fm is None or fm.shape != (3, 3):
+    hom, _ = robust_fit("homography", a, b, "ransac", 3.0 * cfg.parallax_sigma_px)
+    fm, _ = robust_fit("fundamental", a, b, "ransac", 1.5 * cfg.parallax_sigma_px, confidence=0.999)
+    if fm is None:
         return None
     if hom is None:
         return fm
-    ah = np.concatenate([a, np.ones((len(a), 1))], axis=1) @ hom.T
-    h_err = np.sum((ah[:, :2] / ah[:, 2:3] - b) ** 2, axis=1)
-    if gric(_sampson_sq(fm, a, b), cfg.parallax_sigma_px, 3, 7) < gric(h_err, cfg.parallax_sigma_px, 2, 8):
+    h_err = transfer_sq(hom, a, b)
+    if gric(sampson_sq(fm, a, b), cfg.parallax_sigma_px, 3, 7) < gric(h_err, cfg.parallax_sigma_px, 2, 8):
         return fm
     return None
 
@@ -202,7 +189,7 @@ def epipolar_residual(
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     p = np.stack([xs.ravel(), ys.ravel()], axis=1) / scale
     q = p + flow.reshape(-1, 2).astype(np.float64) / scale
-    return (np.sqrt(_sampson_sq(fm, p, q)) * scale).reshape(h, w).astype(np.float32)
+    return (np.sqrt(sampson_sq(fm, p, q)) * scale).reshape(h, w).astype(np.float32)
 
 
 def explain_parallax(

@@ -18,7 +18,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.io_write import (
+from mosegpipe.io.provenance import IMAGE_SUFFIXES  # defined there: the CLI lists frame folders without OpenCV
+from mosegpipe.io.write import (
     H264_CRF,
     H264_PRESET,
     H264Encoder,
@@ -32,11 +33,10 @@ from mosegpipe.io_write import (
     write_text,
     write_video,
 )
-from mosegpipe.provenance import IMAGE_SUFFIXES  # defined there: the CLI lists frame folders without OpenCV
 from mosegpipe.runtime import native_stderr_muted
 from mosegpipe.types import Frames
 
-logger = logging.getLogger("mosegpipe.io")
+logger = logging.getLogger("mosegpipe.io.read")
 
 __all__ = [
     "H264_CRF",

@@ -1,4 +1,4 @@
-"""Writing masks, JSON, CSV, arrays, images and videos (mosegpipe.io): every writer goes through
+"""Writing masks, JSON, CSV, arrays, images and videos (mosegpipe.io.read): every writer goes through
 :func:`atomic_write`, so an interrupted run never leaves a half-written file under the final name."""
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """From sparse track labels to dense per-frame masks.
 
 Mask values (DAVIS convention, readable by the DAVIS tools): 0 = the world (WORLD: the camera's motion,
-the static scene of any depth, told from the other motions by where its tracks lie, `mosegpipe.world`),
+the static scene of any depth, told from the other motions by where its tracks lie, `mosegpipe.group.world`),
 1..254 = the moving motions, 255 = unknown (no labelled track near enough: no evidence). The value is the
 label itself, in clips, pairs, whole videos, live and batch alike.
 
@@ -16,7 +16,7 @@ Methods (`MaskConfig.method`):
   transform; 4-6 ms per 640x480 frame with 400-1000 tracks).
 - "vote": majority label of the `vote_k` nearest tracks.
 - "motion" (default): each pixel is moving or not by whether the camera's motion explains its dense optical
-  flow (`mosegpipe.motion`: flow residual, flow consistency, a colour model, superpixels); static
+  flow (`mosegpipe.masks.moving_pixels`: flow residual, flow consistency, a colour model, superpixels); static
   pixels take the world's label (0), moving pixels the label of the
   nearest track of a moving motion, or MOVING_UNCLUSTERED (254) when no track of a moving motion is
   in the frame (the flow found a mover the clustering did not); in a clip also a moving region of a
@@ -37,15 +37,7 @@ overlays (overlay_mask, overlay_image). Every public name is re-exported here.
 from __future__ import annotations
 
 from mosegpipe.colours import WORLD
-from mosegpipe.masks.labels import (
-    MAX_LABEL,
-    MOVING_UNCLUSTERED,
-    UNKNOWN,
-    MaskConfig,
-    labels_to_mask,
-    labels_to_masks,
-)
-from mosegpipe.masks.moving import (
+from mosegpipe.masks.compose import (
     carry_unclustered,
     label_moving_pixels,
     motion_masks,
@@ -53,6 +45,14 @@ from mosegpipe.masks.moving import (
     reassign_along,
     reassign_by_flow,
     split_unexplained,
+)
+from mosegpipe.masks.labels import (
+    MAX_LABEL,
+    MOVING_UNCLUSTERED,
+    UNKNOWN,
+    MaskConfig,
+    labels_to_mask,
+    labels_to_masks,
 )
 from mosegpipe.masks.overlays import (
     overlay_image,

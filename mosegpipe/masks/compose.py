@@ -1,4 +1,4 @@
-""" "motion" masks (mosegpipe.masks): each pixel moving or not by the camera's motion (mosegpipe.motion),
+""" "motion" masks (mosegpipe.masks): each pixel moving or not by the camera's motion (mosegpipe.masks.moving_pixels),
 moving pixels labelled by the nearest track of a moving motion, and a moving region that no moving
 motion's tracks explain split off as a motion of its own (split_unexplained)."""
 
@@ -11,11 +11,12 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.colours import WORLD
-from mosegpipe.flow import FrameMotion
-from mosegpipe.learned.moving import learned_moving
-from mosegpipe.learned.which import which_motion, window_features
+from mosegpipe.group.twoview import robust_fit
 from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, _nearest, labels_to_mask
-from mosegpipe.motion import moving_masks, stack_motion
+from mosegpipe.masks.learned.probability import learned_moving
+from mosegpipe.masks.learned.which import which_motion, window_features
+from mosegpipe.masks.moving_pixels import moving_masks, stack_motion
+from mosegpipe.points.flow import FrameMotion
 from mosegpipe.types import Tracks
 
 
@@ -161,7 +162,7 @@ def motion_masks(
         images: (T, H, W, 3) uint8 RGB, T >= 2.
         tracks: the clip's tracks.
         track_ids: (M,) int64 rows of `tracks` that carry labels.
-        labels: (M,) int64 their labels; 0 is the world (WORLD, `mosegpipe.world`).
+        labels: (M,) int64 their labels; 0 is the world (WORLD, `mosegpipe.group.world`).
         cfg: mask settings (cfg.motion; cfg.learned when cfg.method is "learned"; the watershed's for the
             borders between moving motions).
         before, after: the source's frames next to the clip, as evidence (`motion.moving_masks`).
@@ -257,7 +258,7 @@ def split_unexplained(
     judged = np.zeros((height, width), bool)
     for m in present:
         of = labels == m
-        hom = cv2.findHomography(xy[of], xy_next[of], cv2.RANSAC, 2.0)[0] if of.sum() >= 8 else None
+        hom = robust_fit("homography", xy[of], xy_next[of], "ransac", 2.0)[0] if of.sum() >= 8 else None
         if hom is None:
             continue
         track_miss = np.linalg.norm(
@@ -276,8 +277,8 @@ def split_unexplained(
         ry, rx = np.nonzero(regions == r)
         pick = slice(None, None, max(1, ry.size // 1500))
         p = np.stack([rx[pick], ry[pick]], axis=1).astype(np.float32)
-        own, inliers = cv2.findHomography(p, p + flow[ry[pick], rx[pick]], cv2.RANSAC, 1.0)
-        split[r] = own is not None and float(inliers.mean()) >= cfg.unexplained_rigid
+        own, inliers = robust_fit("homography", p, p + flow[ry[pick], rx[pick]], "ransac", 1.0)
+        split[r] = own is not None and inliers is not None and float(inliers.mean()) >= cfg.unexplained_rigid
     if not split.any():
         return mask
     out = mask.copy()

@@ -1,6 +1,6 @@
 """Dense masks of what moves, from the flow the camera's motion does not explain.
 
-Per frame, the camera residual (`mosegpipe.flow`) says how far each pixel's flow is from the camera's
+Per frame, the camera residual (`mosegpipe.points.flow`) says how far each pixel's flow is from the camera's
 motion. The steps, each measured on the 20 dev clips of DAVIS-2016 train (docs/RESULTS.md, "Real
 video"; the 10 val clips were not used to choose anything):
 
@@ -50,7 +50,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.configs.masks import MotionMaskConfig
-from mosegpipe.flow import FrameMotion, frame_motion, pixel_points
+from mosegpipe.points.flow import FrameMotion, frame_motion, pixel_points
 
 
 def _resize(x: npt.NDArray[np.float32], hw: tuple[int, int]) -> npt.NDArray[np.float32]:

@@ -11,15 +11,15 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import cluster_auto_k
+from mosegpipe.embed.numpy_net import Embedder
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.flow import FrameMotion, flow_fits
-from mosegpipe.flow_tracks import combine_tracks, track_flow
-from mosegpipe.grouping import group_geometric
-from mosegpipe.inference import Embedder
-from mosegpipe.io import check_images, read_video, video_info
+from mosegpipe.group.cluster import cluster_auto_k
+from mosegpipe.group.geometric import group_geometric
+from mosegpipe.group.rigid import label_by_rigid_motion
+from mosegpipe.group.world import explain_parallax
+from mosegpipe.io.read import check_images, read_video, video_info
 from mosegpipe.masks import labels_to_masks, motion_masks
-from mosegpipe.motion import stack_motion
+from mosegpipe.masks.moving_pixels import stack_motion
 from mosegpipe.pipeline.common import (
     _check_k,
     _frames,
@@ -32,11 +32,11 @@ from mosegpipe.pipeline.common import (
     world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.rigid import label_by_rigid_motion
-from mosegpipe.track import spread_corners, track_klt, track_points
-from mosegpipe.trajectories import build_trajectories
+from mosegpipe.points.flow import FrameMotion, flow_fits
+from mosegpipe.points.flow_grid import combine_tracks, track_flow
+from mosegpipe.points.klt import spread_corners, track_klt, track_points
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.types import FLOW_MASK_METHODS, Clustering, Frames, Tracks, Trajectories
-from mosegpipe.world import explain_parallax
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """What the segment_* functions share: the model (its default, its summary record, embedding), the
 --k and rigid-motion checks, and `decode_errors` (a broken input's OpenCV / OS errors as InputError).
 
-`load_model` lives in mosegpipe.inference beside `load_embedder` (the NumPy copy of the same weights)
+`load_model` lives in mosegpipe.embed.numpy_net beside `load_embedder` (the NumPy copy of the same weights)
 and is re-exported by mosegpipe.pipeline.
 """
 
@@ -18,14 +18,14 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.embed.numpy_net import Embedder, load_embedder
 from mosegpipe.errors import InputError
-from mosegpipe.flow import FrameMotion
-from mosegpipe.geometry_select import choose_partition, one_rigid_motion, select_models, window_points
-from mosegpipe.inference import Embedder, load_embedder
+from mosegpipe.group.joint import choose_partition, one_rigid_motion, select_models, window_points
+from mosegpipe.group.rigid import split_by_rigid_motion
+from mosegpipe.group.world import static_share, world_cluster, world_first, world_scores
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.rigid import split_by_rigid_motion
+from mosegpipe.points.flow import FrameMotion
 from mosegpipe.types import Clustering, Trajectories
-from mosegpipe.world import static_share, world_cluster, world_first, world_scores
 
 
 def model_info(model: Embedder) -> dict[str, Any]:
@@ -94,7 +94,7 @@ def search_k(
     K is never lowered: fewer groups than automatic K's gave cars to the world's fundamental matrix on kt3d-video
     (error 3.4 -> 8.3 %, docs/results/41-geometry.md). The note says which K was kept when it is not automatic K's.
     """
-    from mosegpipe.cluster import kmeans
+    from mosegpipe.group.cluster import kmeans
 
     n = clustering.labels.size
     hi = min(max(cfg.cluster.k_max, clustering.k), n, clustering.k + cfg.joint.k_search)
@@ -134,7 +134,7 @@ def _rigid_split(
 
 
 def check_joint(clustering: Clustering, points: npt.NDArray[np.float32], cfg: PipelineConfig) -> Clustering:
-    """`clustering` after the model selection of method "joint" (`mosegpipe.geometry_select`): groups split
+    """`clustering` after the model selection of method "joint" (`mosegpipe.group.joint`): groups split
     and merged, tracks moved to the group whose model explains them (or, with cfg.joint.leave_out, labelled
     -1 when none does); unchanged when K was given. Splits stop at cfg.cluster.k_max, and the note says
     what changed after automatic K's own note."""
@@ -157,7 +157,7 @@ def world_to_zero(
     known: npt.NDArray[np.bool_] | None = None,
     motion: FrameMotion | None = None,
 ) -> Clustering:
-    """`clustering` renumbered so that the world's motion is 0 (`mosegpipe.world`); the others keep their order.
+    """`clustering` renumbered so that the world's motion is 0 (`mosegpipe.group.world`); the others keep their order.
 
     Args:
         clustering: labels (N,) in 0..k-1.
@@ -204,7 +204,7 @@ def split_movers(
         one_motion_spread=1.0,  # K = 1 stays a candidate however wide the movers spread
         static_residual_px=None,
     )
-    from mosegpipe.cluster import cluster_auto_k, relabel_by_size
+    from mosegpipe.group.cluster import cluster_auto_k, relabel_by_size
 
     sub = cluster_auto_k(np.asarray(emb)[movers], sweep).labels
     xy = window_points(np.asarray(points)[movers], cfg.joint)

@@ -99,7 +99,7 @@ class PipelineConfig:
         geometric: the settings of method "geometric".
         joint: the settings of method "joint".
         mask: dense-mask settings (and, as mask.motion.flow, the dense flow: the property `flow`).
-        world: how the world's motion (label 0) is told from the moving ones (mosegpipe.world).
+        world: how the world's motion (label 0) is told from the moving ones (mosegpipe.group.world).
         labels: whole videos: how a motion keeps its label through the windows it is missing from (pipeline.labels).
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix fit explains less of it is outliers.
         video_k_step: whole videos: a window tries K up to the previous window's K plus this (None = the full sweep).

@@ -11,13 +11,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.embed.numpy_net import Embedder
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.inference import Embedder
-from mosegpipe.io import read_video
+from mosegpipe.io.read import read_video
 from mosegpipe.pipeline.clip import ClipResult, clip_masks, group_tracks
 from mosegpipe.pipeline.common import _check_k, _model_or_default, decode_errors, model_info
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.trajectories import build_trajectories
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.types import Clustering, Frames, Tracks, Trajectories
 
 # Pixel coordinates beyond this are not pixels (a 1e300 became inf in float32 and then crashed the

@@ -5,7 +5,7 @@ re-seeds corners at every window start, so tracks run on from one window into th
 clusters take the global label of the previous window's cluster they share most tracks with
 (Hungarian matching on the overlap counts); a cluster of new tracks starts a new global label, a
 cluster that split off a known motion only once it splits off in two windows running
-(`mosegpipe.pipeline.labels`). On a near tie of the automatic-K scores a window keeps the previous
+(`mosegpipe.group.labels`). On a near tie of the automatic-K scores a window keeps the previous
 window's K. A shot cut (`_is_cut`) ends a window early and starts tracking afresh. Only the current
 window's frames (at most F images) are held.
 
@@ -26,15 +26,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.embed.numpy_net import Embedder, load_model
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.flow import FlowStream, FrameMotion, flow_fits
-from mosegpipe.geometry_select import geometry_supported
-from mosegpipe.grouping import group_geometric
-from mosegpipe.inference import Embedder, load_model
-from mosegpipe.io import iter_video, video_info
-from mosegpipe.learned.moving import learned_moving
-from mosegpipe.learned.which import which_motion, window_features
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.group.geometric import group_geometric
+from mosegpipe.group.joint import geometry_supported
+from mosegpipe.group.labels import LabelBook, match_labels, small_guard
+from mosegpipe.group.world import explain_parallax
+from mosegpipe.io.read import iter_video, video_info
 from mosegpipe.masks import (
     MOVING_UNCLUSTERED,
     UNKNOWN,
@@ -43,7 +42,9 @@ from mosegpipe.masks import (
     carry_unclustered,
     reassign_along,
 )
-from mosegpipe.motion import ColourMemory, moving_from_motion
+from mosegpipe.masks.learned.probability import learned_moving
+from mosegpipe.masks.learned.which import which_motion, window_features
+from mosegpipe.masks.moving_pixels import ColourMemory, moving_from_motion
 from mosegpipe.pipeline.common import (
     _frames,
     check_rigid,
@@ -53,13 +54,12 @@ from mosegpipe.pipeline.common import (
     world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.pipeline.labels import LabelBook, match_labels, small_guard
 from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
+from mosegpipe.points.flow import FlowStream, FrameMotion, flow_fits
+from mosegpipe.points.klt import KLTTracker, tracks_from_steps
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.runtime import run_ahead, warnings_held
-from mosegpipe.track import KLTTracker, tracks_from_steps
-from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import FLOW_MASK_METHODS, Trajectories
-from mosegpipe.world import explain_parallax
 
 log = logging.getLogger("mosegpipe.pipeline.video")
 
@@ -121,7 +121,7 @@ def segment_video(
             so those are always computed here, in order.
         frames: the frames themselves, (index, (H, W, 3) uint8 RGB) in increasing index order, read
             in place of `path`, which then only names the source in messages (a live source:
-            mosegpipe.live); cfg.start and max_frames do not apply, and the caller checks the frame
+            mosegpipe.apps.live.run); cfg.start and max_frames do not apply, and the caller checks the frame
             size.
 
     Yields:
@@ -335,7 +335,7 @@ def _cluster_window(
 ) -> tuple[npt.NDArray[np.int64], _WindowLabels]:
     """Clusters the tracks live through the whole window (by cfg.method) and maps the clusters to global labels,
     the world's motion to 0 (told by where its tracks lie, the window's dense flow `motion` when given, and
-    which tracks were the world in the window before: `mosegpipe.world`).
+    which tracks were the world in the window before: `mosegpipe.group.world`).
 
     Returns:
         (tracker ids of the tracks live through the whole window, their global labels; k = 0 when

@@ -3,7 +3,7 @@
 Every pixel gets a displacement to the next frame (DIS, Kroeger et al. 2016, as OpenCV ships it); a
 homography fitted robustly to a grid of those displacements is the camera's motion (the dominant
 planar motion: a rotating or zooming camera, or a distant scene); what it does not explain is each
-pixel's *camera residual*, the evidence that the pixel moves on its own. `mosegpipe.motion` turns
+pixel's *camera residual*, the evidence that the pixel moves on its own. `mosegpipe.masks.moving_pixels` turns
 residuals into dense masks of the moving objects.
 
 Measured on the 20 dev clips of DAVIS-2016 train (docs/RESULTS.md, "Real video"): the flow at full
@@ -25,7 +25,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.configs.tracking import FlowConfig
-from mosegpipe.types import CameraFit, DisPreset
+from mosegpipe.group.twoview import robust_fit
+from mosegpipe.types import DisPreset
 
 DIS_PRESETS: dict[DisPreset, int] = {
     "ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST,
@@ -43,7 +44,6 @@ def flow_fits(size_hw: tuple[int, int], cfg: FlowConfig) -> bool:
     return min(size_hw) * cfg.scale >= MIN_FLOW_SIDE_PX
 
 
-CAMERA_FITS: dict[CameraFit, int] = {"ransac": cv2.RANSAC, "magsac": cv2.USAC_MAGSAC}
 """The robust fits of the camera's homography (FlowConfig.camera_fit) and their OpenCV methods."""
 
 
@@ -140,7 +140,7 @@ def fit_camera(
         return np.eye(3)
     p = np.stack([xs, ys], axis=1).astype(np.float32)
     q = p + flow[ys, xs]
-    hom, _ = cv2.findHomography(p, q, CAMERA_FITS[cfg.camera_fit], cfg.ransac_px)
+    hom, _ = robust_fit("homography", p, q, cfg.camera_fit, cfg.ransac_px)
     return np.eye(3) if hom is None else hom
 
 

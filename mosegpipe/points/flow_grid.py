@@ -3,7 +3,7 @@
 KLT follows corners, so its points sit where the texture is, not where the objects are: an object
 with little texture gets few tracks, and a small or slow one may get too few for the clustering to
 see it. `track_flow` seeds a regular grid over the first frame instead and carries every point from
-frame to frame along the dense flow (`mosegpipe.flow`, the flows the motion masks compute anyway),
+frame to frame along the dense flow (`mosegpipe.points.flow`, the flows the motion masks compute anyway),
 as dense point trajectories are built from optical flow in the literature (Sundaram, Brox and
 Keutzer, ECCV 2010). A point is dropped (invisible from then on) when
 
@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.configs.tracking import FlowTrackConfig
-from mosegpipe.flow import FlowConfig, FrameMotion, frame_motion, to_gray
+from mosegpipe.points.flow import FlowConfig, FrameMotion, frame_motion, to_gray
 from mosegpipe.types import Tracks
 
 

@@ -92,7 +92,7 @@ class KLTTracker:
     @property
     def gray(self) -> npt.NDArray[np.uint8] | None:
         """(H, W) uint8 grey of the last frame stepped (None before the first): whole videos hand it to the
-        dense flow, which would convert the frame again (mosegpipe.flow.to_gray gives the same image)."""
+        dense flow, which would convert the frame again (mosegpipe.points.flow.to_gray gives the same image)."""
         return self._prev_gray
 
     def restart(self, frame: npt.NDArray[np.uint8]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:

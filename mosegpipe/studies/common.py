@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 from mosegpipe.errors import ConfigError, check_choice
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.types import LabeledClip
 
 Budget = Literal["cpu", "full"]
@@ -128,7 +128,7 @@ def _load_part(path: Path, config_hash: str) -> dict[str, Any] | None:
 
 
 def _save_part(path: Path, config_hash: str, payload: dict[str, Any]) -> None:
-    from mosegpipe.io import write_json
+    from mosegpipe.io.read import write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, {"config_hash": config_hash, "payload": payload})
@@ -152,7 +152,7 @@ def _data_root(req: StudyRequest, study: Study) -> Path:
 
 def _models(req: StudyRequest) -> tuple[SubspaceNet, SubspaceNet]:
     """(5-frame model, two-view model): the request's checkpoints or the shipped weights."""
-    from mosegpipe.inference import load_model
+    from mosegpipe.embed.numpy_net import load_model
 
     return load_model(5, req.model), load_model(2, req.pair_model)
 
@@ -179,7 +179,7 @@ def _pyplot() -> Any:
 
 
 def _save_figure(fig: Any, path: Path, dpi: int = 80) -> None:
-    from mosegpipe.io import atomic_write
+    from mosegpipe.io.read import atomic_write
 
     with atomic_write(path) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
@@ -187,7 +187,7 @@ def _save_figure(fig: Any, path: Path, dpi: int = 80) -> None:
 
 
 def _write_outputs(req: StudyRequest, table: str, results: dict[str, Any], fig: Any) -> list[Path]:
-    from mosegpipe.io import write_json, write_text
+    from mosegpipe.io.read import write_json, write_text
 
     req.out_dir.mkdir(parents=True, exist_ok=True)
     paths = [req.out_dir / "table.md", req.out_dir / "results.json", req.out_dir / "plot.png"]

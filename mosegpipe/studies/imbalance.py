@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from mosegpipe.model import ModelConfig, SubspaceNet
+    from mosegpipe.embed.model import ModelConfig, SubspaceNet
     from mosegpipe.studies.common import Study, StudyRequest, StudyResult
     from mosegpipe.studies.ransac_curves import RansacConfig
     from mosegpipe.synth.lce import LCEConfig
@@ -118,7 +118,7 @@ def _train_kind(
     req: StudyRequest, study: Study, kind: str, budget: ImbalanceBudget, say: Callable[[str], None]
 ) -> tuple[SubspaceNet, dict[str, Any]]:
     """The trained model of one kind: the stored part when its hash matches, else trained and stored."""
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.studies.common import _hash, _part_path
     from mosegpipe.synth.lce import LCEConfig, single_kind_splits
     from mosegpipe.training.loop import recipe_of, train_model
@@ -188,9 +188,9 @@ def imbalance_rows(
     """
     from dataclasses import replace
 
-    from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import evaluate_clips
     from mosegpipe.evaluation.metrics import misclassification_error
+    from mosegpipe.group.cluster import ClusterConfig
     from mosegpipe.studies.ransac_curves import sequential_ransac
 
     base = _ransac_config(noise_sigma)

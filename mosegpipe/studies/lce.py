@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mosegpipe.embed.model import ModelConfig
 from mosegpipe.errors import ConfigError
-from mosegpipe.model import ModelConfig
 from mosegpipe.studies.common import (
     _PARTS_VERSION,
     Study,
@@ -47,7 +47,7 @@ from mosegpipe.studies.common import (
 from mosegpipe.training.loop import TrainConfig
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.training.loop import Sampler, TrainState
     from mosegpipe.types import LabeledClip
 
@@ -194,10 +194,10 @@ def score_clips(model: SubspaceNet, clips: Sequence[LabeledClip], k_max: int = 8
         {"error": auto-K error, "error_true_k": error with the true K, "nmi": NMI with auto K,
         "correct_k": share of clips with the right K}, all fractions in [0, 1], and "clips".
     """
-    from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import evaluate_clips
+    from mosegpipe.group.cluster import ClusterConfig
 
-    with _quiet("mosegpipe.cluster"):
+    with _quiet("mosegpipe.group.cluster"):
         rows = evaluate_clips(model, clips, ClusterConfig(k_max=k_max))
     return {
         "error": float(np.mean([r["error"] for r in rows])),
@@ -278,7 +278,7 @@ def _run_config(
     """
     import torch
 
-    from mosegpipe.io import atomic_write
+    from mosegpipe.io.read import atomic_write
     from mosegpipe.training.loop import recipe_of, train_model
 
     say = req.progress or (lambda _msg: None)

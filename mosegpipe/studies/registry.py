@@ -75,9 +75,9 @@ def model_selection_rows(
         Methods "<rule>" for each automatic-K rule of cluster.py on the embeddings, "true K" (the
         same embeddings with K given, for reference) and "<baseline>" for each baseline's own choice.
     """
-    from mosegpipe.cluster import ClusterConfig, cluster_auto_k
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.metrics import misclassification_error
+    from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
     from mosegpipe.types import KMethodName
 
     out: dict[str, dict[str, float | int]] = {}
@@ -120,7 +120,7 @@ def summarize_model_selection(rows: Sequence[dict[str, Any]]) -> dict[str, dict[
 
 
 def _model_selection_table(summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
-    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.group.cluster import ClusterConfig
     from mosegpipe.types import KMethodName
 
     datasets = list(summary)

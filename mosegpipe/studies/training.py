@@ -74,7 +74,7 @@ __all__ = [
 
 
 def _datasets() -> dict[str, StudyData]:
-    from mosegpipe.model import ModelConfig
+    from mosegpipe.embed.model import ModelConfig
 
     return {
         # The shipped 5-frame architecture (recipes.py); KT3DMoSeg windows of the training sequences.

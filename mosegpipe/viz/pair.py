@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import atomic_write
+from mosegpipe.io.read import atomic_write
 from mosegpipe.types import Matches
 from mosegpipe.viz.blocks import (
     _log_embedding_and_scores,

@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import H264Encoder, atomic_write
+from mosegpipe.io.read import H264Encoder, atomic_write
 from mosegpipe.viz.blocks import _log_written, _panels, _Sink, log_annotation_contexts, log_image_layers, log_trails
 from mosegpipe.viz.common import MAX_CLASSES, TIMELINE, VIDEO_VIZ, VizConfig, class_ids_of, class_names, score_lead
 

@@ -1,6 +1,6 @@
 """A batch's plan: the clips under a folder (or given), their output folders' names, the hash of
 the settings that resume compares, and one clip's run into its folder (process_clip), which every
-engine of mosegpipe.batch calls."""
+engine of mosegpipe.apps.batch.run calls."""
 
 from __future__ import annotations
 
@@ -15,13 +15,13 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mosegpipe.apps.outputs import write_clip_outputs
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError, MosegError
-from mosegpipe.io import IMAGE_SUFFIXES
-from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import write_clip_outputs
+from mosegpipe.io.read import IMAGE_SUFFIXES
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 
-log = logging.getLogger("mosegpipe.batch")
+log = logging.getLogger("mosegpipe.apps.batch.run")
 
 VIDEO_EXTENSIONS = {".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv"}
 IMAGE_EXTENSIONS = IMAGE_SUFFIXES

@@ -1,4 +1,4 @@
-"""The "process" engine of mosegpipe.batch: clips on a pool of local worker processes, each with one
+"""The "process" engine of mosegpipe.apps.batch.run: clips on a pool of local worker processes, each with one
 thread and the model, rebuilt after a worker dies or a clip times out; the warnings a worker logs
 go back with its clip's row."""
 
@@ -16,11 +16,11 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from mosegpipe.batch_plan import BatchItem, _Job, _one_line, _row, process_clip
-from mosegpipe.model import SubspaceNet
+from mosegpipe.apps.batch.plan import BatchItem, _Job, _one_line, _row, process_clip
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.runtime import LATER_IMPORTS
 
-log = logging.getLogger("mosegpipe.batch")
+log = logging.getLogger("mosegpipe.apps.batch.run")
 
 
 _WORKER: dict[str, Any] = {}
@@ -117,7 +117,7 @@ def _mp_context() -> Any:
     if "forkserver" in mp.get_all_start_methods():
         ctx = mp.get_context("forkserver")
         # Workers fork from a server that imported torch and the pipeline once.
-        ctx.set_forkserver_preload(["mosegpipe.batch", *LATER_IMPORTS])
+        ctx.set_forkserver_preload(["mosegpipe.apps.batch.run", *LATER_IMPORTS])
         return ctx
     return mp.get_context("spawn")
 

@@ -1,4 +1,4 @@
-"""The "ray" engine of mosegpipe.batch: clips as Ray tasks on a local Ray instance or a cluster."""
+"""The "ray" engine of mosegpipe.apps.batch.run: clips as Ray tasks on a local Ray instance or a cluster."""
 
 from __future__ import annotations
 
@@ -12,12 +12,12 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from mosegpipe.batch_plan import BatchItem, _Job, _one_line, _row, _usable_cores
-from mosegpipe.batch_pool import _keep_worker_logs, _worker_clip
+from mosegpipe.apps.batch.plan import BatchItem, _Job, _one_line, _row, _usable_cores
+from mosegpipe.apps.batch.pool import _keep_worker_logs, _worker_clip
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError
-from mosegpipe.model import SubspaceNet
 
-log = logging.getLogger("mosegpipe.batch")
+log = logging.getLogger("mosegpipe.apps.batch.run")
 
 
 _RAY_CACHE: dict[str, tuple[SubspaceNet, _Job]] = {}

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from mosegpipe.batch_plan import (
+from mosegpipe.apps.batch.plan import (
     FIELDS,
     IMAGE_EXTENSIONS,
     MAX_NAME_BYTES,
@@ -52,16 +52,16 @@ from mosegpipe.batch_plan import (
     plan_paths,
     process_clip,
 )
-from mosegpipe.batch_pool import MAX_WORKER_WARNINGS, _run_process
-from mosegpipe.batch_ray import _run_ray, check_ray
+from mosegpipe.apps.batch.pool import MAX_WORKER_WARNINGS, _run_process
+from mosegpipe.apps.batch.ray_engine import _run_ray, check_ray
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError
-from mosegpipe.io import atomic_write, write_json
-from mosegpipe.model import SubspaceNet
+from mosegpipe.io.read import atomic_write, write_json
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.settings import MAX_CLIP_TIMEOUT_S
 from mosegpipe.types import ENGINES
 
-log = logging.getLogger("mosegpipe.batch")
+log = logging.getLogger("mosegpipe.apps.batch.run")
 
 __all__ = [
     "FIELDS",
@@ -202,7 +202,7 @@ def run_batch(
     out = Path(out)
     items, where = _plan_batch(paths, out, root)
     if model is None:
-        from mosegpipe.inference import load_model
+        from mosegpipe.embed.numpy_net import load_model
 
         model = load_model(cfg.frames, checkpoint)
     job = _Job(cfg, rrd, config_hash(cfg, model, rrd), segment_fn or segment_clip)

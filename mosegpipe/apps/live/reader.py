@@ -1,4 +1,4 @@
-"""Between a live source and the pipeline (mosegpipe.live): the reader thread (SourceReader), the few
+"""Between a live source and the pipeline (mosegpipe.apps.live.run): the reader thread (SourceReader), the few
 frames it may hold (FrameBuffer: a live source drops its oldest, stdin and files wait) and the
 frames as the pipeline takes them (LiveFrames: they end when the source ends, stalls or is stopped)."""
 
@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.apps.live.source import Capture, RawCapture
 from mosegpipe.errors import InputError
-from mosegpipe.live_source import Capture, RawCapture
 
 if TYPE_CHECKING:
     pass

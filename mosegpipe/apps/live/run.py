@@ -40,9 +40,8 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import InputError, MosegError
-from mosegpipe.live_reader import _POLL_S, BUFFER_FRAMES, FrameBuffer, LiveFrames, SourceReader
-from mosegpipe.live_source import (
+from mosegpipe.apps.live.reader import _POLL_S, BUFFER_FRAMES, FrameBuffer, LiveFrames, SourceReader
+from mosegpipe.apps.live.source import (
     MAX_CAMERA_INDEX,
     MAX_STDIN_PIXELS,
     MAX_STDIN_SIDE_PX,
@@ -55,6 +54,7 @@ from mosegpipe.live_source import (
     parse_source,
     stdin_size_suspect,
 )
+from mosegpipe.errors import InputError, MosegError
 from mosegpipe.pipeline import PipelineConfig, VideoFrame, WindowResult, frame_mask, segment_video
 from mosegpipe.pipeline.video import MIN_VIDEO_SIDE_PX
 from mosegpipe.runtime import run_ahead
@@ -62,10 +62,10 @@ from mosegpipe.runtime import run_ahead
 if TYPE_CHECKING:
     import rerun as rr
 
-    from mosegpipe.inference import Embedder
+    from mosegpipe.embed.numpy_net import Embedder
     from mosegpipe.viz import VizConfig
 
-log = logging.getLogger("mosegpipe.live")
+log = logging.getLogger("mosegpipe.apps.live.run")
 
 __all__ = [
     "BUFFER_FRAMES",
@@ -326,7 +326,7 @@ def run_live(
         TooFewTracksError: no window had enough tracks.
         OutputExistsError: out_dir holds results and overwrite is False.
     """
-    from mosegpipe.outputs import check_output_dir
+    from mosegpipe.apps.outputs import check_output_dir
 
     if out_dir is not None:
         check_output_dir(out_dir, overwrite)
@@ -431,7 +431,7 @@ def _run_live(
     on_status: Callable[[LiveStats], None] | None,
     status_every_s: float,
 ) -> LiveResult:
-    from mosegpipe.outputs import write_video_outputs
+    from mosegpipe.apps.outputs import write_video_outputs
 
     buffer, capture = reader.buffer, reader.capture
     height, width, suspect = _check_first_frame(source, _first_frame(reader, stall_timeout_s))

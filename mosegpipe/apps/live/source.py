@@ -1,4 +1,4 @@
-"""Live sources (mosegpipe.live): what SOURCE names (a camera index, a URL, a file, `-` for raw frames
+"""Live sources (mosegpipe.apps.live.run): what SOURCE names (a camera index, a URL, a file, `-` for raw frames
 on stdin), opening it, reading raw frames and telling a wrong --stdin-size."""
 
 from __future__ import annotations

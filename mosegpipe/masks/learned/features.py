@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.configs.masks import LearnedMaskConfig
-from mosegpipe.flow import FrameMotion
+from mosegpipe.points.flow import FrameMotion
 
 __all__ = ["NUM_CHANNELS", "LearnedMaskConfig", "clip_features", "neighbours_along", "net_flows", "net_size"]
 

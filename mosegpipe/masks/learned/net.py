@@ -4,7 +4,7 @@ A U-Net of four levels (the input's size, 1/2, 1/4, 1/8 of it), each one or two 
 with batch norm and ReLU, the decoder upsampling (bilinear) and joining the encoder's level of the same size.
 Input: `features.NUM_CHANNELS` channels at 1/4 of the frame size (`features.clip_features`); output:
 one logit per pixel of the same size. About 52 thousand parameters (0.2 MB of float32). The per-motion network
-(mosegpipe.learned.which) is the same class with more inputs and output "which".
+(mosegpipe.masks.learned.which) is the same class with more inputs and output "which".
 
 Inference runs in torch on the CPU with the process's thread count (`runtime.set_threads`; one by
 default). The shipped weights (mosegpipe/weights/masknet.pt, whichnet.pt) are a plain dict of tensors and
@@ -23,9 +23,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mosegpipe.architecture import weights_dir
+from mosegpipe.embed.architecture import weights_dir
 from mosegpipe.errors import CheckpointError
-from mosegpipe.learned.features import NUM_CHANNELS
+from mosegpipe.masks.learned.features import NUM_CHANNELS
 
 WIDTHS = (8, 16, 24, 32)
 """Channels per level of the encoder (and, mirrored, of the decoder): (8, 24, 48, 64) scored end to end 0.784
@@ -38,7 +38,7 @@ CONVS = (1, 1, 2, 2)
 WEIGHTS_FILES = {"moving": "masknet.pt", "which": "whichnet.pt"}
 """The shipped checkpoint's file name in mosegpipe/weights/ per output: what a checkpoint's logit means, "moving" = not
 the world (`features.NUM_CHANNELS` inputs), "which" = the pixel is the queried motion's (`which.QUERY_CHANNELS`
-more inputs, mosegpipe.learned.which)."""
+more inputs, mosegpipe.masks.learned.which)."""
 
 
 def _block(cin: int, cout: int, convs: int = 2) -> nn.Sequential:

@@ -21,9 +21,9 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.configs.masks import MotionMaskConfig
-from mosegpipe.flow import FrameMotion
-from mosegpipe.learned.features import LearnedMaskConfig, clip_features, neighbours_along, net_flows, net_size
-from mosegpipe.motion import _keep_strong, _refined_scores
+from mosegpipe.masks.learned.features import LearnedMaskConfig, clip_features, neighbours_along, net_flows, net_size
+from mosegpipe.masks.moving_pixels import _keep_strong, _refined_scores
+from mosegpipe.points.flow import FrameMotion
 
 EDGE_STEPS = replace(MotionMaskConfig(), local_colour_weight=0.0, superpixels=0)
 """The motion chain's settings whose edge steps (guided filter, global smoother) `refine_scale` runs, and whose
@@ -60,7 +60,7 @@ def learned_probability(
         first: frames first..T-1 only (the frames before are the first one's neighbours; with
             `temporal_weight`, their probability is carried into the first one's too).
     """
-    from mosegpipe.learned.net import load_masknet, predict
+    from mosegpipe.masks.learned.net import load_masknet, predict
 
     net = load_masknet(cfg.weights)
     if cfg.temporal_weight <= 0:

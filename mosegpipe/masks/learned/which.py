@@ -6,7 +6,7 @@ checkpoint output "which", mosegpipe/weights/whichnet.pt) for each pixel's proba
 `features.clip_features` and two query channels drawn from the tracks (`query_channels`). Each moving pixel of those
 motions takes the motion of the highest probability (`which_motion`), in place of the choice of the nearest track
 and the watershed between them; the flow's affine reassignment (`MaskConfig.reassign_ratio`) still runs after it
-(`MaskConfig.which` "learned"; the recipe: `moseg train --preset whichnet`, mosegpipe.learned.which_train).
+(`MaskConfig.which` "learned"; the recipe: `moseg train --preset whichnet`, mosegpipe.training.masks.whichnet).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy.typing as npt
 
 if TYPE_CHECKING:
     from mosegpipe.configs.masks import MaskConfig
-    from mosegpipe.flow import FrameMotion
+    from mosegpipe.points.flow import FrameMotion
 
 QUERY_CHANNELS = 2
 """Inputs the per-motion network takes beside `features.NUM_CHANNELS` (see `query_channels`)."""
@@ -95,7 +95,7 @@ def which_motion(
     Returns:
         `mask` itself when there is nothing to choose, else the relabelled copy.
     """
-    from mosegpipe.learned.net import load_masknet, predict
+    from mosegpipe.masks.learned.net import load_masknet, predict
 
     hw = features.shape[1:]
     motions, queries = frame_queries(xy, labels, mask.shape, hw)
@@ -147,6 +147,6 @@ def window_features(
     track `labels` `needs_choice`; else None (nothing to choose, nothing computed)."""
     if cfg.which != "learned" or not any(needs_choice(lab) for lab in labels):
         return None
-    from mosegpipe.learned.features import clip_features
+    from mosegpipe.masks.learned.features import clip_features
 
     return clip_features(images, motion, cfg.learned.scale, first)

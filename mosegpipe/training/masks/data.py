@@ -31,9 +31,9 @@ import numpy.typing as npt
 
 from mosegpipe.data.davis import DAVIS_DEV, DAVIS_VAL, read_davis_clip
 from mosegpipe.errors import ConfigError
-from mosegpipe.flow import frame_motion
-from mosegpipe.learned.features import clip_features, net_size
-from mosegpipe.motion import MotionMaskConfig
+from mosegpipe.masks.learned.features import clip_features, net_size
+from mosegpipe.masks.moving_pixels import MotionMaskConfig
+from mosegpipe.points.flow import frame_motion
 
 log = logging.getLogger(__name__)
 
@@ -276,8 +276,8 @@ def load_source(
 ) -> Frames4Net:
     """A source's frames ("rendered", "water", "composites", "davis", "held-out", "composites-held-out": the composites that
     use a held-out clip, which only the per-motion network's recipe scores), from the cache when there."""
-    from mosegpipe.io import default_cache_dir
-    from mosegpipe.io_write import write_npz
+    from mosegpipe.io.read import default_cache_dir
+    from mosegpipe.io.write import write_npz
     from mosegpipe.training.own_tracks import cache_key
 
     key = cache_key(f"masknet-{name}", cfg=asdict(cfg), flow=MotionMaskConfig().flow, clips=source_clips(cfg)[name])

@@ -27,8 +27,8 @@ import numpy.typing as npt
 import torch
 import torch.nn.functional as F
 
-from mosegpipe.learned.data import DataConfig, Frames4Net, load_source
-from mosegpipe.learned.net import WIDTHS, MaskNet
+from mosegpipe.masks.learned.net import WIDTHS, MaskNet
+from mosegpipe.training.masks.data import DataConfig, Frames4Net, load_source
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,7 @@ def mask_loss(logits: torch.Tensor, truth: torch.Tensor, dice_weight: float = 0.
 
 def held_out_scores(net: MaskNet, held: Frames4Net, thresholds: tuple[float, ...]) -> npt.NDArray[np.float64]:
     """(len(thresholds),) mean over the held-out clips of their mean J per frame, at the network's size."""
-    from mosegpipe.learned.net import predict
+    from mosegpipe.masks.learned.net import predict
 
     per_clip: dict[str, list[npt.NDArray[np.float64]]] = {}
     for f, t, name in zip(held.features, held.truth, held.names):

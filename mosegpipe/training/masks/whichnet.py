@@ -27,12 +27,12 @@ import torch
 import torch.nn.functional as F
 
 from mosegpipe.configs.tracking import TrackConfig
-from mosegpipe.learned import WHICHNET_PRESET
-from mosegpipe.learned.data import DataConfig, load_source, render_config, rendered_images, training_composites
-from mosegpipe.learned.features import NUM_CHANNELS, net_size
-from mosegpipe.learned.net import WIDTHS, MaskNet
-from mosegpipe.learned.train import fit, one_thread
-from mosegpipe.learned.which import QUERY_CHANNELS, asked_inputs, query_channels
+from mosegpipe.masks.learned.features import NUM_CHANNELS, net_size
+from mosegpipe.masks.learned.net import WIDTHS, MaskNet
+from mosegpipe.masks.learned.which import QUERY_CHANNELS, asked_inputs, query_channels
+from mosegpipe.training.masks.data import DataConfig, load_source, render_config, rendered_images, training_composites
+from mosegpipe.training.masks.masknet import fit, one_thread
+from mosegpipe.types import WHICHNET_PRESET
 
 log = logging.getLogger(__name__)
 
@@ -249,7 +249,7 @@ def held_out_accuracy(net: MaskNet, held: WhichFrames, cfg: WhichTrainConfig) ->
     """(2,): the share of the held-out frames' moving pixels assigned their object by the network's argmax over
     the motions, and by the nearest moving corner (the baseline); mean over frames. The corners' labels are
     spoiled as in training but for merges (`spoiled`, seeded by the frame's index: the same in every call)."""
-    from mosegpipe.learned.net import predict
+    from mosegpipe.masks.learned.net import predict
 
     scores = []
     clean = replace(cfg, merge_share=0.0)
