@@ -158,8 +158,8 @@ def _movers_case(rng: np.random.Generator, second_step: tuple[float, float]) -> 
 
 
 def test_split_movers_separates_movers_the_clustering_joined() -> None:
+    from mosegpipe.group.refine import split_movers
     from mosegpipe.pipeline import PipelineConfig
-    from mosegpipe.pipeline.common import split_movers
     from mosegpipe.types import Clustering
 
     rng = np.random.default_rng(3)

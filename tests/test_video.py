@@ -315,18 +315,19 @@ def _mask_calls(
 ) -> tuple[list[Any], list[Any]]:
     """segment_video's windows of `folder` and, per call of moving_from_motion, `capture(its arguments by name)`
     (taken when called: the colour memory changes afterwards)."""
+    from mosegpipe.masks import compose
     from mosegpipe.pipeline import segment_video
 
     calls: list[Any] = []
-    original = video_module.moving_from_motion
+    original = compose.moving_from_motion
 
     def recorded(*args: object, **kwargs: object) -> np.ndarray:
         calls.append(capture(dict(zip(("images", "motion"), args)) | kwargs))
         return original(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(video_module, "moving_from_motion", recorded)
+    monkeypatch.setattr(compose, "moving_from_motion", recorded)
     windows = list(segment_video(folder, cfg, model))
-    monkeypatch.setattr(video_module, "moving_from_motion", original)
+    monkeypatch.setattr(compose, "moving_from_motion", original)
     return windows, calls
 
 

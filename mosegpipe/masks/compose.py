@@ -1,21 +1,26 @@
-""" "motion" masks (mosegpipe.masks): each pixel moving or not by the camera's motion (mosegpipe.masks.moving_pixels),
-moving pixels labelled by the nearest track of a moving motion, and a moving region that no moving
-motion's tracks explain split off as a motion of its own (split_unexplained)."""
+"""The mask sequence (`MaskSequence`), used by clips, whole videos and live, and its steps after the moving pixels:
+moving pixels labelled by the nearest track of a moving motion (`moving_to_labels`), given the motion whose step
+explains their flow (`reassign_by_flow`), a moving region that no moving motion's tracks explain split off as a
+motion of its own (`split_unexplained`), an unclustered region given its label in the frame before
+(`carry_unclustered`); `motion_masks`, a clip's "motion" or "learned" masks."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.colours import WORLD
+from mosegpipe.configs.grouping import WorldConfig
 from mosegpipe.group.twoview import robust_fit
+from mosegpipe.group.world import explain_parallax
 from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, _nearest, labels_to_mask
 from mosegpipe.masks.learned.probability import learned_moving
 from mosegpipe.masks.learned.which import which_motion, window_features
-from mosegpipe.masks.moving_pixels import moving_masks, stack_motion
+from mosegpipe.masks.moving_pixels import Anchors, ColourMemory, moving_from_motion, moving_masks, stack_motion
 from mosegpipe.points.flow import FrameMotion
 from mosegpipe.types import Tracks
 
@@ -146,6 +151,120 @@ def moving_to_labels(
     return out
 
 
+Seen = tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]
+"""One frame's labelled tracks: (M,) int64 ids and (M, 2) float32 positions, pixels."""
+
+
+def common_step(
+    seen: Seen, near: Seen
+) -> tuple[npt.NDArray[np.intp], tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]:
+    """The tracks of one frame also seen in a neighbour frame, matched by id: (their rows in `seen`, ((K, 2) float32
+    positions here, (K, 2) there))."""
+    _, here, there = np.intersect1d(seen[0], near[0], assume_unique=True, return_indices=True)
+    return here, (np.asarray(seen[1], np.float32)[here], np.asarray(near[1], np.float32)[there])
+
+
+@dataclass
+class MaskSequence:
+    """The one mask sequence of clips, whole videos and live, and the state a video carries between frames.
+
+    The steps, in order: the world's parallax explained in the flow evidence ("motion" masks,
+    `explain_parallax`) -> the moving pixels (the motion-mask chain `moving_from_motion`, or the mask network
+    `learned_moving`) -> labelled by the tracks (`moving_to_labels`, by the caller, which also makes the other
+    methods' masks) -> `finish`: the per-motion network's choice (`which_motion`), each moving pixel given the
+    motion whose step explains its flow (`reassign_by_flow`), then in clips the regions no motion explains split
+    off (`split_unexplained`), in videos the unclustered regions given their label in the frame before
+    (`carry_unclustered`).
+
+    A clip makes one per clip (`motion_masks`); a whole video one for the video (`segment_video`), whose colour
+    model of the shot and last final mask go from window to window.
+
+    Attributes:
+        cfg: mask settings.
+        video: whole-video mode (the frame before's mask is carried).
+        colour: the motion masks' colour model of the shot's windows so far (None = each stack alone).
+        last_mask: the last finished frame's mask (None at the start of a shot).
+    """
+
+    cfg: MaskConfig
+    video: bool = False
+    colour: ColourMemory | None = None
+    last_mask: npt.NDArray[np.uint8] | None = None
+
+    def new_shot(self) -> None:
+        """A shot starts: no mask to carry over, its colours are new."""
+        self.last_mask = None
+        if self.colour is not None:
+            self.colour.reset()
+
+    def moving(
+        self,
+        images: npt.NDArray[np.uint8],
+        motion: FrameMotion,
+        first: int = 0,
+        parallax: tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], WorldConfig] | None = None,
+        anchors: list[Anchors] | None = None,
+    ) -> tuple[npt.NDArray[np.bool_], FrameMotion]:
+        """The moving pixels of frames first..T-1 of a stack, and the flow evidence they were judged on.
+
+        Args:
+            images: (T, H, W, 3) uint8 RGB.
+            motion: the stack's flow evidence (`stack_motion` / the video's flow stream).
+            first: the first frame to mask.
+            parallax: (xy (N, T, 2), labels (N,), world settings) of the labelled tracks: with the "motion"
+                masks the world's 3D structure is explained first (the mask network takes the camera residual
+                it was trained on). None: not explained.
+            anchors: whole videos: per masked frame, the tracks that keep a motion the frame before showed.
+
+        Returns:
+            ((T - first, H, W) bool moving, the FrameMotion used).
+        """
+        if parallax is not None and self.cfg.method == "motion":
+            motion = explain_parallax(motion, *parallax)
+        if self.cfg.method == "learned":
+            return learned_moving(images, motion, self.cfg.learned, first=first), motion
+        moving = moving_from_motion(images, motion, self.cfg.motion, first=first, colour=self.colour, anchors=anchors)
+        return moving, motion
+
+    def finish(
+        self,
+        mask: npt.NDArray[np.uint8],
+        at: int,
+        seen: Sequence[Seen],
+        labels: npt.NDArray[np.int64],
+        motion: FrameMotion | None,
+        features: npt.NDArray[np.float32] | None = None,
+        moving: npt.NDArray[np.bool_] | None = None,
+    ) -> npt.NDArray[np.uint8]:
+        """Frame `at` of a stack, labelled (`moving_to_labels`), through the sequence's last steps.
+
+        Args:
+            mask: (H, W) uint8 labels of the frame.
+            at: its index in the stack (and in `motion`'s flows).
+            seen: per frame of the stack, its labelled tracks (ids ascending, positions).
+            labels: (M,) int64 the labels of frame `at`'s tracks.
+            motion: the stack's flow evidence (None: the flow steps are skipped).
+            features: the frame's per-motion network inputs (`window_features`), if it has something to choose.
+            moving: (H, W) bool the frame's moving pixels (clips: the unexplained regions' split).
+        """
+        cfg = self.cfg
+        ids, xy = seen[at]
+        if features is not None:
+            mask = which_motion(mask, features, xy, labels, cfg.learned.which_weights)
+        if motion is not None and motion.forward is not None and motion.backward is not None:
+            near = at + 1 if at < len(motion.forward) else at - 1
+            flow = motion.forward[at] if near > at else motion.backward[near]
+            here, step = common_step((ids, xy), seen[near])
+            if cfg.reassign_ratio > 0 and here.size:
+                mask = reassign_by_flow(mask, step, labels[here], flow, motion.scale, cfg.reassign_ratio)
+            if not self.video and cfg.unexplained_px > 0 and moving is not None:
+                mask = split_unexplained(mask, moving, step, labels[here], WORLD, flow, motion.scale, cfg)
+        if self.video:
+            mask = carry_unclustered(mask, self.last_mask)
+            self.last_mask = mask
+        return mask
+
+
 def motion_masks(
     images: npt.NDArray[np.uint8],
     tracks: Tracks,
@@ -155,53 +274,44 @@ def motion_masks(
     before: npt.NDArray[np.uint8] | None = None,
     after: npt.NDArray[np.uint8] | None = None,
     motion: FrameMotion | None = None,
+    world: WorldConfig | None = None,
 ) -> npt.NDArray[np.uint8]:
     """The "motion" (or "learned") masks of a clip: moving pixels from the dense flow, labelled by the clip's tracks.
 
     Args:
         images: (T, H, W, 3) uint8 RGB, T >= 2.
         tracks: the clip's tracks.
-        track_ids: (M,) int64 rows of `tracks` that carry labels.
+        track_ids: (M,) int64 rows of `tracks` that carry labels, ascending.
         labels: (M,) int64 their labels; 0 is the world (WORLD, `mosegpipe.group.world`).
         cfg: mask settings (cfg.motion; cfg.learned when cfg.method is "learned"; the watershed's for the
             borders between moving motions).
-        before, after: the source's frames next to the clip, as evidence (`motion.moving_masks`).
-        motion: `motion.stack_motion` of the clip, if already computed (None = computed here).
+        before, after: the source's frames next to the clip, as evidence (`moving_pixels.stack_motion`).
+        motion: `stack_motion` of the clip, if already computed (None = computed here).
+        world: the world's parallax settings: with a given `motion`, its 3D structure is explained first.
 
     Returns:
         (T, H, W) uint8 masks.
     """
+    labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+    sequence = MaskSequence(cfg)
+    parallax = None if world is None or motion is None else (tracks.xy[track_ids], labels, world)
     if motion is None and (
         cfg.unexplained_px > 0 or cfg.reassign_ratio > 0 or cfg.method == "learned" or cfg.which == "learned"
     ):
         motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
-    if cfg.method == "learned" and motion is not None:  # the mask network in place of the hand-made chain
-        moving = learned_moving(images, motion, cfg.learned)
+    if motion is None:
+        moving = moving_masks(images, cfg.motion, before=before, after=after)
     else:
-        moving = moving_masks(images, cfg.motion, before=before, after=after, motion=motion)
-    labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+        moving, motion = sequence.moving(images, motion, parallax=parallax)
     visible = tracks.visible[track_ids]  # (M, T)
-    background = WORLD
+    seen = [(track_ids[visible[:, t]], tracks.xy[track_ids[visible[:, t]], t]) for t in range(len(moving))]
     out = np.empty(moving.shape, dtype=np.uint8)
-    num = len(moving)
     features = None if motion is None else window_features(images, motion, cfg, (labels[s] for s in visible.T))
-    for t in range(num):
-        seen = visible[:, t]
-        out[t] = moving_to_labels(moving[t], tracks.xy[track_ids[seen], t], labels[seen], background, images[t], cfg)
-        if features is not None:
-            out[t] = which_motion(
-                out[t], features[t], tracks.xy[track_ids[seen], t], labels[seen], cfg.learned.which_weights
-            )
-        if motion is None or motion.forward is None or motion.backward is None:
-            continue
-        other = t + 1 if t + 1 < num else t - 1
-        flow = motion.forward[t] if other > t else motion.backward[t - 1]
-        both = seen & visible[:, other]
-        step = (tracks.xy[track_ids[both], t], tracks.xy[track_ids[both], other])
-        if cfg.reassign_ratio > 0:
-            out[t] = reassign_by_flow(out[t], step, labels[both], flow, motion.scale, cfg.reassign_ratio)
-        if cfg.unexplained_px > 0:
-            out[t] = split_unexplained(out[t], moving[t], step, labels[both], background, flow, motion.scale, cfg)
+    for t in range(len(moving)):
+        lab = labels[visible[:, t]]
+        out[t] = moving_to_labels(moving[t], seen[t][1], lab, WORLD, images[t], cfg)
+        feats = None if features is None else features[t]
+        out[t] = sequence.finish(out[t], t, seen, lab, motion, feats, moving[t])
     return out
 
 
@@ -364,9 +474,7 @@ def reassign_along(
         labels: (N,) int64 labels of this frame's tracks.
         flow, scale, ratio: as `reassign_by_flow`'s.
     """
-    ids, xy, near_ids, near_xy = tracks
-    _, here, there = np.intersect1d(ids, near_ids, assume_unique=True, return_indices=True)
+    here, step = common_step(tracks[:2], tracks[2:])
     if not here.size:
         return mask
-    step = (np.asarray(xy, np.float32)[here], np.asarray(near_xy, np.float32)[there])
     return reassign_by_flow(mask, step, labels[here], flow, scale, ratio)

@@ -15,8 +15,9 @@ from __future__ import annotations
 
 from mosegpipe.embed.numpy_net import load_model
 from mosegpipe.group.labels import LabelBook, LabelConfig, match_labels
+from mosegpipe.group.refine import check_rigid
 from mosegpipe.pipeline.clip import ClipResult, clip_masks, segment_clip, segment_frames
-from mosegpipe.pipeline.common import check_rigid, decode_errors, embed_at_model_frames, model_info
+from mosegpipe.pipeline.common import decode_errors, embed_at_model_frames, model_info
 from mosegpipe.pipeline.config import PRESETS, PipelineConfig
 from mosegpipe.pipeline.pair import PairResult, segment_pair
 from mosegpipe.pipeline.tracks import TracksResult, segment_tracks, tracks_clip

@@ -13,10 +13,8 @@ import numpy.typing as npt
 
 from mosegpipe.embed.numpy_net import Embedder
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.group.cluster import cluster_auto_k
-from mosegpipe.group.geometric import group_geometric
+from mosegpipe.group.refine import group_window
 from mosegpipe.group.rigid import label_by_rigid_motion
-from mosegpipe.group.world import explain_parallax
 from mosegpipe.io.read import check_images, read_video, video_info
 from mosegpipe.masks import labels_to_masks, motion_masks
 from mosegpipe.masks.moving_pixels import stack_motion
@@ -24,12 +22,9 @@ from mosegpipe.pipeline.common import (
     _check_k,
     _frames,
     _model_or_default,
-    check_rigid,
     decode_errors,
     embed_at_model_frames,
     model_info,
-    split_movers,
-    world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.points.flow import FrameMotion, flow_fits
@@ -89,23 +84,11 @@ def group_tracks(
     Returns:
         ((N, E) float32 embeddings, the clustering).
     """
-    if cfg.method == "geometric":
-        t0 = time.perf_counter()
-        clustering = group_geometric(traj.data, size_hw, cfg.geometric, k=cfg.k)
-        clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
-        timings["cluster"] = time.perf_counter() - t0
+    grouped = group_window(traj, size_hw, cfg, model, k=cfg.k, motion=motion, timings=timings)
+    if grouped.embeddings is None:
         data = traj.data
-        return np.asarray(data[:, 2:] - np.tile(data[:, :2], traj.num_frames - 1), dtype=np.float32), clustering
-    t0 = time.perf_counter()
-    emb = embed_at_model_frames(model, traj)
-    timings["embed"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
-    clustering = check_rigid(clustering, traj.data, size_hw, cfg, emb)
-    clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
-    clustering = split_movers(clustering, emb, traj.data, cfg)
-    timings["cluster"] = time.perf_counter() - t0
-    return emb, clustering
+        return np.asarray(data[:, 2:] - np.tile(data[:, :2], traj.num_frames - 1), dtype=np.float32), grouped.clustering
+    return grouped.embeddings, grouped.clustering
 
 
 def _uses_flow_points(frames: Frames, cfg: PipelineConfig) -> bool:
@@ -225,11 +208,8 @@ def clip_masks(
         (T, H, W) uint8 masks, 255 = unknown.
     """
     if cfg.mask.method in FLOW_MASK_METHODS and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.flow):
-        # the world's 3D structure: its parallax is not motion (the mask network takes the camera residual
-        # as it was trained on it, before this step)
-        if motion is not None and cfg.mask.method == "motion":
-            motion = explain_parallax(motion, tracks.xy[track_ids], labels, cfg.world)
-        return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion)
+        # the world's 3D structure: its parallax is not motion (MaskSequence.moving)
+        return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion, cfg.world)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:
         corners = spread_corners(images[0], budget, tracks.xy[tracks.visible[:, 0], 0], cfg.track)

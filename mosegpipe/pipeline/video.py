@@ -29,29 +29,22 @@ import numpy.typing as npt
 from mosegpipe.embed.numpy_net import Embedder, load_model
 from mosegpipe.errors import InputError, TooFewTracksError
 from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
-from mosegpipe.group.geometric import group_geometric
 from mosegpipe.group.joint import geometry_supported
 from mosegpipe.group.labels import LabelBook, match_labels, small_guard
-from mosegpipe.group.world import explain_parallax
+from mosegpipe.group.refine import group_window
 from mosegpipe.io.read import iter_video, video_info
 from mosegpipe.masks import (
     MOVING_UNCLUSTERED,
     UNKNOWN,
     WORLD,
     MaskConfig,
-    carry_unclustered,
-    reassign_along,
 )
-from mosegpipe.masks.learned.probability import learned_moving
-from mosegpipe.masks.learned.which import which_motion, window_features
-from mosegpipe.masks.moving_pixels import ColourMemory, moving_from_motion
+from mosegpipe.masks.compose import MaskSequence
+from mosegpipe.masks.learned.which import window_features
+from mosegpipe.masks.moving_pixels import ColourMemory
 from mosegpipe.pipeline.common import (
     _frames,
-    check_rigid,
     decode_errors,
-    embed_at_model_frames,
-    split_movers,
-    world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
@@ -163,7 +156,8 @@ def segment_video(
             f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
     memory = cfg.mask.motion.colour_memory
-    run = _VideoRun(book=LabelBook(cfg=cfg.labels), colour=ColourMemory(memory) if memory > 0 else None)
+    colour = ColourMemory(memory) if memory > 0 else None
+    run = _VideoRun(book=LabelBook(cfg=cfg.labels), masks=MaskSequence(cfg.mask, video=True, colour=colour))
     with contextlib.ExitStack() as stack:
         # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
@@ -193,9 +187,8 @@ class _VideoRun:
         num_done: frames of the windows labelled so far.
         cuts: frames that start a new shot.
         ambiguous: (first, last) frame of each window whose K was ambiguous.
-        last_mask: the last labelled frame's mask (None at the start of a shot): the moving regions
-            no clustered motion reached take the label they had there (`masks.carry_unclustered`).
-        colour: the motion masks' colour model of the shot's windows so far (None = each window alone).
+        masks: the video's mask sequence: the last labelled frame's mask (the moving regions no clustered motion
+            reached take the label they had there) and the motion masks' colour model of the shot so far.
         frame_before: the frame before the last motion-masked window's last frame (whose flows the stream
             keeps: the next window's first frame takes its flow back to it), or None.
     """
@@ -209,8 +202,7 @@ class _VideoRun:
     num_done: int = 0
     cuts: set[int] = field(default_factory=set)
     ambiguous: list[tuple[int, int]] = field(default_factory=list)
-    last_mask: npt.NDArray[np.uint8] | None = None
-    colour: ColourMemory | None = None
+    masks: MaskSequence = field(default_factory=lambda: MaskSequence(MaskConfig(), video=True))
     frame_before: int | None = None
 
 
@@ -351,21 +343,22 @@ def _cluster_window(
         log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
         return common, _WindowLabels()
     forced = None if cfg.k is None else min(cfg.k, common.size)
-    emb = None
-    if cfg.method == "geometric":  # rigid models fitted one after another: no embedding, no check
-        clustering = group_geometric(traj.data, tracks.size_hw, cfg.geometric, k=forced)
-        sweep_k = clustering.k
-    else:
-        emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
-        with warnings_held(logging.getLogger(cluster_auto_k.__module__)):
-            sweep = _window_sweep(cfg, run.prev_k)
-            clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
-        sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
-        clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg, emb)
     before = np.array([run.prev.get(int(i), -1) for i in common], np.int64)
-    clustering = world_to_zero(clustering, traj.data, tracks.size_hw, cfg, before == WORLD, before >= 0, motion)
-    if emb is not None:
-        clustering = split_movers(clustering, emb, traj.data, cfg)
+    # automatic K's ambiguity warnings are reported once for the video, not per window
+    with warnings_held(logging.getLogger(cluster_auto_k.__module__)):
+        grouped = group_window(
+            Trajectories(data=traj.data, track_ids=common),
+            tracks.size_hw,
+            cfg,
+            model,
+            k=forced,
+            sweep=_window_sweep(cfg, run.prev_k),
+            prefer_k=run.prev_k or None,
+            was_world=before == WORLD,
+            known=before >= 0,
+            motion=motion,
+        )
+    clustering, sweep_k = grouped.clustering, grouped.sweep_k  # the next window's preferred K: the embedding's
     glob = np.full(common.size, -1, np.int64)
     kept = clustering.labels >= 0  # method "joint" leaves out the tracks no model explains (-1)
     xy_all = traj.data.reshape(common.size, len(window), 2)
@@ -421,9 +414,7 @@ def _label_window(
     before = run.prev  # the last labelled window's labels: tracks that end inside this window keep theirs
     if not first_labelled:  # a shot starts here: no mask to carry over, its colours are new, no motion returns
         run.book.forget()
-        run.last_mask = None
-        if run.colour is not None:
-            run.colour.reset()
+        run.masks.new_shot()
         run.frame_before = None
     motion = None
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
@@ -442,15 +433,13 @@ def _label_window(
     ]
     moving, which, motion = _window_pixels(window, skip, labs, cfg, run, stream, motion, found)
     labelled = []
+    seen = [(ids, xy) for _, _, ids, xy in window]
     for at, (item, lab, moved) in enumerate(zip(window[skip:], labs, moving), start=skip):
         # the motion masks need the frame before's mask: computed here, in order, whatever `masks` says
         frame = _labelled_frame(item, lab, cfg.mask, masks or moved is not None, moved)
         if frame.mask is not None:
             feats = None if which is None else which[at - skip]
-            frame = replace(
-                frame, mask=_final_mask(frame.mask, run.last_mask, window, at, lab, motion, cfg.mask, feats)
-            )
-            run.last_mask = frame.mask
+            frame = replace(frame, mask=run.masks.finish(frame.mask, at, seen, lab, motion, feats))
         labelled.append(frame)
     run.num_windows += 1
     run.num_done += len(labelled)
@@ -491,17 +480,13 @@ def _window_pixels(
     which = None
     if stream is None or motion is None:
         return moving, which, motion
-    if found.track_ids.size and cfg.mask.method == "motion":  # the world's 3D structure: its parallax is not motion
-        motion = explain_parallax(motion, found.xy, found.labels, cfg.world)
     indices = [t for t, _, _, _ in window]
     images = np.stack([img for _, img, _, _ in window])
-    shown = _shown_motions(run.last_mask)
+    shown = _shown_motions(run.masks.last_mask)
     anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
-    moving = (
-        learned_moving(images, motion, cfg.mask.learned, first=skip)
-        if cfg.mask.method == "learned"
-        else moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
-    )
+    # the world's 3D structure: its parallax is not motion
+    parallax = (found.xy, found.labels, cfg.world) if found.track_ids.size else None
+    moving, motion = run.masks.moving(images, motion, first=skip, parallax=parallax, anchors=anchors)
     stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
     run.frame_before = indices[-2]
     which = window_features(images, motion, cfg.mask, labs, skip)
@@ -515,30 +500,6 @@ def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
     counts = np.bincount(mask.ravel(), minlength=256)
     counts[np.array([WORLD, MOVING_UNCLUSTERED, UNKNOWN])] = 0
     return np.flatnonzero(counts).astype(np.int64)
-
-
-def _final_mask(
-    mask: npt.NDArray[np.uint8],
-    last_mask: npt.NDArray[np.uint8] | None,
-    window: list[_Frame],
-    at: int,
-    labels: npt.NDArray[np.int64],
-    motion: FrameMotion | None,
-    cfg: MaskConfig,
-    features: npt.NDArray[np.float32] | None = None,
-) -> npt.NDArray[np.uint8]:
-    """Frame `at` of the window: its mask with its moving pixels given the motion the per-motion network picks
-    (`which_motion`, with its `features`), then the motion that explains their flow (`reassign_along` the flow to
-    the window's next frame, or to the frame before for its last one), and its unclustered regions their label
-    before (`carry_unclustered`, `last_mask`: the frame before's final mask)."""
-    if features is not None:
-        mask = which_motion(mask, features, window[at][3], labels, cfg.learned.which_weights)
-    if motion is not None and motion.forward is not None and motion.backward is not None and cfg.reassign_ratio > 0:
-        near = at + 1 if at < len(motion.forward) else at - 1
-        flow = motion.forward[at] if near > at else motion.backward[near]
-        step = (window[at][2], window[at][3], window[near][2], window[near][3])
-        mask = reassign_along(mask, step, labels, flow, motion.scale, cfg.reassign_ratio)
-    return carry_unclustered(mask, last_mask)
 
 
 def _labelled_frame(
