@@ -160,7 +160,7 @@ TABLE_HEAD = (
 )
 
 
-def _row(label: str, frames: float, t_s: float, rss: str, peak: str) -> str:
+def summary_row(label: str, frames: float, t_s: float, rss: str, peak: str) -> str:
     return f"| {label} | {frames:.0f} | {t_s:.0f} | {frames / max(t_s, 1e-9):.1f} | {rss} | {peak} |"
 
 
@@ -210,7 +210,7 @@ def sample_run(
                 while pending and sample["frames_done"] >= pending[0] * total_frames:
                     label = f"{100 * pending.pop(0):.0f} %"
                     rss, hwm = f"{sample['rss_mib']:.0f}", f"{sample['hwm_mib']:.0f}"
-                    print(_row(label, sample["frames_done"], now, rss, hwm), flush=True)
+                    print(summary_row(label, sample["frames_done"], now, rss, hwm), flush=True)
             if deadline_s is not None and now > deadline_s and not stopped:
                 stopped = True
                 if samples:
@@ -218,7 +218,8 @@ def sample_run(
                     pct = 100 * last["frames_done"] / total_frames
                     rss, hwm = f"{last['rss_mib']:.0f}", f"{last['hwm_mib']:.0f}"
                     print(
-                        _row(f"{pct:.0f} % (stopped at the deadline)", last["frames_done"], now, rss, hwm), flush=True
+                        summary_row(f"{pct:.0f} % (stopped at the deadline)", last["frames_done"], now, rss, hwm),
+                        flush=True,
                     )
                 child.terminate()
             time.sleep(interval_s)
@@ -264,7 +265,9 @@ def long_video(args: argparse.Namespace) -> None:
         done = json.loads(summary_path.read_text())["frames"] if summary_path.is_file() else None
     if code == 0:
         last_rss = f"{samples[-1]['rss_mib']:.0f} (last sample)" if samples else "n/a"
-        print(_row("100 % (exit)", done or 0, final["wall_s"], last_rss, f"{final['maxrss_mib']:.0f} (ru_maxrss)"))
+        print(
+            summary_row("100 % (exit)", done or 0, final["wall_s"], last_rss, f"{final['maxrss_mib']:.0f} (ru_maxrss)")
+        )
     elif code is not None:
         print(f"\nthe command failed (exit {code}) after {final['wall_s']:.0f} s:\n{tail}")
     if samples:

@@ -254,16 +254,16 @@ _STARTUP_PROBE = """
 import json, sys, time
 marks = {"started": time.time()}
 from mosegpipe.cli import main as cli
-from mosegpipe.cli.app import _setup
-from mosegpipe.cli.options import ClusterOptions, _pipeline_cfg
+from mosegpipe.cli.app import setup_run
+from mosegpipe.cli.options import ClusterOptions, pipeline_cfg
 marks["cli_imported"] = time.time()
-_setup(1, False, "mosegpipe.apps.outputs")
+setup_run(1, False, "mosegpipe.apps.outputs")
 marks["setup"] = time.time()
 from mosegpipe.apps.outputs import write_clip_outputs
 from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.pipeline import segment_clip
 from mosegpipe.cli.clip import _import_ahead
-cfg = _pipeline_cfg(5, ClusterOptions())
+cfg = pipeline_cfg(5, ClusterOptions())
 _import_ahead(cfg)
 model = load_embedder(5)
 marks["model"] = time.time()

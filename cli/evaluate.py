@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, get_args
 
 import typer
 
-from mosegpipe.cli.app import _friendly, _setup
-from mosegpipe.cli.common import _check_model_path
+from mosegpipe.cli.app import friendly, setup_run
+from mosegpipe.cli.common import check_model_path
 from mosegpipe.cli.options import (
     K_MAX,
     K_METHOD,
@@ -26,9 +26,9 @@ from mosegpipe.cli.options import (
     PointsChoice,
     RigidCheck,
     Verbose,
-    _choices,
-    _data_root,
-    _value,
+    choice_type,
+    enum_value,
+    resolve_data_root,
 )
 from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
 from mosegpipe.errors import InputError
@@ -45,13 +45,13 @@ if TYPE_CHECKING:
     StudyChoice: TypeAlias = StrEnum
     BudgetChoice: TypeAlias = StrEnum
 else:  # the registries and vocabularies of the library (light modules: they import nothing heavy)
-    PresetChoice = _choices("PresetChoice", RECIPE_NAMES)  # eval --recipe
-    TrainPresetChoice = _choices("TrainPresetChoice", TRAIN_PRESETS)  # train --preset
-    LossChoice = _choices("LossChoice", LOSS_NAMES)  # --loss
-    ProtocolChoice = _choices("ProtocolChoice", list(PROTOCOLS))  # eval PROTOCOL
-    VariantChoice = _choices("VariantChoice", get_args(Variant))  # eval --variant
-    StudyChoice = _choices("StudyChoice", list(STUDIES))  # study NAME
-    BudgetChoice = _choices("BudgetChoice", get_args(Budget))  # study --budget
+    PresetChoice = choice_type("PresetChoice", RECIPE_NAMES)  # eval --recipe
+    TrainPresetChoice = choice_type("TrainPresetChoice", TRAIN_PRESETS)  # train --preset
+    LossChoice = choice_type("LossChoice", LOSS_NAMES)  # --loss
+    ProtocolChoice = choice_type("ProtocolChoice", list(PROTOCOLS))  # eval PROTOCOL
+    VariantChoice = choice_type("VariantChoice", get_args(Variant))  # eval --variant
+    StudyChoice = choice_type("StudyChoice", list(STUDIES))  # study NAME
+    BudgetChoice = choice_type("BudgetChoice", get_args(Budget))  # study --budget
 
 
 def _protocol_help() -> str:
@@ -61,7 +61,7 @@ def _protocol_help() -> str:
     return f"{', '.join(bench)}; end to end: {', '.join(e2e)}."
 
 
-@_friendly
+@friendly
 def train(
     preset: Annotated[
         TrainPresetChoice,
@@ -106,25 +106,27 @@ def train(
     Without --init a recipe starts from its own starting recipe (clip-f5 from base-f5, pair-f2 from
     synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
     """
-    _setup(threads, verbose)
-    if _value(preset) in (MASKNET_PRESET, WHICHNET_PRESET):
+    setup_run(threads, verbose)
+    if enum_value(preset) in (MASKNET_PRESET, WHICHNET_PRESET):
         overrides = {"steps": steps, "batch_size": batch_size, "lr": lr, "seed": seed}
-        _train_mask_networks(_value(preset), out, _data_root(data_root), overrides, (loss, init, exclude, time_budget))
+        _train_mask_networks(
+            enum_value(preset), out, resolve_data_root(data_root), overrides, (loss, init, exclude, time_budget)
+        )
         return
     from mosegpipe.training.loop import resolve_device
     from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
 
     where = resolve_device(device or "cpu")
-    preset = _value(preset)
+    preset = enum_value(preset)
     dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
-    root = _data_root(data_root) if needs_data(preset, dropped) else data_root
+    root = resolve_data_root(data_root) if needs_data(preset, dropped) else data_root
     result = train_recipe(
         preset,
         out,
         root,
         init=init,
         overrides=TrainOverrides(
-            steps=steps, batch_size=batch_size, lr=lr, loss=_value(loss), seed=seed, time_budget_s=time_budget
+            steps=steps, batch_size=batch_size, lr=lr, loss=enum_value(loss), seed=seed, time_budget_s=time_budget
         ),
         exclude_sources=dropped,
         command=" ".join(["moseg", *sys.argv[1:]]),
@@ -178,7 +180,7 @@ def _train_mask_networks(
     typer.echo(f"wrote {out} ({done.format(**record)})")
 
 
-@_friendly
+@friendly
 def eval_(
     protocol: Annotated[ProtocolChoice, typer.Argument(help=_protocol_help())],
     out: Annotated[
@@ -281,33 +283,33 @@ def eval_(
     verbose: Verbose = False,
 ) -> None:
     """Run a benchmark protocol: per-clip table, mean/median error, NMI, correct K, time, baselines."""
-    _setup(threads, verbose)
+    setup_run(threads, verbose)
     from mosegpipe.evaluation.protocols import EvalRequest, get_protocol
 
-    proto = get_protocol(_value(protocol))
-    k_method = _value(k_method)
+    proto = get_protocol(enum_value(protocol))
+    k_method = enum_value(k_method)
     request = EvalRequest(
         out_dir=out,
-        data_root=_data_root(data_root) if proto.data else data_root,
+        data_root=resolve_data_root(data_root) if proto.data else data_root,
         model=model,
         init=init,
         frames=frames,
-        variant=_value(variant),
-        recipe=_value(recipe),
+        variant=enum_value(variant),
+        recipe=enum_value(recipe),
         steps=steps,
         batch_size=batch_size,
         lr=lr,
-        loss=_value(loss),
+        loss=enum_value(loss),
         synthetic_weight=synthetic_weight,
         baselines=tuple(b for b in baselines.split(",") if b),
         folds=tuple(folds.split(",")) if folds else None,
         k_method=k_method,
         k_max=k_max,
         rigid_check=rigid_check,
-        mask_method=_value(mask_method) if mask_method is not None else None,
-        method=_value(method) if method is not None else None,
-        points=_value(points) if points is not None else None,
-        preset=_value(pipeline_preset),
+        mask_method=enum_value(mask_method) if mask_method is not None else None,
+        method=enum_value(method) if method is not None else None,
+        points=enum_value(points) if points is not None else None,
+        preset=enum_value(pipeline_preset),
         settings=tuple(settings or ()),
         device=device or "cpu",
         progress=typer.echo,
@@ -322,7 +324,7 @@ def _study_help() -> str:
     return "; ".join(f"{s.name} ({s.paper})" for s in STUDIES.values()) + "."
 
 
-@_friendly
+@friendly
 def study(
     name: Annotated[StudyChoice, typer.Argument(help=_study_help())],
     out: Annotated[
@@ -349,17 +351,17 @@ def study(
     verbose: Verbose = False,
 ) -> None:
     """Run a study of the paper: prints and writes a table, results.json and a plot; a re-run skips finished parts."""
-    _setup(threads, verbose)
+    setup_run(threads, verbose)
     from mosegpipe.studies import StudyRequest, get_study
 
-    chosen = get_study(_value(name))
-    _check_model_path(model)
+    chosen = get_study(enum_value(name))
+    check_model_path(model)
     if pair_model is not None and not pair_model.is_file():
         raise InputError(f"{pair_model}: checkpoint file not found (--pair-model)")
     request = StudyRequest(
         out_dir=out,
-        data_root=_data_root(data_root) if chosen.needs_data else data_root,
-        budget=_value(budget),
+        data_root=resolve_data_root(data_root) if chosen.needs_data else data_root,
+        budget=enum_value(budget),
         model=model,
         pair_model=pair_model,
         clips=tuple(c.strip() for c in clips.split(",") if c.strip()) if clips else None,

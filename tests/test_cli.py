@@ -336,11 +336,11 @@ def test_view_reports_missing_recording_viewer_and_display(tmp_path: Path, monke
     code, _, stderr = moseg("view", "--web", rec)
     assert code == 1 and stderr == f"moseg: error: {rec}: not a Rerun recording (.rrd)\n"
     rec.write_bytes(b"RRF2")
-    monkeypatch.setattr(cli_view, "_find_viewer", lambda: None)
+    monkeypatch.setattr(cli_view, "find_viewer", lambda: None)
     code, _, stderr = moseg("view", rec)
     assert code == 1 and "the Rerun viewer ('rerun') was not found" in stderr and stderr.count("\n") == 1
-    monkeypatch.setattr(cli_view, "_find_viewer", lambda: "/opt/rerun")
-    monkeypatch.setattr(cli_view, "_has_display", lambda: False)
+    monkeypatch.setattr(cli_view, "find_viewer", lambda: "/opt/rerun")
+    monkeypatch.setattr(cli_view, "has_display", lambda: False)
     code, _, stderr = moseg("view", rec)
     assert code == 1 and f"try 'moseg view --web {rec}'" in stderr
 
@@ -356,8 +356,8 @@ def test_view_opens_a_window_as_the_viewer_itself(tmp_path: Path, monkeypatch: p
         calls.append([exe, *args])
         raise SystemExit(0)
 
-    monkeypatch.setattr(cli_view, "_find_viewer", lambda: "/opt/rerun")
-    monkeypatch.setattr(cli_view, "_has_display", lambda: True)
+    monkeypatch.setattr(cli_view, "find_viewer", lambda: "/opt/rerun")
+    monkeypatch.setattr(cli_view, "has_display", lambda: True)
     monkeypatch.setattr(cli_view.os, "execv", fake_execv)
     assert moseg("view", rec)[0] == 0
     assert calls == [["/opt/rerun", "/opt/rerun", str(rec)]]
@@ -369,7 +369,7 @@ def test_view_opens_a_window_as_the_viewer_itself(tmp_path: Path, monkeypatch: p
 def test_view_runs_the_native_viewer() -> None:
     """rerun-sdk's `rerun` script is a Python wrapper that leaves the viewer running when it gets SIGTERM:
     the binary itself is run."""
-    exe = cli_view._find_viewer()
+    exe = cli_view.find_viewer()
     assert exe is not None
     with open(exe, "rb") as f:
         assert f.read(2) != b"#!"

@@ -422,7 +422,7 @@ def test_every_option_default_is_its_config_fields_default() -> None:
             value: object = defaults
             for key in path.split("."):
                 value = getattr(value, key)
-            assert cli_options._value(options[option].default) == value, (command, option, path)
+            assert cli_options.enum_value(options[option].default) == value, (command, option, path)
             checked += 1
     assert checked > 40
     rigid = {p.name: p.default for p in group.commands["run"].params}["rigid_check"]
@@ -507,7 +507,7 @@ def test_choices_come_from_the_library() -> None:
     assert defaults == (K_METHODS[0], MASK_METHODS[0], SEGMENT_METHODS[0], TRACKERS[0])
     group = typer.main.get_command(app)
     for command in ("run", "batch"):
-        given = {p.name: cli_options._value(p.default) for p in group.commands[command].params}
+        given = {p.name: cli_options.enum_value(p.default) for p in group.commands[command].params}
         assert (given["k_method"], given["mask_method"], given["method"], given["points"]) == defaults, command
 
 

@@ -128,13 +128,13 @@ def test_flow_points_are_refused_for_whole_videos(tmp_path: Path) -> None:
 
 
 def test_eval_requests_take_the_points() -> None:
-    from mosegpipe.evaluation.protocols import EvalRequest, _pipeline_config
+    from mosegpipe.evaluation.protocols import EvalRequest, pipeline_config
 
-    assert _pipeline_config(EvalRequest(out_dir=Path("x")), 5).tracker == "klt"
-    assert _pipeline_config(EvalRequest(out_dir=Path("x"), points="klt+flow"), 5).tracker == "klt+flow"
+    assert pipeline_config(EvalRequest(out_dir=Path("x")), 5).tracker == "klt"
+    assert pipeline_config(EvalRequest(out_dir=Path("x"), points="klt+flow"), 5).tracker == "klt+flow"
     with pytest.raises(InputError, match="^tracker: 'sift' must be one of klt, flow, klt\\+flow$"):
-        _pipeline_config(EvalRequest(out_dir=Path("x"), points="sift"), 5)
-    changed = _pipeline_config(EvalRequest(out_dir=Path("x"), settings=("mask.motion.fb_weight=0.5",)), 5)
+        pipeline_config(EvalRequest(out_dir=Path("x"), points="sift"), 5)
+    changed = pipeline_config(EvalRequest(out_dir=Path("x"), settings=("mask.motion.fb_weight=0.5",)), 5)
     assert changed.mask.motion.fb_weight == 0.5 and changed.frames == 5
 
 

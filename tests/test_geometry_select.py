@@ -241,7 +241,7 @@ def test_a_small_rigid_group_is_supported_and_a_loose_or_explained_one_is_not() 
 
 def test_a_new_small_rigid_cluster_is_labelled_under_joint_only() -> None:
     from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
-    from mosegpipe.pipeline.video import _small_rigid
+    from mosegpipe.pipeline.video import small_rigid
 
     rng = np.random.default_rng(10)
     world = _moving(rng, 600, (0, 0, 640, 480), (1.0, 0.0))
@@ -250,13 +250,11 @@ def test_a_new_small_rigid_cluster_is_labelled_under_joint_only() -> None:
     clusters = np.repeat([0, 1], [600, 12]).astype(np.int64)
     ids = np.arange(612, dtype=np.int64)
     joint = PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=8))
-    assert _small_rigid(clusters, points, PipelineConfig()) == []  # the default: the size guard alone
-    assert (
-        _small_rigid(clusters, points, PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=None))) == []
-    )
-    assert _small_rigid(clusters, points, PipelineConfig(method="joint")) == [1]  # joint's default: 8 tracks
-    assert _small_rigid(clusters, points, joint) == [1]
-    assert _small_rigid(clusters, points, replace(joint, joint=JointConfig(new_rigid_tracks=13))) == []
+    assert small_rigid(clusters, points, PipelineConfig()) == []  # the default: the size guard alone
+    assert small_rigid(clusters, points, PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=None))) == []
+    assert small_rigid(clusters, points, PipelineConfig(method="joint")) == [1]  # joint's default: 8 tracks
+    assert small_rigid(clusters, points, joint) == [1]
+    assert small_rigid(clusters, points, replace(joint, joint=JointConfig(new_rigid_tracks=13))) == []
     # 12 new tracks beside 600: under the guard (15 tracks, 5 %) unlabelled, labelled when supported
     xy = points.reshape(612, FRAMES, 2)
     plain = match_labels({}, ids, clusters, 2, LabelBook(), world=True, xy=xy)

@@ -200,3 +200,29 @@ def test_every_package_folder_is_installed() -> None:
     }
     assert folders - listed == set(), f"packages missing from pyproject.toml: {sorted(folders - listed)}"
     assert listed - folders == set(), f"pyproject.toml lists packages with no folder: {sorted(listed - folders)}"
+
+
+def private_imports(folders: list[Path]) -> list[str]:
+    """`file: module._name` for every `from mosegpipe... import _name` (a single leading underscore) in the folders."""
+    found = []
+    for folder in folders:
+        for path in sorted(folder.rglob("*.py")):
+            for node in _import_nodes(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+                if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("mosegpipe"):
+                    for alias in node.names:
+                        if alias.name.startswith("_") and not alias.name.startswith("__"):
+                            found.append(f"{path.relative_to(folder.parent).as_posix()}: {node.module}.{alias.name}")
+    return found
+
+
+def test_the_finder_of_private_imports_sees_them(tmp_path: Path) -> None:
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "a.py").write_text(
+        "from mosegpipe.x import _hidden, shown\nfrom mosegpipe import __version__\ndef f():\n    from mosegpipe.y import _lazy\n"
+    )
+    assert private_imports([tmp_path / "pkg"]) == ["pkg/a.py: mosegpipe.x._hidden", "pkg/a.py: mosegpipe.y._lazy"]
+
+
+def test_no_module_imports_another_modules_private_names() -> None:
+    """A name another module needs is public: `_name` stays inside its module (tests and benchmarks included)."""
+    assert private_imports([ROOT / "mosegpipe", ROOT / "cli", ROOT / "tests", ROOT / "benchmarks"]) == []

@@ -17,7 +17,12 @@ from mosegpipe.errors import CheckpointError, ConfigError
 from mosegpipe.masks import MaskConfig
 from mosegpipe.masks.learned.features import NUM_CHANNELS, LearnedMaskConfig, clip_features, net_flows, net_size
 from mosegpipe.masks.learned.net import WIDTHS, MaskNet, load_masknet, shipped_path
-from mosegpipe.masks.learned.probability import _carried, _refined, learned_moving, learned_probability
+from mosegpipe.masks.learned.probability import (
+    carried_probability,
+    learned_moving,
+    learned_probability,
+    refined_probability,
+)
 from mosegpipe.masks.moving_pixels import MotionMaskConfig, stack_motion
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.points.flow import FrameMotion
@@ -158,10 +163,10 @@ def test_temporal_carry_follows_the_flow() -> None:
     step = np.zeros((2, 16, 24, 2), np.float32)
     step[..., 0] = 3.0
     motion = FrameMotion(np.zeros((3, 16, 24), np.float32), np.zeros((3, 16, 24), np.float32), 1.0, step, -step)
-    out = _carried(prob, net_flows(motion, (16, 24)), 0.5)
+    out = carried_probability(prob, net_flows(motion, (16, 24)), 0.5)
     assert np.allclose(out[1, 6:10, 9:13], 1.0) and np.allclose(out[1].sum(), 16 + 0.5)
     backwards = FrameMotion(motion.residual, motion.fb_error, 1.0, -step, step)  # the wrong way: the blob smears
-    assert _carried(prob, net_flows(backwards, (16, 24)), 0.5)[1, 6:10, 9:13].min() < 0.75
+    assert carried_probability(prob, net_flows(backwards, (16, 24)), 0.5)[1, 6:10, 9:13].min() < 0.75
 
 
 def test_refined_edges_follow_the_image() -> None:
@@ -172,7 +177,7 @@ def test_refined_edges_follow_the_image() -> None:
     truth = np.zeros((64, 96), bool)
     truth[:, 50:] = True
     cfg = LearnedMaskConfig(threshold=0.5, refine_scale=1.0)
-    refined = _refined(coarse, image, cfg)
+    refined = refined_probability(coarse, image, cfg)
     plain = cv2.resize(coarse, (96, 64), interpolation=cv2.INTER_LINEAR) > 0.5
     assert (refined != truth).sum() < (plain != truth).sum()
     assert (refined != truth).mean() < 0.01

@@ -361,7 +361,7 @@ def test_the_global_smoother_spreads_the_score_within_the_objects_colour() -> No
 
 
 def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
-    from mosegpipe.masks.moving_pixels import ColourMemory, _colour_log_ratio
+    from mosegpipe.masks.moving_pixels import ColourMemory, colour_log_ratio
 
     image = np.full((200, 200, 3), 128, np.uint8)  # (a frame's counts outweigh the histograms' prior)
     image[60:140, 60:140] = (220, 30, 30)  # a red object on grey
@@ -371,11 +371,11 @@ def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
     still = np.full((200, 200), -2.0, np.float32)  # window 2: nothing moved
     cfg = MotionMaskConfig()
     memory = ColourMemory(0.9)
-    assert _colour_log_ratio([image], [moved], cfg, memory)[0][red].min() > 0
-    assert _colour_log_ratio([image], [still], cfg)[0][red].max() < 0  # window 2 alone: red is static
-    assert _colour_log_ratio([image], [still], cfg, memory)[0][red].min() > 0  # remembered
+    assert colour_log_ratio([image], [moved], cfg, memory)[0][red].min() > 0
+    assert colour_log_ratio([image], [still], cfg)[0][red].max() < 0  # window 2 alone: red is static
+    assert colour_log_ratio([image], [still], cfg, memory)[0][red].min() > 0  # remembered
     memory.reset()
-    assert _colour_log_ratio([image], [still], cfg, memory)[0][red].max() < 0
+    assert colour_log_ratio([image], [still], cfg, memory)[0][red].max() < 0
     with pytest.raises(ValueError, match="decay"):
         ColourMemory(1.0)
     with pytest.raises(ValueError, match="colour_memory"):
@@ -383,7 +383,7 @@ def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
 
 
 def test_the_local_colour_contrast_cuts_a_spill_that_the_clips_colour_model_cannot() -> None:
-    from mosegpipe.masks.moving_pixels import _local_colour_contrast, moving_from_motion
+    from mosegpipe.masks.moving_pixels import local_colour_contrast, moving_from_motion
     from mosegpipe.points.flow import FrameMotion
 
     num, h, w = 2, 120, 240
@@ -405,12 +405,12 @@ def test_the_local_colour_contrast_cuts_a_spill_that_the_clips_colour_model_cann
     assert _iou(alone[0], truth) < 0.85
     assert _iou(local[0], truth) > 0.95
     score = np.where(moving > 0, 1.0, -1.0).astype(np.float32)
-    contrast = _local_colour_contrast(images[0], score, 0.5, 61)
+    contrast = local_colour_contrast(images[0], score, 0.5, 61)
     assert contrast[84, 50] < -0.5 and contrast[84, 170] < -0.5  # the spills
     assert contrast[70, 50] > 0.5 and contrast[70, 170] > 0.5  # the objects
     assert contrast[10, 10] == 0  # a box that holds one class only
-    assert _local_colour_contrast(images[0], score, 0.5, 31)[60, 50] == 0
-    assert (_local_colour_contrast(images[0], np.full((h, w), -1.0, np.float32), 0.5, 31) == 0).all()  # no movers
+    assert local_colour_contrast(images[0], score, 0.5, 31)[60, 50] == 0
+    assert (local_colour_contrast(images[0], np.full((h, w), -1.0, np.float32), 0.5, 31) == 0).all()  # no movers
     with pytest.raises(ValueError, match="local_colour_box_px"):
         MotionMaskConfig(local_colour_box_px=1)
 

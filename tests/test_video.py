@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from mosegpipe.apps.outputs import _WINDOWS_AHEAD, write_video_outputs
+from mosegpipe.apps.outputs import WINDOWS_AHEAD, write_video_outputs
 from mosegpipe.apps.window_log import WindowLog
 from mosegpipe.cli.main import app
 from mosegpipe.embed.model import SubspaceNet
@@ -214,7 +214,7 @@ def test_memory_holds_one_window_of_frames(
     # both directions (the motion masks), the windows queued for the writer, the one being written and
     # the frame being read: a bound set by the window length, never the video (T frames). (Without the
     # held window the bound is one window lower; a slow writer fills the queue and reaches it.)
-    assert most <= (3 - 1) * (_WINDOWS_AHEAD + 3) + 2 < T
+    assert most <= (3 - 1) * (WINDOWS_AHEAD + 3) + 2 < T
 
 
 def test_failures_leave_nothing(tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path) -> None:

@@ -362,7 +362,7 @@ def video_summary(
     }
 
 
-_WINDOWS_AHEAD = 2
+WINDOWS_AHEAD = 2
 """Windows the tracking thread may run ahead of the writer (memory: that many windows' frames)."""
 
 
@@ -459,7 +459,7 @@ def _written_overlays(
 ) -> Iterator[npt.NDArray[np.uint8]]:
     """Writes each frame's mask (and recording) as the windows arrive; yields its overlay. The windows
     come from `segmented()`, called when the first overlay is asked for; each goes into `windows`."""
-    for window in run_ahead(segmented(), _WINDOWS_AHEAD, "moseg-segment"):
+    for window in run_ahead(segmented(), WINDOWS_AHEAD, "moseg-segment"):
         windows.add(window)  # what the summary and labels.npz need, not the images (flat memory)
         if recorder is not None:
             recorder.log_window(window.start, window.k, window.k_scores)

@@ -36,7 +36,7 @@ class MotionMaskConfig:
         colour_bins: histogram bins per RGB channel of the colour model.
         colour_margin: pixels this far (log units) above / below the threshold train the colour model.
         colour_memory: whole videos: decay of the colour counts of the windows before (0 = each window alone).
-        local_colour_weight: weight of the local colour contrast (`_local_colour_contrast`; 0 = off).
+        local_colour_weight: weight of the local colour contrast (`local_colour_contrast`; 0 = off).
         local_colour_box_px: side of the box (work-scale pixels) of the local colour means.
         superpixels: approximate number of SLIC superpixels the score is averaged over (0 = off).
         compactness: SLIC compactness (colour vs distance).
@@ -109,10 +109,8 @@ _MOTION_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class LearnedMaskConfig:
-    """Settings of the "learned" masks (`MaskConfig.learned`, mosegpipe.masks.learned); each default chosen end to end on
-    the 4 held-out development clips and the 20 development clips (docs/RESULTS.md and docs/HISTORY.md, "Learned
-    masks"; the threshold is the recipe's own, 0.3: end to end 0.790 held-out / 0.719 dev against 0.793 / 0.717 at
-    0.25 and 0.751 at 0.4).
+    """Settings of the "learned" masks (`MaskConfig.learned`, mosegpipe.masks.learned); each default chosen end to end
+    on development clips (docs/RESULTS.md, "Learned masks"; the threshold is the training recipe's own).
 
     Attributes:
         threshold: a pixel is moving where the network's probability of "not the world" is above this.

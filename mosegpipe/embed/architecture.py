@@ -28,9 +28,9 @@ ARCHITECTURES = ("subspacenet", "pointnet", "corresnet")
 # Context normalisation eps, added to the variance (same role and value as BatchNorm's default): it
 # keeps a channel that is constant over a clip (a dead ReLU, a clip of coincident points) at 0
 # instead of dividing by zero, and caps the gain on near-constant channels at 1/sqrt(eps) ~ 316.
-_CN_EPS = 1e-5
+CN_EPS = 1e-5
 # Floor of the input scale, in input units (pixels): only reached when all points coincide.
-_INPUT_EPS = 1e-6
+INPUT_EPS = 1e-6
 # Largest coordinate `embed` accepts: squares summed over points stay finite in float64 (1e300 would
 # overflow to inf, and the normalised input silently become all zeros).
 _MAX_COORD = 1e150

@@ -43,10 +43,10 @@ from torch import Tensor, nn
 
 from mosegpipe.embed import architecture
 from mosegpipe.embed.architecture import (
-    _CN_EPS,
-    _INPUT_EPS,
     ARCHITECTURES,
     CHECKPOINT_FORMAT,
+    CN_EPS,
+    INPUT_EPS,
     INPUT_NORMS,
     MODEL_LIMITS,
     ModelConfig,
@@ -91,7 +91,7 @@ def _point_weights(
     return (m / m.sum(-1, keepdim=True).clamp_min(1.0)).unsqueeze(1)
 
 
-def context_norm(h: Tensor, w: Tensor, eps: float = _CN_EPS) -> Tensor:
+def context_norm(h: Tensor, w: Tensor, eps: float = CN_EPS) -> Tensor:
     """Z-score every channel over the real points of each clip (no learned parameters).
 
     Args:
@@ -110,7 +110,7 @@ def context_norm(h: Tensor, w: Tensor, eps: float = _CN_EPS) -> Tensor:
     return hc * torch.rsqrt(var + eps)
 
 
-def normalize_input(x: Tensor, w: Tensor, mode: str = "shared", eps: float = _INPUT_EPS) -> Tensor:
+def normalize_input(x: Tensor, w: Tensor, mode: str = "shared", eps: float = INPUT_EPS) -> Tensor:
     """Fixed per-clip input normalisation (see `ModelConfig.input_norm`), computed in float64.
 
     Float64 keeps the translation and scale invariance exact to float32 rounding even for pixel

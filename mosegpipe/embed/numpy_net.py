@@ -27,9 +27,9 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.embed.architecture import (
-    _CN_EPS,
-    _INPUT_EPS,
     CHECKPOINT_FORMAT,
+    CN_EPS,
+    INPUT_EPS,
     ModelConfig,
     available_default_frames,
     check_embedding,
@@ -85,7 +85,7 @@ def _context_norm_(h: npt.NDArray[np.float32], shifted: bool = False) -> npt.NDA
         h -= h.mean(axis=0, keepdims=True)
     # einsum and one multiply: ~40 % faster than (hc * hc).mean and a division at (1000, 64).
     var = np.einsum("ij,ij->j", h, h) / np.float32(h.shape[0])
-    h *= np.float32(1.0) / np.sqrt(var + np.float32(_CN_EPS))
+    h *= np.float32(1.0) / np.sqrt(var + np.float32(CN_EPS))
     return h
 
 
@@ -99,14 +99,14 @@ def normalize_input(x: npt.NDArray[np.float64], mode: str) -> npt.NDArray[np.flo
     """model.normalize_input for one unpadded (N, D) clip, in float64; returns float32."""
     xc = x - x.mean(axis=0, keepdims=True)
     if mode == "shared":
-        scale = max(float(np.sqrt((xc * xc).sum(axis=1).mean())), _INPUT_EPS)
+        scale = max(float(np.sqrt((xc * xc).sum(axis=1).mean())), INPUT_EPS)
         return (xc / scale).astype(np.float32)
     if mode == "channel":
-        return (xc / np.maximum(np.sqrt((xc * xc).mean(axis=0, keepdims=True)), _INPUT_EPS)).astype(np.float32)
+        return (xc / np.maximum(np.sqrt((xc * xc).mean(axis=0, keepdims=True)), INPUT_EPS)).astype(np.float32)
     if mode == "motion":
         pos = xc[:, :2]
         disp = xc[:, 2:] - np.tile(pos, (1, max(0, xc.shape[1] // 2 - 1)))
-        pos_scale = max(float(np.sqrt((pos * pos).sum(axis=1).mean())), _INPUT_EPS)
+        pos_scale = max(float(np.sqrt((pos * pos).sum(axis=1).mean())), INPUT_EPS)
         disp_sq = float((disp * disp).sum(axis=1).mean()) / max(1, disp.shape[1] // 2)
         disp_scale = max(float(np.sqrt(disp_sq)), 1e-4 * pos_scale)
         return np.concatenate([pos / pos_scale, disp / disp_scale], axis=1).astype(np.float32)

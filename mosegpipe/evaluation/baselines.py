@@ -72,7 +72,7 @@ def zscore_columns(traj: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return (x - x.mean(axis=0)) / np.where(std > 0, std, 1.0)
 
 
-def _check_k(k: int | None, n: int) -> None:
+def check_k(k: int | None, n: int) -> None:
     if k is not None and not 1 <= k <= n:
         raise InputError(f"--k {k} must lie between 1 and the number of tracks ({n})")
 
@@ -132,7 +132,7 @@ def kmeans_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray
         (N,) int64 labels ordered by decreasing cluster size.
     """
     z = zscore_columns(traj)
-    _check_k(k, z.shape[0])
+    check_k(k, z.shape[0])
     cfg = ClusterConfig(k_max=MAX_AUTO_K, seed=seed)
     return cluster_auto_k(z, cfg, k=k).labels
 
@@ -177,7 +177,7 @@ def spectral_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArr
         (N,) int64 labels ordered by decreasing cluster size.
     """
     z = zscore_columns(traj)
-    _check_k(k, z.shape[0])
+    check_k(k, z.shape[0])
     return spectral_labels(self_tuning_affinity(z), k, seed=seed)
 
 
@@ -273,7 +273,7 @@ def ssc(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray[np.int
     """
     z = zscore_columns(traj)
     n = z.shape[0]
-    _check_k(k, n)
+    check_k(k, n)
     if n == 1:
         return np.zeros(1, dtype=np.int64)
     c = np.abs(ssc_coefficients(z))

@@ -399,7 +399,7 @@ def format_table(rows: Sequence[dict[str, Any]], summary: dict[str, Any], title:
     return "\n".join(lines)
 
 
-def _pick(folds: Sequence[str] | None) -> list[tuple[str, list[str] | None]]:
+def pick_folds(folds: Sequence[str] | None) -> list[tuple[str, list[str] | None]]:
     """--folds -> [(part, names or None = all of the part)]: default dev; "dev", "val", "all" or names."""
     from mosegpipe.synth.composite import composite_names
 
@@ -432,7 +432,7 @@ def run_composite(name: str, req: EvalRequest, cfg: PipelineConfig) -> EvalResul
     mode = COMPOSITE_MODES[name]
     model = load_embedder(cfg.frames if mode == "whole" else CLIP_FRAMES, req.model)
     rows: list[dict[str, Any]] = []
-    for part, names in _pick(req.folds):
+    for part, names in pick_folds(req.folds):
         clips = composite_set(req.data_root, part, names=names)
         part_rows = composite_rows(clips, mode, cfg, model)
         rows += part_rows

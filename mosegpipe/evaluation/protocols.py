@@ -87,7 +87,7 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
     return EvalResult(rows, summary, table)
 
 
-def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
+def pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
     """The pipeline settings an end-to-end protocol runs with: F frames, the request's options and settings."""
     from mosegpipe.pipeline import PipelineConfig
 
@@ -112,7 +112,7 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
     f = req.frames or protocol.default_frames
-    cfg = _pipeline_config(req, f)
+    cfg = pipeline_config(req, f)
     net = load_model(f, req.model)
     rows = protocol.end_to_end(req.data_root, net, cfg, None, req.baselines or None)
     config = {
@@ -146,7 +146,7 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     if req.data_root is None:
         raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
     mode = DAVIS_MODES[protocol.name]
-    cfg = _pipeline_config(req, req.frames or protocol.default_frames)
+    cfg = pipeline_config(req, req.frames or protocol.default_frames)
     methods: list[tuple[str, Any]] = [("pipeline", pipeline_method(cfg, req.model))]
     if req.baselines:
         methods.append(("flow-homography", "flow-homography"))
@@ -186,7 +186,7 @@ def run_composite_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     object; `req.folds` picks a part (dev, the default; val; all) or composites by name."""
     from mosegpipe.evaluation.composite import run_composite
 
-    return run_composite(protocol.name, req, _pipeline_config(req, req.frames or protocol.default_frames))
+    return run_composite(protocol.name, req, pipeline_config(req, req.frames or protocol.default_frames))
 
 
 def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
@@ -220,7 +220,7 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
         )
     train_cfg = TrainOverrides(steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss).apply(recipe.train)
     device = resolve_device(req.device)
-    cfg = _pipeline_config(req, train_cfg.frames)
+    cfg = pipeline_config(req, train_cfg.frames)
     say = req.progress or (lambda _msg: None)
     names = protocol.fold_names(req.data_root)
     if req.folds is not None:

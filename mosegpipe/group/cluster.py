@@ -54,7 +54,7 @@ def _check_embeddings(emb: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return arr
 
 
-def _check_k(k: object, what: str) -> int:
+def check_k(k: object, what: str) -> int:
     """`k` as an int, or an InputError naming it (1.5, "3", True and None are not a number of clusters)."""
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
         raise InputError(f"{what}={k!r}: the number of clusters must be an integer")
@@ -122,7 +122,7 @@ def kmeans(
 
     x = _check_embeddings(emb)
     n = x.shape[0]
-    k = _check_k(k, "k")
+    k = check_k(k, "k")
     if k < 1:
         raise InputError(f"k={k} must be at least 1")
     if k > n:
@@ -339,7 +339,7 @@ def _cluster_auto_k(
     if points is not None and np.shape(points)[0] != n:
         raise InputError(f"points: {np.shape(points)[0]} rows for {n} embeddings")
     if k is not None:
-        return _fixed_k(x, cfg, k)
+        return fixed_k(x, cfg, k)
 
     def fit(kk: int) -> tuple[npt.NDArray[np.int64], float]:
         return kmeans(x, kk, seed=cfg.seed, n_init=cfg.n_init, num_threads=cfg.num_threads)
@@ -391,10 +391,10 @@ def _cluster_auto_k(
     return Clustering(labels=fits[best], k=best, scores=scores, method=cfg.method, note=note)
 
 
-def _fixed_k(x: npt.NDArray[np.floating], cfg: ClusterConfig, k: int) -> Clustering:
+def fixed_k(x: npt.NDArray[np.floating], cfg: ClusterConfig, k: int) -> Clustering:
     """K-means with the K given (--k); InputError for a K below 1 or above the number of tracks."""
     n = x.shape[0]
-    k = _check_k(k, "--k")
+    k = check_k(k, "--k")
     if k < 1:
         raise InputError(f"--k {k} must be at least 1")
     if k > n:

@@ -17,7 +17,7 @@ from mosegpipe.colours import WORLD
 from mosegpipe.configs.grouping import WorldConfig
 from mosegpipe.group.twoview import robust_fit
 from mosegpipe.group.world import explain_parallax
-from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, _nearest, labels_to_mask
+from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, labels_to_mask, nearest_labels
 from mosegpipe.masks.learned.probability import learned_moving
 from mosegpipe.masks.learned.which import which_motion, window_features
 from mosegpipe.masks.moving_pixels import Anchors, ColourMemory, moving_from_motion, moving_masks, stack_motion
@@ -62,7 +62,7 @@ def label_moving_pixels(
     if present.size == 1:  # one moving motion: it is every moving pixel's nearest
         out[moving] = present[0]
         return out
-    nearest = _nearest(pts[inside], labels[keep][inside].astype(np.uint8), (height, width), np.inf)
+    nearest = nearest_labels(pts[inside], labels[keep][inside].astype(np.uint8), (height, width), np.inf)
     out[moving] = nearest[moving]
     return out
 

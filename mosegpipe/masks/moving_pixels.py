@@ -94,7 +94,7 @@ class ColourMemory:
         return self.moving, self.static
 
 
-def _colour_log_ratio(
+def colour_log_ratio(
     images: list[npt.NDArray[np.uint8]],
     scores: list[npt.NDArray[np.float32]],
     cfg: MotionMaskConfig,
@@ -116,7 +116,7 @@ def _colour_log_ratio(
     return [ratio[idx] for idx in index]
 
 
-def _local_colour_contrast(
+def local_colour_contrast(
     image: npt.NDArray[np.uint8], score: npt.NDArray[np.float32], margin: float, box_px: int
 ) -> npt.NDArray[np.float32]:
     """(h, w) float32 in (-1, 1): (d_static - d_moving) / (d_static + d_moving + 10), where d_moving (d_static)
@@ -178,7 +178,7 @@ labels (N,) int64 (-1 = unlabelled), the background motion's label, and the movi
 before showed in its mask."""
 
 
-def _keep_strong(
+def keep_strong(
     mask: npt.NDArray[np.bool_], residual: npt.NDArray[np.float32], share: float, power: float
 ) -> npt.NDArray[np.bool_]:
     """The connected regions of `mask` whose area x mean(residual)^power is >= share x the strongest's."""
@@ -220,7 +220,7 @@ def _region_motions(regions: npt.NDArray[np.int32], n: int, anchors: Anchors, mi
 def _add_anchored(
     kept: npt.NDArray[np.bool_], candidates: npt.NDArray[np.bool_], anchors: Anchors, min_points: int
 ) -> npt.NDArray[np.bool_]:
-    """`kept` (whole regions of `candidates`, as `_keep_strong` gives them) and the other regions of
+    """`kept` (whole regions of `candidates`, as `keep_strong` gives them) and the other regions of
     `candidates` that a moving motion holds (`_region_motions`) which the frame before showed (`anchors`)
     and no kept region holds: its weaker regions, which the strength test dropped although its tracks go on."""
     allowed = anchors[3]
@@ -332,14 +332,14 @@ def moving_from_motion(
         for _ in range(cfg.temporal_passes):
             scores = _carried_along_flow(scores, to_next, to_previous, cfg.temporal_weight)
     if cfg.colour_weight > 0:
-        ratios = _colour_log_ratio(small, scores, cfg, colour)
+        ratios = colour_log_ratio(small, scores, cfg, colour)
         scores = [z + np.float32(cfg.colour_weight) * a for z, a in zip(scores, ratios)]
     small, scores, res = small[first:], scores[first:], res[first:]
-    scores = _refined_scores(small, scores, cfg)
+    scores = refined_scores(small, scores, cfg)
     return _moving_masks(scores, res, cfg, anchors, hw, (height, width))
 
 
-def _refined_scores(
+def refined_scores(
     small: list[npt.NDArray[np.uint8]], scores: list[npt.NDArray[np.float32]], cfg: MotionMaskConfig
 ) -> list[npt.NDArray[np.float32]]:
     """The scores refined on the (work-size) images: local colour contrast, superpixel means, the
@@ -347,7 +347,7 @@ def _refined_scores(
     if cfg.local_colour_weight > 0:
         weight = np.float32(cfg.local_colour_weight)
         scores = [
-            z + weight * _local_colour_contrast(im, z, cfg.colour_margin, cfg.local_colour_box_px)
+            z + weight * local_colour_contrast(im, z, cfg.colour_margin, cfg.local_colour_box_px)
             for im, z in zip(small, scores)
         ]
     if cfg.superpixels > 0:
@@ -383,7 +383,7 @@ def _moving_masks(
         floor = max(cfg.min_residual_px, cfg.noise_factor * float(np.median(r)))
         if floor > 0:
             moving &= cv2.dilate((r >= floor).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-        kept = _keep_strong(moving, r, cfg.min_component, cfg.component_power)
+        kept = keep_strong(moving, r, cfg.min_component, cfg.component_power)
         if anchors is not None and cfg.anchor_tracks > 0:
             xy, labels, background, shown_before = anchors[t]
             kept = _add_anchored(kept, moving, (xy * to_small, labels, background, shown_before), cfg.anchor_tracks)

@@ -19,12 +19,12 @@ from mosegpipe.io.read import check_images, read_video, video_info
 from mosegpipe.masks import labels_to_masks, motion_masks
 from mosegpipe.masks.moving_pixels import stack_motion
 from mosegpipe.pipeline.common import (
-    _check_k,
-    _frames,
-    _model_or_default,
+    check_k,
     decode_errors,
     embed_at_model_frames,
+    frames_text,
     model_info,
+    model_or_default,
 )
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.points.flow import FrameMotion, flow_fits
@@ -132,7 +132,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     """
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
-    model = _model_or_default(model, frames.num_frames, timings)
+    model = model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     # Flow points, the world's camera evidence and the motion masks share the clip's flows: computed once, here.
     shared = (
@@ -151,7 +151,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
             f"{frames.source or 'clip'}: only {traj.num_points} tracks survived {frames.num_frames} frames; "
             f"need at least {cfg.min_tracks} (textureless or blank frames?)"
         )
-    _check_k(cfg.k, traj.num_points, frames.source or "clip")
+    check_k(cfg.k, traj.num_points, frames.source or "clip")
     if frames.num_frames == 1 and cfg.k is None:
         emb, clustering = _one_frame(traj, cfg, model, timings)
     else:
@@ -295,7 +295,7 @@ def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model
             hint = f" of the {claimed} its header lists (truncated or corrupt video?)"
         after = f" from frame {cfg.start}" if cfg.start else ""
         raise InputError(
-            f"{path}: only {_frames(frames.num_frames)} could be read{after}{hint}; --frames needs {cfg.frames}"
+            f"{path}: only {frames_text(frames.num_frames)} could be read{after}{hint}; --frames needs {cfg.frames}"
         )
     read_s = time.perf_counter() - t0
     result = segment_frames(frames, cfg, model)

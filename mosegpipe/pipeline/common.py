@@ -40,14 +40,14 @@ def embed_at_model_frames(model: Embedder, traj: Trajectories) -> npt.NDArray[np
     return model.embed(traj)
 
 
-def _check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
+def check_k(k: int | None, n: int, source: str, what: str = "tracks") -> None:
     if k is not None and k < 1:
         raise InputError(f"--k {k} must be >= 1")
     if k is not None and k > n:
         raise InputError(f"{source}: --k {k} is larger than the number of {what} ({n})")
 
 
-def _model_or_default(model: Embedder | None, frames: int, timings: dict[str, float]) -> Embedder:
+def model_or_default(model: Embedder | None, frames: int, timings: dict[str, float]) -> Embedder:
     if model is not None:
         return model
     t0 = time.perf_counter()
@@ -75,5 +75,5 @@ def decode_errors(source: str | Path) -> Iterator[None]:
         raise InputError(f"{source}: cannot read it ({detail})") from exc
 
 
-def _frames(n: int) -> str:
+def frames_text(n: int) -> str:
     return "1 frame" if n == 1 else f"{n} frames"

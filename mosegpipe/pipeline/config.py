@@ -44,18 +44,16 @@ PRESETS: dict[str, tuple[str, ...]] = {
     "fast": ("mask.motion.flow.scale=0.5", "mask.motion.work_scale=0.5", "track.win_size_px=11"),
 }
 """The settings each named preset (types.PRESET_NAMES, `--preset`) changes, as `with_settings` takes them; the
-options and --set of a command apply after them. Chosen from `benchmarks/profile_video.py` (the dense flow is
-half of a frame's CPU, the mask steps a fifth) and measured on the 20 DAVIS dev clips only (docs/RESULTS.md,
-"Speed": CPU per frame and J side by side):
+options and --set of a command apply after them. The dense flow is half of a frame's CPU and the mask steps a
+fifth (`benchmarks/profile_video.py`), so the presets trade those:
 
-- best: the defaults, DIS medium (patch stride 4, 1 refinement iteration) at full resolution, the mask
-  steps at 0.75 of the frame size (issue 38: 3 iterations before, DAVIS dev J 0.7575 against 0.7572).
-- balanced: DIS with a patch stride of 6 and 1 refinement iteration (half of DIS's time), the mask steps at
-  half size, KLT's window 11 px (dev J 0.748 against 0.749 with 21).
-- fast: the flow (DIS, its forward-backward check, the camera fit) on half-size frames (a quarter of the
-  pixels) and the mask steps at half size: J 0.04 below best (1 refinement iteration: dev J 0.717 against
-  0.714 with 3); KLT's Lucas-Kanade window 11 px instead of 21 (0.44x KLT's CPU, dev J 0.7167 against 0.717).
-  DIS's "fast" preset at full size cost as much J (its finest scale is half the image's) for less speed.
+- best: the defaults: DIS medium (patch stride 4, 1 refinement iteration) at full resolution, the mask steps
+  at 0.75 of the frame size.
+- balanced: DIS with a patch stride of 6 (half of DIS's time), the mask steps at half size, KLT's window 11 px.
+- fast: the flow (DIS, its forward-backward check, the camera fit) on half-size frames and the mask steps at
+  half size, KLT's window 11 px: about twice as fast as best, J about 0.04 lower.
+
+Speed and J of each, measured on the DAVIS dev clips: docs/RESULTS.md, "Speed".
 """
 
 

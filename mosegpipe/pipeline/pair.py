@@ -18,7 +18,7 @@ from mosegpipe.group.twoview import robust_fit
 from mosegpipe.group.world import world_cluster, world_first, world_scores
 from mosegpipe.io.read import check_images, read_image
 from mosegpipe.masks import labels_to_mask
-from mosegpipe.pipeline.common import _check_k, _model_or_default, decode_errors, embed_at_model_frames, model_info
+from mosegpipe.pipeline.common import check_k, decode_errors, embed_at_model_frames, model_info, model_or_default
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.points.sift import match_sift
 from mosegpipe.points.trajectories import trajectories_from_matches
@@ -106,7 +106,7 @@ def segment_pair(
             images.append(read_image(img))
     im1, im2 = images
     names = " and ".join(str(i) if not isinstance(i, np.ndarray) else "<array>" for i in (img1, img2))
-    model = _model_or_default(model, 2, timings)
+    model = model_or_default(model, 2, timings)
     t0 = time.perf_counter()
     matches = match_sift(im1, im2, cfg.match)
     timings["match"] = time.perf_counter() - t0
@@ -115,7 +115,7 @@ def segment_pair(
             f"{names}: only {matches.num_matches} SIFT matches; need at least {cfg.min_tracks} "
             "(blank, textureless or unrelated images?)"
         )
-    _check_k(cfg.k, matches.num_matches, names, "matches")
+    check_k(cfg.k, matches.num_matches, names, "matches")
     traj = trajectories_from_matches(matches)
     t0 = time.perf_counter()
     emb = embed_at_model_frames(model, traj)

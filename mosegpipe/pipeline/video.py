@@ -43,11 +43,11 @@ from mosegpipe.masks.compose import MaskSequence
 from mosegpipe.masks.learned.which import window_features
 from mosegpipe.masks.moving_pixels import ColourMemory
 from mosegpipe.pipeline.common import (
-    _frames,
     decode_errors,
+    frames_text,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
+from mosegpipe.pipeline.window import FrameTracks, VideoFrame, WindowResult, frame_mask
 from mosegpipe.points.flow import FlowStream, FrameMotion, flow_fits
 from mosegpipe.points.klt import KLTTracker, tracks_from_steps
 from mosegpipe.points.trajectories import build_trajectories
@@ -242,7 +242,7 @@ def _read_windows(
     max_frames: int | None,
     frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
     stream: FlowStream | None = None,
-) -> Iterator[tuple[list[_Frame], bool, int | None]]:
+) -> Iterator[tuple[list[FrameTracks], bool, int | None]]:
     """Reads and tracks the frames and cuts them into windows, each as soon as it is complete.
 
     Each frame is handed to `stream` (when given and the frames are large enough for dense flow),
@@ -262,9 +262,9 @@ def _read_windows(
     """
     f = cfg.frames
     tracker = KLTTracker(replace(cfg.track, reseed=True, reseed_every=f - 1))
-    window: list[_Frame] = []
+    window: list[FrameTracks] = []
     first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
-    held: tuple[list[_Frame], bool] | None = None  # a full window waiting for the next frame's flows
+    held: tuple[list[FrameTracks], bool] | None = None  # a full window waiting for the next frame's flows
     frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames) if frames is None else iter(frames)
     while True:
         with decode_errors(path):
@@ -301,7 +301,7 @@ def _read_windows(
     if held is not None:
         yield *held, None
     if run.num_frames < f:
-        raise InputError(f"{path}: only {_frames(run.num_frames)} could be read; --frames needs {f}")
+        raise InputError(f"{path}: only {frames_text(run.num_frames)} could be read; --frames needs {f}")
     if not first_done or len(window) > 1:
         yield window, first_done, None
 
@@ -323,7 +323,7 @@ def _window_sweep(cfg: PipelineConfig, prev_k: int) -> ClusterConfig:
 
 
 def _cluster_window(
-    window: list[_Frame], cfg: PipelineConfig, model: Embedder, run: _VideoRun, motion: FrameMotion | None = None
+    window: list[FrameTracks], cfg: PipelineConfig, model: Embedder, run: _VideoRun, motion: FrameMotion | None = None
 ) -> tuple[npt.NDArray[np.int64], _WindowLabels]:
     """Clusters the tracks live through the whole window (by cfg.method) and maps the clusters to global labels,
     the world's motion to 0 (told by where its tracks lie, the window's dense flow `motion` when given, and
@@ -372,7 +372,7 @@ def _cluster_window(
         world=cfg.world.enabled,
         xy=xy_all[kept],
         frame=window[0][0],
-        supported=_small_rigid(clustering.labels[kept], traj.data[kept], cfg),
+        supported=small_rigid(clustering.labels[kept], traj.data[kept], cfg),
     )
     keep = glob >= 0
     found = _WindowLabels(
@@ -383,7 +383,7 @@ def _cluster_window(
     return common, found
 
 
-def _small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
+def small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
     """Method "joint" with cfg.joint.new_rigid_tracks: the moving clusters (not 0) smaller than the label matching's
     guard, of at least that many tracks, that geometry shows to be a rigid motion of their own
     (`geometry_select.geometry_supported`); match_labels labels them whatever their size. Else none."""
@@ -397,7 +397,7 @@ def _small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32],
 
 
 def _label_window(
-    window: list[_Frame],
+    window: list[FrameTracks],
     first_labelled: bool,
     cfg: PipelineConfig,
     model: Embedder,
@@ -464,7 +464,7 @@ def _label_window(
 
 
 def _window_pixels(
-    window: list[_Frame],
+    window: list[FrameTracks],
     skip: int,
     labs: list[npt.NDArray[np.int64]],
     cfg: PipelineConfig,
@@ -503,7 +503,7 @@ def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
 
 
 def _labelled_frame(
-    item: _Frame,
+    item: FrameTracks,
     labels: npt.NDArray[np.int64],
     cfg: MaskConfig,
     masks: bool,

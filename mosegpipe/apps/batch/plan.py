@@ -191,7 +191,7 @@ def config_hash(cfg: PipelineConfig, model: SubspaceNet, rrd: bool) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def _previous_summary(path: Path) -> dict[str, Any] | None:
+def previous_summary(path: Path) -> dict[str, Any] | None:
     """A completed clip's summary.json, or None when absent or unreadable (then the clip is redone)."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -200,7 +200,7 @@ def _previous_summary(path: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
-def _stored_hash(summary: dict[str, Any]) -> str | None:
+def stored_hash(summary: dict[str, Any]) -> str | None:
     info = summary.get("batch")
     return info.get("config_hash") if isinstance(info, dict) else None
 
@@ -211,7 +211,7 @@ def _stored_hash(summary: dict[str, Any]) -> str | None:
 
 
 @dataclass(frozen=True)
-class _Job:
+class Job:
     """What every clip of one batch shares (pickled once per worker)."""
 
     cfg: PipelineConfig
@@ -220,18 +220,18 @@ class _Job:
     segment_fn: SegmentFn = field(default=segment_clip)
 
 
-def _row(item: BatchItem, **values: Any) -> dict[str, Any]:
+def summary_row(item: BatchItem, **values: Any) -> dict[str, Any]:
     row: dict[str, Any] = {f: "" for f in FIELDS}
     row.update(name=item.name, output=item.out_dir.name, **values)
     return row
 
 
-def _one_line(exc: BaseException) -> str:
+def one_line(exc: BaseException) -> str:
     message = " ".join(str(exc).split())[:300]
     return f"{type(exc).__name__}: {message}" if message else type(exc).__name__
 
 
-def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, Any]:
+def process_clip(item: BatchItem, job: Job, model: SubspaceNet) -> dict[str, Any]:
     """Segments one clip and writes its folder atomically; every failure becomes a "failed" row.
 
     Args:
@@ -243,7 +243,7 @@ def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, An
         The row (FIELDS), plus "_traceback" for an unexpected exception (logged by the caller).
     """
     t0 = time.perf_counter()
-    row = _row(item)
+    row = summary_row(item)
     try:
         result = job.segment_fn(item.source, job.cfg, model)
         # The folder is ours: stale (config changed), incomplete or absent; it is built as .NAME.partial
@@ -255,9 +255,9 @@ def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, An
         row.update(status="failed", error=" ".join(str(exc).split()))
     except OSError as exc:  # reading errors are InputErrors (decode_errors): this is writing (disk full, permissions)
         where = f" ({exc.filename})" if exc.filename else ""
-        row.update(status="failed", error=f"cannot write its outputs: {exc.strerror or _one_line(exc)}{where}")
+        row.update(status="failed", error=f"cannot write its outputs: {exc.strerror or one_line(exc)}{where}")
     except Exception as exc:  # fault isolation: one broken clip must not stop the batch
-        row.update(status="failed", error=_one_line(exc), _traceback=traceback.format_exc())
+        row.update(status="failed", error=one_line(exc), _traceback=traceback.format_exc())
     row["seconds"] = round(time.perf_counter() - t0, 3)
     return row
 
@@ -267,7 +267,7 @@ def process_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, An
 # ---------------------------------------------------------------------------------------------
 
 
-def _usable_cores() -> int:
+def usable_cores() -> int:
     """Cores this process may run on (affinity mask; os.cpu_count where there is none)."""
     if hasattr(os, "sched_getaffinity"):
         return max(1, len(os.sched_getaffinity(0)))

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from mosegpipe.apps.batch.plan import BatchItem, _Job, _one_line, _row, process_clip
+from mosegpipe.apps.batch.plan import BatchItem, Job, one_line, process_clip, summary_row
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.runtime import LATER_IMPORTS
 
@@ -57,7 +57,7 @@ class _WorkerLog(logging.Handler):
 _WORKER_LOG = _WorkerLog()
 
 
-def _keep_worker_logs() -> None:
+def keep_worker_logs() -> None:
     """Sends this worker's warnings (Python's `warnings` too) to _WORKER_LOG alone, not to stderr."""
     root = logging.getLogger()
     for handler in list(root.handlers):
@@ -67,7 +67,7 @@ def _keep_worker_logs() -> None:
     logging.captureWarnings(True)
 
 
-def _worker_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, Any]:
+def worker_clip(item: BatchItem, job: Job, model: SubspaceNet) -> dict[str, Any]:
     """process_clip in a worker: the row carries the clip's warnings as "_warnings"."""
     _WORKER_LOG.take()  # what the worker logged before this clip (its set-up) is not the clip's
     row = process_clip(item, job, model)
@@ -88,13 +88,13 @@ def _watch_parent(lifeline: Any) -> None:
     os._exit(1)
 
 
-def _init_worker(model: SubspaceNet, job: _Job, ready: Any, lifeline: Any) -> None:
+def _init_worker(model: SubspaceNet, job: Job, ready: Any, lifeline: Any) -> None:
     """Pool initializer: one thread, quiet decoders, Ctrl-C left to the parent, the model kept."""
     from mosegpipe.runtime import import_now, quiet_native_logs, set_threads
 
     threading.Thread(target=_watch_parent, args=(lifeline,), name="moseg-lifeline", daemon=True).start()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops the pool on Ctrl-C
-    _keep_worker_logs()
+    keep_worker_logs()
     quiet_native_logs()
     set_threads(1)
     import_now(*LATER_IMPORTS)  # before the first clip: --clip-timeout does not count them
@@ -104,7 +104,7 @@ def _init_worker(model: SubspaceNet, job: _Job, ready: Any, lifeline: Any) -> No
 
 
 def _pool_task(item: BatchItem) -> dict[str, Any]:
-    return _worker_clip(item, _WORKER["job"], _WORKER["model"])
+    return worker_clip(item, _WORKER["job"], _WORKER["model"])
 
 
 def _ping() -> int:
@@ -162,7 +162,7 @@ def _hangup_blocked() -> Iterator[None]:
 class _Pool:
     """A ProcessPoolExecutor whose workers are all started and ready (so deadlines count clip time)."""
 
-    def __init__(self, workers: int, model: SubspaceNet, job: _Job, startup_timeout: float = 600.0) -> None:
+    def __init__(self, workers: int, model: SubspaceNet, job: Job, startup_timeout: float = 600.0) -> None:
         ctx = _mp_context()
         with _hangup_blocked():  # the queue's lock starts the resource tracker, the pings the workers
             self.ready = ctx.Queue()
@@ -182,7 +182,7 @@ class _Pool:
                     failed = [e for f in pings if f.done() and (e := f.exception()) is not None]
                     if failed:
                         raise RuntimeError(
-                            f"batch worker processes failed to start ({_one_line(failed[0])}); see the "
+                            f"batch worker processes failed to start ({one_line(failed[0])}); see the "
                             "worker's traceback above. A script that calls run_batch must do so under "
                             "`if __name__ == '__main__':`, since the workers import the main module"
                         ) from failed[0]
@@ -219,11 +219,11 @@ _InFlight = dict[cf.Future[dict[str, Any]], tuple[int, BatchItem, float, bool]]
 """A pool's clips in flight: future -> (index, item, when it was submitted, whether it runs alone)."""
 
 
-def _run_process(
+def run_process(
     todo: list[tuple[int, BatchItem]],
     jobs: int,
     model: SubspaceNet,
-    job: _Job,
+    job: Job,
     clip_timeout: float | None,
     emit: Callable[[int, dict[str, Any]], None],
 ) -> None:
@@ -264,7 +264,9 @@ def _run_process(
                     except Exception as exc:  # e.g. a result that cannot be pickled
                         emit(
                             index,
-                            _row(item, status="failed", error=_one_line(exc), seconds=round(time.monotonic() - t0, 3)),
+                            summary_row(
+                                item, status="failed", error=one_line(exc), seconds=round(time.monotonic() - t0, 3)
+                            ),
                         )
                 if broken:
                     _judge_broken_pool(pool, inflight, suspects, emit)
@@ -299,7 +301,7 @@ def _judge_broken_pool(
     if len(lost) == 1:  # it ran alone: it is the one that killed its worker
         index, item, t0 = lost[0]
         log.warning("%s: %s", item.name, reason)
-        emit(index, _row(item, status="failed", error=reason, seconds=round(time.monotonic() - t0, 3)))
+        emit(index, summary_row(item, status="failed", error=reason, seconds=round(time.monotonic() - t0, 3)))
     else:
         log.info("a worker died with %d clips in flight; re-running them one at a time", len(lost))
         suspects.extendleft((index, item) for index, item, _ in reversed(lost))
@@ -318,7 +320,7 @@ def _time_out(
         log.warning("%s: timed out after %g s", item.name, clip_timeout)
         emit(
             index,
-            _row(
+            summary_row(
                 item,
                 status="failed",
                 error=f"timed out after {clip_timeout:g} s (--clip-timeout)",

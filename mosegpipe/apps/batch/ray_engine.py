@@ -12,15 +12,15 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from mosegpipe.apps.batch.plan import BatchItem, _Job, _one_line, _row, _usable_cores
-from mosegpipe.apps.batch.pool import _keep_worker_logs, _worker_clip
+from mosegpipe.apps.batch.plan import BatchItem, Job, one_line, summary_row, usable_cores
+from mosegpipe.apps.batch.pool import keep_worker_logs, worker_clip
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError
 
 log = logging.getLogger("mosegpipe.apps.batch.run")
 
 
-_RAY_CACHE: dict[str, tuple[SubspaceNet, _Job]] = {}
+_RAY_CACHE: dict[str, tuple[SubspaceNet, Job]] = {}
 _RAY_CANCEL_WAIT_S = 10.0
 _RAY_AUTH_LOGGER = "ray._private.authentication.authentication_token_setup"
 
@@ -48,7 +48,7 @@ def _ray_task(shared: list[Any], item: BatchItem) -> Iterator[Any]:
     if key not in _RAY_CACHE:
         from mosegpipe.runtime import LATER_IMPORTS, import_now, quiet_native_logs, set_threads
 
-        _keep_worker_logs()
+        keep_worker_logs()
         quiet_native_logs()
         set_threads(1)
         import_now(*LATER_IMPORTS)  # before the first clip: --clip-timeout does not count them
@@ -57,7 +57,7 @@ def _ray_task(shared: list[Any], item: BatchItem) -> Iterator[Any]:
         _RAY_CACHE[key] = (model.eval(), job)
     model, job = _RAY_CACHE[key]
     yield _STARTED
-    yield _worker_clip(item, job, model)
+    yield worker_clip(item, job, model)
 
 
 def _import_ray() -> Any:
@@ -89,8 +89,8 @@ def _ray_failure(ray: Any, exc: BaseException) -> str:
     if isinstance(exc, (exceptions.WorkerCrashedError, getattr(exceptions, "NodeDiedError", ()))):
         return "its Ray worker process died"
     if isinstance(exc, exceptions.RayTaskError):
-        return _one_line(exc.cause) if getattr(exc, "cause", None) is not None else "Ray task failed"
-    return f"Ray: {_one_line(exc)}"
+        return one_line(exc.cause) if getattr(exc, "cause", None) is not None else "Ray task failed"
+    return f"Ray: {one_line(exc)}"
 
 
 def _init_ray(ray: Any, jobs: int | None, address: str | None) -> None:
@@ -99,24 +99,24 @@ def _init_ray(ray: Any, jobs: int | None, address: str | None) -> None:
     if address is None:
         # A new instance of `jobs` CPUs ("local"): Ray's default would join a running one, where
         # num_cpus is refused.
-        kwargs["num_cpus"] = jobs or _usable_cores()
+        kwargs["num_cpus"] = jobs or usable_cores()
     on_sigterm = _sigterm_handler()
     notice = logging.getLogger(_RAY_AUTH_LOGGER)
     notice.addFilter(_no_auth_notice)
     try:
         ray.init(address="local" if address is None else address, **kwargs)
     except (ConnectionError, ValueError) as exc:  # ValueError: a bad address, Ray Client missing
-        raise InputError(f"--address {address}: cannot connect to a Ray cluster ({_one_line(exc)})") from None
+        raise InputError(f"--address {address}: cannot connect to a Ray cluster ({one_line(exc)})") from None
     finally:
         notice.removeFilter(_no_auth_notice)
         _restore_sigterm(on_sigterm)  # ray.init puts its own there (sys.exit): the caller's clean-up stays
 
 
-def _run_ray(
+def run_ray(
     todo: list[tuple[int, BatchItem]],
     jobs: int | None,
     model: SubspaceNet,
-    job: _Job,
+    job: Job,
     clip_timeout: float | None,
     address: str | None,
     emit: Callable[[int, dict[str, Any]], None],
@@ -145,7 +145,8 @@ def _run_ray(
         def fail(gen: Any, error: str) -> None:
             index, item, t0 = inflight.pop(gen)
             log.warning("%s: %s", item.name, error)
-            emit(index, _row(item, status="failed", error=error, seconds=round(time.monotonic() - t0, 3) if t0 else ""))
+            seconds = round(time.monotonic() - t0, 3) if t0 else ""
+            emit(index, summary_row(item, status="failed", error=error, seconds=seconds))
 
         try:
             while pending or inflight:

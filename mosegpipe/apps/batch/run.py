@@ -38,22 +38,22 @@ from mosegpipe.apps.batch.plan import (
     SUMMARY_FILES,
     VIDEO_EXTENSIONS,
     BatchItem,
+    Job,
     SegmentFn,
-    _Job,
-    _previous_summary,
-    _row,
-    _stored_hash,
-    _usable_cores,
     config_hash,
     find_clips,
     model_digest,
     output_name,
     plan,
     plan_paths,
+    previous_summary,
     process_clip,
+    stored_hash,
+    summary_row,
+    usable_cores,
 )
-from mosegpipe.apps.batch.pool import MAX_WORKER_WARNINGS, _run_process
-from mosegpipe.apps.batch.ray_engine import _run_ray, check_ray
+from mosegpipe.apps.batch.pool import MAX_WORKER_WARNINGS, run_process
+from mosegpipe.apps.batch.ray_engine import check_ray, run_ray
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError
 from mosegpipe.io.read import atomic_write, write_json
@@ -205,7 +205,7 @@ def run_batch(
         from mosegpipe.embed.numpy_net import load_model
 
         model = load_model(cfg.frames, checkpoint)
-    job = _Job(cfg, rrd, config_hash(cfg, model, rrd), segment_fn or segment_clip)
+    job = Job(cfg, rrd, config_hash(cfg, model, rrd), segment_fn or segment_clip)
     return _run_items(items, out, where, job, model, overwrite, on_item, engine, jobs, clip_timeout, address)
 
 
@@ -247,17 +247,19 @@ def _plan_batch(
 
 
 def _to_do(
-    items: list[BatchItem], overwrite: bool, job: _Job, emit: Callable[[int, dict[str, Any]], None]
+    items: list[BatchItem], overwrite: bool, job: Job, emit: Callable[[int, dict[str, Any]], None]
 ) -> list[tuple[int, BatchItem]]:
     """The clips to run: those done earlier with this config hash are emitted as "skipped" rows."""
     todo: list[tuple[int, BatchItem]] = []
     redone = 0
     for index, item in enumerate(items):
-        previous = None if overwrite else _previous_summary(item.out_dir / "summary.json")
-        if previous is not None and _stored_hash(previous) == job.config_hash:
+        previous = None if overwrite else previous_summary(item.out_dir / "summary.json")
+        if previous is not None and stored_hash(previous) == job.config_hash:
             emit(
                 index,
-                _row(item, status="skipped", k=previous.get("k", ""), tracks=previous.get("num_tracks_segmented", "")),
+                summary_row(
+                    item, status="skipped", k=previous.get("k", ""), tracks=previous.get("num_tracks_segmented", "")
+                ),
             )
         else:
             redone += previous is not None
@@ -271,7 +273,7 @@ def _run_items(
     items: list[BatchItem],
     out: Path,
     where: str,
-    job: _Job,
+    job: Job,
     model: SubspaceNet,
     overwrite: bool,
     on_item: Callable[[BatchItem, dict[str, Any]], None] | None,
@@ -301,15 +303,15 @@ def _run_items(
     with _locked(out):
         _sweep(out)
         todo = _to_do(items, overwrite, job, emit)
-        workers = min(jobs or _usable_cores(), len(todo)) if todo else 0
+        workers = min(jobs or usable_cores(), len(todo)) if todo else 0
         try:
             if todo and engine == "inline":
                 for index, item in todo:
                     emit(index, process_clip(item, job, model))
             elif todo and engine == "process":
-                _run_process(todo, workers, model, job, clip_timeout, emit)
+                run_process(todo, workers, model, job, clip_timeout, emit)
             elif todo:
-                _run_ray(todo, min(jobs, len(todo)) if jobs else None, model, job, clip_timeout, address, emit)
+                run_ray(todo, min(jobs, len(todo)) if jobs else None, model, job, clip_timeout, address, emit)
         finally:
             # A worker killed by --clip-timeout, Ctrl-C or SIGTERM left its clip's .NAME.partial (the
             # workers are gone by now); an interrupted batch leaves nothing half-written either.

@@ -24,7 +24,7 @@ BUFFER_FRAMES = 4
 tracker waits for it); once the pipeline falls behind, each held frame adds a frame's time of
 latency."""
 
-_POLL_S = 0.1
+POLL_S = 0.1
 """How often a waiting reader or pipeline looks at the stop signal."""
 
 _JOIN_S = 5.0
@@ -71,7 +71,7 @@ class FrameBuffer:
             while (not self.drop or self.holding) and len(self._items) >= self.capacity and not self._closed:
                 if stop is not None and stop.is_set():
                     return False
-                self._cond.wait(_POLL_S)
+                self._cond.wait(POLL_S)
             if self._closed:
                 return False
             if len(self._items) >= self.capacity:
@@ -216,7 +216,7 @@ class LiveFrames:
             if stop.is_set():
                 self.end = "stopped"
                 return
-            item = buffer.get(_POLL_S)
+            item = buffer.get(POLL_S)
             if item is False:
                 if self.reader.error is not None:
                     exc = self.reader.error

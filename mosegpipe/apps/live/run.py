@@ -40,7 +40,7 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.apps.live.reader import _POLL_S, BUFFER_FRAMES, FrameBuffer, LiveFrames, SourceReader
+from mosegpipe.apps.live.reader import BUFFER_FRAMES, POLL_S, FrameBuffer, LiveFrames, SourceReader
 from mosegpipe.apps.live.source import (
     MAX_CAMERA_INDEX,
     MAX_STDIN_PIXELS,
@@ -95,7 +95,7 @@ __all__ = [
 DEFAULT_FPS = 25.0
 """Frame rate assumed for the outputs of a source that does not state one (stdin, some cameras)."""
 
-_WINDOWS_AHEAD = 1
+WINDOWS_AHEAD = 1
 """Windows the segmenting thread may run ahead of the view (latency: a window's frames each)."""
 
 
@@ -357,7 +357,7 @@ def _first_frame(reader: SourceReader, stall_timeout_s: float) -> npt.NDArray[np
     while True:
         if reader.stop.is_set():
             raise InputError(f"{name}: stopped before the first frame came")
-        item = reader.buffer.peek(_POLL_S)
+        item = reader.buffer.peek(POLL_S)
         if item is False:
             if reader.error is not None:
                 raise InputError(f"{name}: reading failed ({reader.error})") from reader.error
@@ -410,7 +410,7 @@ def _segment_only(
 ) -> None:
     """A run without an output folder: each window's frames and masks, then the window, to the callbacks."""
     segmented = segment_video(name, cfg, model, masks=False, frames=frames)
-    for window in run_ahead(segmented, _WINDOWS_AHEAD, "moseg-segment"):
+    for window in run_ahead(segmented, WINDOWS_AHEAD, "moseg-segment"):
         for fr in window.frames:
             on_frame(fr, frame_mask(fr, cfg.mask))
         on_window(window)  # after its frames, as write_video_outputs reports it

@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from mosegpipe.configs.masks import MotionMaskConfig
 from mosegpipe.masks.learned.features import LearnedMaskConfig, clip_features, neighbours_along, net_flows, net_size
-from mosegpipe.masks.moving_pixels import _keep_strong, _refined_scores
+from mosegpipe.masks.moving_pixels import keep_strong, refined_scores
 from mosegpipe.points.flow import FrameMotion
 
 EDGE_STEPS = replace(MotionMaskConfig(), local_colour_weight=0.0, superpixels=0)
@@ -30,7 +30,7 @@ EDGE_STEPS = replace(MotionMaskConfig(), local_colour_weight=0.0, superpixels=0)
 `component_power` measures a region's strength for `min_component`."""
 
 
-def _carried(
+def carried_probability(
     prob: npt.NDArray[np.float32],
     flows: tuple[list[npt.NDArray[np.float32]], list[npt.NDArray[np.float32]]],
     weight: float,
@@ -68,11 +68,11 @@ def learned_probability(
     start = max(0, first - 1)
     flows = net_flows(motion, net_size(images.shape[1:3], cfg.scale))  # one resize for the features and the carry
     prob = predict(net, clip_features(images, motion, cfg.scale, start, flows))
-    carried = _carried(prob, (flows[0][start:], flows[1][start:]), cfg.temporal_weight)
+    carried = carried_probability(prob, (flows[0][start:], flows[1][start:]), cfg.temporal_weight)
     return carried[first - start :]
 
 
-def _refined(
+def refined_probability(
     prob: npt.NDArray[np.float32], image: npt.NDArray[np.uint8], cfg: LearnedMaskConfig
 ) -> npt.NDArray[np.bool_]:
     """Moving pixels at `cfg.refine_scale` of the frame: the probability minus the threshold, resized (linear),
@@ -81,7 +81,7 @@ def _refined(
     hw = (max(1, round(height * cfg.refine_scale)), max(1, round(width * cfg.refine_scale)))
     small = image if hw == (height, width) else cv2.resize(image, (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
     z = cv2.resize(prob, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) - np.float32(cfg.threshold)
-    out: npt.NDArray[np.bool_] = _refined_scores([small], [z], EDGE_STEPS)[0] > 0
+    out: npt.NDArray[np.bool_] = refined_scores([small], [z], EDGE_STEPS)[0] > 0
     return out
 
 
@@ -101,13 +101,13 @@ def learned_moving(
     out = np.empty((len(prob), height, width), bool)
     for t, p in enumerate(prob):
         if cfg.refine_scale > 0:
-            small = _refined(p, images[first + t], cfg)
+            small = refined_probability(p, images[first + t], cfg)
         else:
             small = cv2.resize(p, (width, height), interpolation=cv2.INTER_LINEAR) > np.float32(cfg.threshold)
         if cfg.min_component > 0:
             residual = motion.residual[first + t] * np.float32(1.0 / motion.scale)  # full-resolution pixels
             residual = cv2.resize(residual, (small.shape[1], small.shape[0]), interpolation=cv2.INTER_LINEAR)
-            small = _keep_strong(small, residual, cfg.min_component, EDGE_STEPS.component_power)
+            small = keep_strong(small, residual, cfg.min_component, EDGE_STEPS.component_power)
         if small.shape != (height, width):
             small = cv2.resize(small.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
         out[t] = small

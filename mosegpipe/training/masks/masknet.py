@@ -150,7 +150,7 @@ def train_masknet(
         The recipe record stored in the checkpoint (settings, chosen step and threshold, scores).
     """
     with one_thread():
-        return _train(out, data_root, cfg, command, on_log)
+        return run_training(out, data_root, cfg, command, on_log)
 
 
 @contextlib.contextmanager
@@ -218,7 +218,7 @@ def fit(
     return best[1], best[2], best[0], table, time.process_time() - start
 
 
-def _train(
+def run_training(
     out: Path,
     data_root: Path,
     cfg: MaskTrainConfig,
