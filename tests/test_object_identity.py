@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosegpipe.evaluation.metrics import identity_switches, match_objects_video, object_j
+from mosegpipe.evaluation.metrics import identity_switches, match_objects_video, object_identities, object_j
 
 
 def _video() -> tuple[np.ndarray, np.ndarray]:
@@ -37,6 +37,7 @@ def test_world_and_unknown_are_no_identity() -> None:
     gt = np.array([[[1, 1, 0, 0]]] * 5)
     # frame 0: label 4; frame 1: world (not a switch); frame 2: unknown; frame 3: 4 again; frame 4: 9
     pred = np.array([[[4, 4, 0, 0]], [[0, 0, 0, 0]], [[255, 255, 0, 0]], [[4, 0, 0, 0]], [[9, 9, 0, 0]]])
+    assert object_identities(pred, gt, [1]) == {1: [4, 4, 9]}
     assert identity_switches(pred, gt, [1]) == {1: 1}
     assert match_objects_video(pred, gt, [1]) == {1: 4}
     # per video: J 1, 0, 0, 0.5, 0 -> 0.3

@@ -55,10 +55,10 @@ from PIL import Image
 from mosegpipe.apps.outputs import write_clip_outputs, write_video_outputs
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
-from mosegpipe.evaluation.composite import LABEL_SHARE, labels_per_object
+from mosegpipe.evaluation.composite import LABEL_SHARE
 from mosegpipe.evaluation.flow_baseline import FlowHomographyConfig as FlowHomographyConfig  # re-exported
 from mosegpipe.evaluation.flow_baseline import flow_homography_labels
-from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, identity_switches, jaccard
+from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard, object_identities
 from mosegpipe.masks import UNKNOWN, WORLD
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.runtime import set_threads
@@ -319,9 +319,9 @@ class DavisRow:
         k: labels found over the clip (255 excluded); 0 on failure.
         seconds: wall time of the method on the clip (reading and scoring excluded).
         error: the MosegError's message when the method failed ("" otherwise).
-        labels: moving labels (not 0, not 255) the object was given over the clip: those covering more
-            than a tenth of its pixels in a frame where it shows (1 = one identity throughout; 0 = never found).
-        switches: changes of the moving label covering most of the object (`metrics.identity_switches`).
+        labels: the object's identities over the clip: the moving labels (not 0, not 255) that covered most of
+            it, and at least a tenth, in some frame (`metrics.object_identities`; 1 = one throughout, 0 = never found).
+        switches: how often its identity changed (`metrics.identity_switches`).
     """
 
     clip: str
@@ -400,6 +400,7 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
     fm, fr, fd = clip_statistics(f)
     present = np.unique(lab)
     obj = np.asarray(gt, dtype=bool).astype(np.uint8)
+    identities = object_identities(lab, obj, [1], share=LABEL_SHARE, ignore=(WORLD, UNKNOWN))[1]
     return {
         "j_mean": jm,
         "j_recall": jr,
@@ -411,8 +412,8 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
         "world_off": world_off_share(lab, gt),
         "majority_j": float(np.mean(j_majority)),
         "k": int(np.count_nonzero(present != UNKNOWN)),
-        "labels": labels_per_object(lab, obj, [1])[1],
-        "switches": identity_switches(lab, obj, [1], min_px=1, share=LABEL_SHARE, ignore=(WORLD, UNKNOWN))[1],
+        "labels": len(set(identities)),
+        "switches": sum(a != b for a, b in zip(identities, identities[1:])),
     }
 
 

@@ -540,20 +540,18 @@ def object_j(
     return {oid: float(np.mean(js)) if js else float("nan") for oid, js in scores.items()}
 
 
-def identity_switches(
+def object_identities(
     pred: npt.ArrayLike,
     gt: npt.ArrayLike,
     object_ids: Sequence[int],
     min_px: int = 1,
     share: float = 0.1,
     ignore: Sequence[int] = (0, 255),
-) -> dict[int, int]:
-    """How many times each true object's identity changes over the video.
+) -> dict[int, list[int]]:
+    """Each true object's identity frame by frame: the label (not in `ignore`) covering most of its pixels.
 
-    An object's identity in a frame is the label (not in `ignore`) covering most of its pixels, in the
-    frames where it shows at least `min_px` pixels and that label covers at least `share` of them; the
-    other frames have none and are skipped. A switch is a frame whose identity differs from the last one
-    the object had: A A - B A counts 2, one label throughout 0.
+    Only the frames where the object shows at least `min_px` pixels and that label covers at least `share`
+    of them have an identity; the others are left out of the list.
 
     Args:
         pred: (T, H, W) int predicted labels.
@@ -564,15 +562,15 @@ def identity_switches(
         ignore: predicted values that are no identity (the world, unknown).
 
     Returns:
-        {object id: switches, >= 0}.
+        {object id: its identities in frame order}.
 
     Raises:
         ValueError: shapes differ or are not (T, H, W).
     """
     p, g = _video_pair(pred, gt)
-    out: dict[int, int] = {}
+    out: dict[int, list[int]] = {}
     for oid in object_ids:
-        last, switches = None, 0
+        seq = []
         for pf, gf in zip(p, g):
             on = gf == oid
             n = int(np.count_nonzero(on))
@@ -580,10 +578,30 @@ def identity_switches(
                 continue
             vals, counts = np.unique(pf[on], return_counts=True)
             keep = ~np.isin(vals, list(ignore))
-            if not keep.any() or counts[keep].max() < share * n:
-                continue
-            now = int(vals[keep][int(np.argmax(counts[keep]))])
-            switches += int(last is not None and now != last)
-            last = now
-        out[int(oid)] = switches
+            if keep.any() and counts[keep].max() >= share * n:
+                seq.append(int(vals[keep][int(np.argmax(counts[keep]))]))
+        out[int(oid)] = seq
     return out
+
+
+def identity_switches(
+    pred: npt.ArrayLike,
+    gt: npt.ArrayLike,
+    object_ids: Sequence[int],
+    min_px: int = 1,
+    share: float = 0.1,
+    ignore: Sequence[int] = (0, 255),
+) -> dict[int, int]:
+    """How many times each true object's identity (`object_identities`) changes over the video.
+
+    A switch is a frame whose identity differs from the last one the object had (frames without one are
+    skipped): A A - B A counts 2, one label throughout 0. The arguments are `object_identities`'.
+
+    Returns:
+        {object id: switches, >= 0}.
+
+    Raises:
+        ValueError: shapes differ or are not (T, H, W).
+    """
+    seqs = object_identities(pred, gt, object_ids, min_px, share, ignore)
+    return {oid: sum(a != b for a, b in zip(seq, seq[1:])) for oid, seq in seqs.items()}
