@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mosegpipe.evaluation.metrics import identity_switches, match_objects_video, object_identities, object_j
+from mosegpipe.evaluation.identities import identity_switches, match_objects_video, object_identities, object_j
 
 
 def _video() -> tuple[np.ndarray, np.ndarray]:

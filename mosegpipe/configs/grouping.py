@@ -284,7 +284,8 @@ class LabelConfig:
     (`mosegpipe.group.labels.match_labels`), one line each: a moving label no cluster continues is remembered
     (its tracks, where it was, how it moved) and taken back by the cluster that holds most of its tracks or, for
     new tracks, lies where its motion carried it; never the world (0). How it was chosen and measured is in
-    docs/HISTORY.md ("An object keeps its label: a memory of the labels missing from a window").
+    docs/HISTORY.md ("An object keeps its label: a memory of the labels missing from a window"); the mask carry's in
+    docs/RESULTS.md ("One label per object").
 
     Attributes:
         memory_windows: a label missing from more windows than this is forgotten (0 = no memory, a new label).

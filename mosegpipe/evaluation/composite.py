@@ -22,7 +22,7 @@ Scores of one clip (`score_clip`), all on the masks as written (0 = the world, 2
   DAVIS-2017's per-video matching (one label per object for the whole video: a label switch costs the
   frames after it); beside it `j_object_frame`, the same with a matching per frame (which forgives
   switches), and `switches_per_object`, the mean over objects of their identity switches
-  (`metrics.identity_switches`: changes of the moving label covering most of an object, in the frames
+  (`identities.identity_switches`: changes of the moving label covering most of an object, in the frames
   where it shows at least `MIN_SHARE` of the frame and that label more than `LABEL_SHARE` of it).
 - **correct K**: per window (the pipeline's windows in whole-video mode, the one clip in clip5 mode),
   the moving labels written (labels other than 0 and 255 covering at least `MIN_SHARE` of the frame in
@@ -52,13 +52,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import ConfigError, MosegError
-from mosegpipe.evaluation.metrics import (
-    identity_switches,
-    jaccard,
-    match_objects_video,
-    misclassification_error,
-    object_j,
-)
+from mosegpipe.evaluation.identities import identity_switches, match_objects_video, object_j
+from mosegpipe.evaluation.metrics import jaccard, misclassification_error
 from mosegpipe.masks import UNKNOWN, WORLD
 
 if TYPE_CHECKING:

@@ -58,7 +58,8 @@ from mosegpipe.errors import MosegError, check_choice
 from mosegpipe.evaluation.composite import LABEL_SHARE
 from mosegpipe.evaluation.flow_baseline import FlowHomographyConfig as FlowHomographyConfig  # re-exported
 from mosegpipe.evaluation.flow_baseline import flow_homography_labels
-from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard, object_identities
+from mosegpipe.evaluation.identities import object_identities
+from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard
 from mosegpipe.masks import UNKNOWN, WORLD
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.runtime import set_threads
@@ -320,8 +321,8 @@ class DavisRow:
         seconds: wall time of the method on the clip (reading and scoring excluded).
         error: the MosegError's message when the method failed ("" otherwise).
         labels: the object's identities over the clip: the moving labels (not 0, not 255) that covered most of
-            it, and at least a tenth, in some frame (`metrics.object_identities`; 1 = one throughout, 0 = never found).
-        switches: how often its identity changed (`metrics.identity_switches`).
+            it, and at least a tenth, in some frame (`identities.object_identities`; 1 = one throughout, 0 = never found).
+        switches: how often its identity changed (`identities.identity_switches`).
     """
 
     clip: str

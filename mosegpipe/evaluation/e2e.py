@@ -43,14 +43,9 @@ import numpy.typing as npt
 
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import MosegError
+from mosegpipe.evaluation.identities import identity_switches, object_j
 from mosegpipe.evaluation.label_transfer import nearest_within
-from mosegpipe.evaluation.metrics import (
-    BOUNDARY_TOLERANCE,
-    identity_switches,
-    mask_scores,
-    misclassification_error,
-    object_j,
-)
+from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, mask_scores, misclassification_error
 from mosegpipe.masks import UNKNOWN
 from mosegpipe.pipeline import PipelineConfig, clip_masks, segment_frames, segment_pair
 from mosegpipe.points.trajectories import trajectories_from_matches
@@ -474,8 +469,8 @@ def long_rendered_rows(
         (mean over objects of `labels_per_object`), max_labels_per_object, moving_labels_per_object
         (the same without label 0: identity switches between motions only, not frames where an
         object was taken for the background), j_object (J per object with one moving label per object for
-        the whole video, DAVIS-2017's matching: `metrics.object_j`), j_object_frame (the same matched
-        frame by frame), switches_per_object (`metrics.identity_switches`, moving labels), seconds and fps
+        the whole video, DAVIS-2017's matching: `identities.object_j`), j_object_frame (the same matched
+        frame by frame), switches_per_object (`identities.identity_switches`, moving labels), seconds and fps
         (segment_video with its masks; rendering and scoring excluded).
     """
     import tempfile

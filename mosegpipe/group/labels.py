@@ -137,18 +137,12 @@ def match_labels(
     tracks carried, and no other cluster continues label 0 in step 1 (a cluster most of whose tracks
     were the world is a piece of it, step 2: it stays 0 until it splits off twice). Without it, the
     cluster that continues label 0 is the world, and after a shot cut cluster 0 takes 0.
-
     3. A cluster that would start a new label (steps 2 and 4), a leftover piece of a known motion or new
        tracks, takes back a moving label that this window does not continue but `book` remembers
        (`LabelConfig`): the one most of its tracks held lately, else (new tracks only) the one whose last
        motion carries it to where the cluster lies (`xy`). A motion that merged into another for a window
        and splits off again, or that was hidden, keeps its label.
-       With LabelConfig.carry_masks the labels also travel with the masks: a track that carried no label
-       takes the moving label under its first position in the last labelled frame's mask when that frame
-       is this window's first (`LabelBook.remember_mask`: windows share their boundary frame), so new
-       tracks on a labelled object count as that object's in steps 1-2; and in step 3 a cluster also
-       takes back a remembered label when at least LabelConfig.mask_share of its tracks start on that
-       label's last shape moved on by its last motion (its mask predicted in this frame).
+       With LabelConfig.carry_masks the labels travel with the masks too (`_known_labels`, `_predicted_share`).
     4. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
        unless the cluster is too small to trust (fewer than LabelConfig.new_tracks tracks, or a quarter of
        the window's, and under LabelConfig.new_share of the window's), which stays unlabelled (-1). The clusters
@@ -170,9 +164,7 @@ def match_labels(
     Returns:
         (N,) int64 global labels.
     """
-    old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
-    if book.cfg.carry_masks and book.last_mask is not None and book.mask_frame == frame and xy is not None:
-        old = np.where(old >= 0, old, labels_under(book.last_mask, xy[:, 0]))
+    old = _known_labels(prev, ids, book, xy, frame)
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     sizes = np.bincount(clusters, minlength=k)
     small = np.where(np.isin(np.arange(k), list(supported)), 0.0, small_guard(book.cfg, clusters.size))
@@ -197,6 +189,23 @@ def match_labels(
     labels = np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
     _remember(book, ids, labels, window, xy, frame)
     return labels
+
+
+def _known_labels(
+    prev: dict[int, int],
+    ids: npt.NDArray[np.int64],
+    book: LabelBook,
+    xy: npt.NDArray[np.float32] | None,
+    frame: int,
+) -> npt.NDArray[np.int64]:
+    """(N,) int64 the label each track carried in the previous window (-1: none). With LabelConfig.carry_masks,
+    a track that carried none takes the moving label under its first position in the last labelled frame's
+    mask when that frame is this window's first (`LabelBook.remember_mask`; windows share their boundary
+    frame): new tracks on a labelled object count as that object's in match_labels' steps 1-2."""
+    old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
+    if book.cfg.carry_masks and book.last_mask is not None and book.mask_frame == frame and xy is not None:
+        old = np.where(old >= 0, old, labels_under(book.last_mask, xy[:, 0]))
+    return old
 
 
 def small_guard(cfg: LabelConfig, num_tracks: int) -> float:
