@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import MosegError
+from mosegpipe.evaluation.identities import identity_switches, object_j
 from mosegpipe.evaluation.label_transfer import nearest_within
 from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, mask_scores, misclassification_error
 from mosegpipe.masks import UNKNOWN
@@ -467,7 +468,9 @@ def long_rendered_rows(
         num_motions (labels handed out), J and F (video level, objects only), labels_per_object
         (mean over objects of `labels_per_object`), max_labels_per_object, moving_labels_per_object
         (the same without label 0: identity switches between motions only, not frames where an
-        object was taken for the background), seconds and fps
+        object was taken for the background), j_object (J per object with one moving label per object for
+        the whole video, DAVIS-2017's matching: `identities.object_j`), j_object_frame (the same matched
+        frame by frame), switches_per_object (`identities.identity_switches`, moving labels), seconds and fps
         (segment_video with its masks; rendering and scoring excluded).
     """
     import tempfile
@@ -495,6 +498,10 @@ def long_rendered_rows(
         scores = mask_scores(pred, clip.masks, background=0, unknown=255, tolerance=tolerance)
         per = labels_per_object(pred, clip.masks)
         moving = labels_per_object(pred, clip.masks, ignore=0)
+        shown = sorted(per)  # the objects visible with 200 px or more in some frame
+        j_video = object_j(pred, clip.masks, shown, per_video=True)
+        j_frame = object_j(pred, clip.masks, shown, per_video=False)
+        switches = identity_switches(pred, clip.masks, shown, min_px=200)
         rows.append(
             {
                 "seed": seed,
@@ -506,6 +513,9 @@ def long_rendered_rows(
                 "labels_per_object": float(np.mean(list(per.values()))) if per else float("nan"),
                 "max_labels_per_object": max(per.values(), default=0),
                 "moving_labels_per_object": float(np.mean(list(moving.values()))) if moving else float("nan"),
+                "j_object": float(np.mean(list(j_video.values()))) if j_video else float("nan"),
+                "j_object_frame": float(np.mean(list(j_frame.values()))) if j_frame else float("nan"),
+                "switches_per_object": float(np.mean(list(switches.values()))) if switches else float("nan"),
                 "seconds": seconds,
                 "fps": frames / seconds if seconds > 0 else 0.0,
             }

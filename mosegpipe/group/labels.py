@@ -13,6 +13,7 @@ import numpy.typing as npt
 
 from mosegpipe.configs import LabelConfig
 from mosegpipe.errors import InputError
+from mosegpipe.group.label_shapes import LabelShape, label_shapes, labels_under, shape_holds
 from mosegpipe.masks import MAX_LABEL
 
 _MIN_SHARE = 0.5  # a cluster continues a global label only if most of its shared tracks carried it
@@ -53,6 +54,10 @@ class LabelBook:
             split off a known motion, which kept that motion's label (see match_labels).
         cfg: how labels are remembered.
         memory: moving label -> what is remembered of it (the labels of the last cfg.memory_windows windows).
+        shapes: moving label -> its pixels in the last mask that showed it (with cfg.carry_masks; the labels
+            in `memory` only).
+        last_mask: (H, W) uint8 the last labelled frame's final mask (with cfg.carry_masks), or None.
+        mask_frame: that frame's source index (-1: none).
     """
 
     next_label: int = 0
@@ -62,11 +67,31 @@ class LabelBook:
     pending: dict[int, int] = field(default_factory=dict)
     cfg: LabelConfig = field(default_factory=LabelConfig)
     memory: dict[int, LabelTrace] = field(default_factory=dict)
+    shapes: dict[int, LabelShape] = field(default_factory=dict)
+    last_mask: npt.NDArray[np.uint8] | None = None
+    mask_frame: int = -1
 
     def forget(self) -> None:
         """Forgets every remembered label (a shot cut: no motion of the new shot continues one before it)."""
         self.memory.clear()
         self.pending.clear()
+        self.shapes.clear()
+        self.last_mask, self.mask_frame = None, -1
+
+    def remember_mask(self, mask: npt.NDArray[np.uint8], frame: int) -> None:
+        """Keeps a window's last labelled frame's final mask: the next window (which starts on that frame)
+        reads the labels under its new tracks there, and each moving label it shows its shape (for when it
+        goes missing). Nothing without cfg.carry_masks.
+
+        Args:
+            mask: (H, W) uint8 the frame's final mask.
+            frame: its source index.
+        """
+        if not self.cfg.carry_masks:
+            return
+        self.last_mask, self.mask_frame = mask, frame
+        self.shapes.update(label_shapes(mask, frame))
+        self.shapes = {lab: shape for lab, shape in self.shapes.items() if lab in self.memory}
 
     def new_label(self, busy: set[int]) -> int:
         """A label for a motion that continues none seen before: the next unused one, else the least
@@ -80,6 +105,7 @@ class LabelBook:
         self.num_reused += 1
         label = min(free, key=lambda lab: self.last_window[lab])
         self.memory.pop(label, None)
+        self.shapes.pop(label, None)
         return label
 
 
@@ -111,12 +137,12 @@ def match_labels(
     tracks carried, and no other cluster continues label 0 in step 1 (a cluster most of whose tracks
     were the world is a piece of it, step 2: it stays 0 until it splits off twice). Without it, the
     cluster that continues label 0 is the world, and after a shot cut cluster 0 takes 0.
-
     3. A cluster that would start a new label (steps 2 and 4), a leftover piece of a known motion or new
        tracks, takes back a moving label that this window does not continue but `book` remembers
        (`LabelConfig`): the one most of its tracks held lately, else (new tracks only) the one whose last
        motion carries it to where the cluster lies (`xy`). A motion that merged into another for a window
        and splits off again, or that was hidden, keeps its label.
+       With LabelConfig.carry_masks the labels travel with the masks too (`_known_labels`, `_predicted_share`).
     4. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
        unless the cluster is too small to trust (fewer than LabelConfig.new_tracks tracks, or a quarter of
        the window's, and under LabelConfig.new_share of the window's), which stays unlabelled (-1). The clusters
@@ -138,7 +164,7 @@ def match_labels(
     Returns:
         (N,) int64 global labels.
     """
-    old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
+    old = _known_labels(prev, ids, book, xy, frame)
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     sizes = np.bincount(clusters, minlength=k)
     small = np.where(np.isin(np.arange(k), list(supported)), 0.0, small_guard(book.cfg, clusters.size))
@@ -163,6 +189,23 @@ def match_labels(
     labels = np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
     _remember(book, ids, labels, window, xy, frame)
     return labels
+
+
+def _known_labels(
+    prev: dict[int, int],
+    ids: npt.NDArray[np.int64],
+    book: LabelBook,
+    xy: npt.NDArray[np.float32] | None,
+    frame: int,
+) -> npt.NDArray[np.int64]:
+    """(N,) int64 the label each track carried in the previous window (-1: none). With LabelConfig.carry_masks,
+    a track that carried none takes the moving label under its first position in the last labelled frame's
+    mask when that frame is this window's first (`LabelBook.remember_mask`; windows share their boundary
+    frame): new tracks on a labelled object count as that object's in match_labels' steps 1-2."""
+    old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
+    if book.cfg.carry_masks and book.last_mask is not None and book.mask_frame == frame and xy is not None:
+        old = np.where(old >= 0, old, labels_under(book.last_mask, xy[:, 0]))
+    return old
 
 
 def small_guard(cfg: LabelConfig, num_tracks: int) -> float:
@@ -214,6 +257,8 @@ def _revived_labels(
         held = np.isin(ids, np.fromiter(book.memory[lab].tracks, np.int64))
         share[:, j] = [np.count_nonzero(held & (clusters == c)) / np.count_nonzero(clusters == c) for c in reopen]
     share[share < cfg.revive_share] = 0
+    if cfg.carry_masks and xy is not None:
+        share = np.maximum(share, _predicted_share(book, absent, xy[:, 0], clusters, reopen, frame))
     out: dict[int, int] = {}
     from scipy.optimize import linear_sum_assignment  # on first use: see runtime.import_ahead
 
@@ -246,6 +291,29 @@ def _revived_labels(
         if np.isfinite(dist[r, j]):
             out[placed[r]] = left[j]
     return out
+
+
+def _predicted_share(
+    book: LabelBook,
+    absent: list[int],
+    start_xy: npt.NDArray[np.float32],
+    clusters: npt.NDArray[np.int64],
+    reopen: list[int],
+    frame: int,
+) -> npt.NDArray[np.float64]:
+    """(len(reopen), len(absent)): the share of each cluster's tracks that start (`start_xy`, (N, 2) pixels in
+    `frame`) on each remembered label's last shape moved on by its last motion; 0 under LabelConfig.mask_share."""
+    share = np.zeros((len(reopen), len(absent)))
+    for j, lab in enumerate(absent):
+        shape = book.shapes.get(lab)
+        if shape is None:
+            continue
+        trace = book.memory[lab]
+        shift = trace.velocity_xy * (frame - shape.frame) if np.isfinite(trace.velocity_xy).all() else np.zeros(2)
+        on = shape_holds(shape, start_xy, shift)
+        share[:, j] = [np.count_nonzero(on & (clusters == c)) / np.count_nonzero(clusters == c) for c in reopen]
+    share[share < book.cfg.mask_share] = 0
+    return share
 
 
 def _remember(

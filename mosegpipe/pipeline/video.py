@@ -441,6 +441,8 @@ def _label_window(
             feats = None if which is None else which[at - skip]
             frame = replace(frame, mask=run.masks.finish(frame.mask, at, seen, lab, motion, feats))
         labelled.append(frame)
+    if labelled and labelled[-1].mask is not None:  # the next window starts on this frame: its labels carry on
+        run.book.remember_mask(labelled[-1].mask, labelled[-1].index)
     run.num_windows += 1
     run.num_done += len(labelled)
     result = WindowResult(
