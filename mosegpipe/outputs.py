@@ -126,10 +126,16 @@ def _write_masks_and_overlays(
     xys: list[npt.NDArray[np.float32]],
     labels: npt.NDArray[np.int64],
     fps: float | None = None,
+    overlays_too: bool = True,
 ) -> None:
     """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source;
-    with `fps` (0.0 = unknown), the overlays also as overlay.mp4 (H.264, as whole videos write it)."""
+    with `fps` (0.0 = unknown), the overlays also as overlay.mp4 (H.264, as whole videos write it). Without
+    `overlays_too`, the masks only."""
     (folder / "masks").mkdir()
+    if not overlays_too:
+        for index, mask in zip(indices, masks):
+            write_mask_png(folder / "masks" / f"{index:06d}.png", mask)
+        return
     (folder / "overlay").mkdir()
 
     def overlays() -> Iterator[npt.NDArray[np.uint8]]:
@@ -146,9 +152,11 @@ def _write_masks_and_overlays(
         write_video(folder / "overlay.mp4", overlays(), fps or _FALLBACK_FPS)
 
 
-def _write_clip_views(folder: Path, result: ClipResult, summary: dict[str, Any], rrd: bool) -> None:
-    """A clip's masks/, overlay/, overlay.mp4 and (rrd) recording.rrd into `folder`; the recording's
-    seconds go into summary["timings_s"]."""
+def _write_clip_views(
+    folder: Path, result: ClipResult, summary: dict[str, Any], rrd: bool, overlays: bool = True
+) -> None:
+    """A clip's masks/, (overlays) overlay/ and overlay.mp4, and (rrd) recording.rrd into `folder`; the
+    recording's seconds go into summary["timings_s"]."""
     traj = result.trajectories
     _write_masks_and_overlays(
         folder,
@@ -158,6 +166,7 @@ def _write_clip_views(folder: Path, result: ClipResult, summary: dict[str, Any],
         [result.tracks.xy[traj.track_ids, t] for t in range(result.frames.num_frames)],
         result.clustering.labels,
         fps=result.frames.fps,
+        overlays_too=overlays,
     )
     if rrd:
         from mosegpipe.viz import write_recording
@@ -216,6 +225,7 @@ def write_clip_outputs(
     overwrite: bool = False,
     rrd: bool = True,
     extra: dict[str, Any] | None = None,
+    overlays: bool = True,
 ) -> dict[str, Any]:
     """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg, overlay.mp4 and recording.rrd
     atomically.
@@ -230,6 +240,8 @@ def write_clip_outputs(
         overwrite: replace an existing moseg output folder.
         rrd: also write the Rerun recording.
         extra: more summary.json fields (a batch records its config hash there).
+        overlays: also write overlay/ and overlay.mp4 (False: the masks, labels.npz and summary.json only,
+            `moseg run --outputs masks`).
 
     Returns:
         The summary dict that was written.
@@ -247,7 +259,7 @@ def write_clip_outputs(
             xy=result.tracks.xy[traj.track_ids],
             embeddings=result.embeddings,
         )
-        _write_clip_views(tmp, result, summary, rrd)
+        _write_clip_views(tmp, result, summary, rrd, overlays)
         write_json(tmp / "summary.json", summary)
     return summary
 
@@ -380,6 +392,7 @@ def write_video_outputs(
     info: dict[str, Any] | None = None,
     on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None = None,
     summary_extra: Callable[[], dict[str, Any]] | None = None,
+    overlays: bool = True,
 ) -> dict[str, Any]:
     """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
 
@@ -407,6 +420,7 @@ def write_video_outputs(
             view).
         summary_extra: called once the frames ended; its keys are added to summary.json (a live run's
             counts).
+        overlays: also write overlay.mp4 (False: masks, labels.npz, summary.json and the recording if rrd).
 
     Returns:
         The summary dict written to summary.json.
@@ -438,8 +452,12 @@ def write_video_outputs(
                 )
 
             segmented = partial(segment_video, path, cfg, model, max_frames, masks=False, frames=frames)
-            overlays = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window)
-            write_video(tmp / "overlay.mp4", overlays, fps)
+            shown = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window, overlays)
+            if overlays:
+                write_video(tmp / "overlay.mp4", (o for o in shown if o is not None), fps)
+            else:
+                for _ in shown:
+                    pass
         windows.write_labels(tmp / "labels.npz")
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
         if summary_extra is not None:
@@ -456,9 +474,11 @@ def _written_overlays(
     recorder: VideoRecorder | None,
     on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None,
     on_window: Callable[[WindowResult], None] | None,
-) -> Iterator[npt.NDArray[np.uint8]]:
-    """Writes each frame's mask (and recording) as the windows arrive; yields its overlay. The windows
-    come from `segmented()`, called when the first overlay is asked for; each goes into `windows`."""
+    overlays: bool = True,
+) -> Iterator[npt.NDArray[np.uint8] | None]:
+    """Writes each frame's mask (and recording) as the windows arrive; yields its overlay (None without
+    `overlays`). The windows come from `segmented()`, called when the first overlay is asked for; each goes
+    into `windows`."""
     for window in run_ahead(segmented(), _WINDOWS_AHEAD, "moseg-segment"):
         windows.add(window)  # what the summary and labels.npz need, not the images (flat memory)
         if recorder is not None:
@@ -471,7 +491,7 @@ def _written_overlays(
                 recorder.log_frame(fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask)
             if on_frame is not None:
                 on_frame(fr, mask)
-            yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
+            yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep]) if overlays else None
         if on_window is not None:
             on_window(replace(window, frames=()))
         del window, fr  # before the next window is read: hold a few windows' frames at most

@@ -54,7 +54,8 @@ from mosegpipe.pipeline.common import (
 )
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels, small_guard
-from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
+from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, at_input_size, frame_mask
+from mosegpipe.resize import shrunk_stream
 from mosegpipe.runtime import run_ahead, warnings_held
 from mosegpipe.track import KLTTracker, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories
@@ -172,8 +173,9 @@ def segment_video(
             contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
         )
         for window, first_labelled, after in windows:
-            yield _label_window(window, first_labelled, cfg, model, run, masks, stream, after)
-            del window  # from here on its frames live only in the result: a few windows' frames are held
+            result = _label_window(window, first_labelled, cfg, model, run, masks, stream, after)
+            yield at_input_size(result, run.originals) if run.originals is not None else result
+            del window, result  # from here on its frames live only in the result: a few windows' frames are held
     _report_video_end(path, cfg, info, run, max_frames)
 
 
@@ -212,6 +214,7 @@ class _VideoRun:
     last_mask: npt.NDArray[np.uint8] | None = None
     colour: ColourMemory | None = None
     frame_before: int | None = None
+    originals: dict[int, npt.NDArray[np.uint8]] | None = None
 
 
 def _no_labels() -> npt.NDArray[np.int64]:
@@ -274,6 +277,9 @@ def _read_windows(
     first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
     held: tuple[list[_Frame], bool] | None = None  # a full window waiting for the next frame's flows
     frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames) if frames is None else iter(frames)
+    if cfg.max_side is not None:
+        run.originals = {}
+        frames_iter = shrunk_stream(frames_iter, cfg.max_side, run.originals)
     while True:
         with decode_errors(path):
             item = next(frames_iter, None)
