@@ -26,7 +26,7 @@ from mosegpipe.colours import mask_palette
 from mosegpipe.errors import InputError, OutputExistsError
 from mosegpipe.inference import load_embedder
 from mosegpipe.io import video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
-from mosegpipe.masks import overlay_image
+from mosegpipe.masks import overlay_with_legend
 from mosegpipe.pipeline import (
     ClipResult,
     PairResult,
@@ -127,10 +127,11 @@ def _write_masks_and_overlays(
     labels: npt.NDArray[np.int64],
     fps: float | None = None,
     overlays_too: bool = True,
+    unknown: str = "unknown",
 ) -> None:
     """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source;
     with `fps` (0.0 = unknown), the overlays also as overlay.mp4 (H.264, as whole videos write it). Without
-    `overlays_too`, the masks only."""
+    `overlays_too`, the masks only. The legend names 255 `unknown`."""
     (folder / "masks").mkdir()
     if not overlays_too:
         for index, mask in zip(indices, masks):
@@ -141,7 +142,7 @@ def _write_masks_and_overlays(
     def overlays() -> Iterator[npt.NDArray[np.uint8]]:
         for index, image, mask, xy in zip(indices, images, masks, xys):
             write_mask_png(folder / "masks" / f"{index:06d}.png", mask)
-            overlay = overlay_image(image, mask, xy, labels)
+            overlay = overlay_with_legend(image, mask, xy, labels, unknown)
             write_jpeg(folder / "overlay" / f"{index:06d}.jpg", overlay, quality=90)
             yield overlay
 
@@ -327,7 +328,10 @@ def write_pair_outputs(
             clusters=result.clustering.labels,
             embeddings=result.embeddings,
         )
-        _write_masks_and_overlays(tmp, [0, 1], result.images, result.masks, [m.xy1, m.xy2], result.labels)
+        xys = [m.xy1, m.xy2]
+        _write_masks_and_overlays(
+            tmp, [0, 1], result.images, result.masks, xys, result.labels, unknown="unknown / outlier"
+        )
         if rrd:
             from mosegpipe.viz import write_pair_recording
 
@@ -398,8 +402,7 @@ def write_video_outputs(
 
     Output folder (built atomically; see docs/OUTPUTS.md): masks/NNNNNN.png for every frame (palette
     PNG, value = global motion label, 255 = unknown), overlay.mp4 (H.264), labels.npz, summary.json
-    and recording.rrd (frames as one H.264 video asset, K per window). Only one window's frames are
-    held at a time.
+    and recording.rrd (frames as one H.264 video asset, K per window). Flat memory: a few windows' frames.
 
     Args:
         path: video file or frame folder.
@@ -420,7 +423,7 @@ def write_video_outputs(
             view).
         summary_extra: called once the frames ended; its keys are added to summary.json (a live run's
             counts).
-        overlays: also write overlay.mp4 (False: masks, labels.npz, summary.json and the recording if rrd).
+        overlays: also write overlay.mp4.
 
     Returns:
         The summary dict written to summary.json.
@@ -447,23 +450,28 @@ def write_video_outputs(
                 from mosegpipe.viz import VIDEO_VIZ, VideoRecorder
 
                 # A forced K has no runner-up: no margin chart.
-                recorder = stack.enter_context(
-                    VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps, margins=cfg.k is None)
-                )
+                rec = VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps, margins=cfg.k is None)
+                recorder = stack.enter_context(rec)
 
             segmented = partial(segment_video, path, cfg, model, max_frames, masks=False, frames=frames)
             shown = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window, overlays)
-            if overlays:
-                write_video(tmp / "overlay.mp4", (o for o in shown if o is not None), fps)
-            else:
-                for _ in shown:
-                    pass
+            _drain(shown, tmp / "overlay.mp4" if overlays else None, fps)
         windows.write_labels(tmp / "labels.npz")
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
         if summary_extra is not None:
             summary.update(summary_extra())
         write_json(tmp / "summary.json", summary)
     return summary
+
+
+def _drain(shown: Iterator[npt.NDArray[np.uint8] | None], video: Path | None, fps: float) -> None:
+    """Runs `shown` to its end (each frame's files are written as it is asked for), its overlays into
+    `video` (H.264) when given."""
+    if video is not None:
+        write_video(video, (o for o in shown if o is not None), fps)
+        return
+    for _ in shown:
+        pass
 
 
 def _written_overlays(
@@ -482,7 +490,7 @@ def _written_overlays(
     for window in run_ahead(segmented(), _WINDOWS_AHEAD, "moseg-segment"):
         windows.add(window)  # what the summary and labels.npz need, not the images (flat memory)
         if recorder is not None:
-            recorder.log_window(window.start, window.k, window.k_scores)
+            recorder.log_window(window.start, window.k, window.k_scores, window.labels)
         for fr in window.frames:
             keep = fr.labels >= 0
             mask = frame_mask(fr, cfg.mask)
@@ -491,7 +499,7 @@ def _written_overlays(
                 recorder.log_frame(fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask)
             if on_frame is not None:
                 on_frame(fr, mask)
-            yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep]) if overlays else None
+            yield overlay_with_legend(fr.image, mask, fr.xy[keep], fr.labels[keep]) if overlays else None
         if on_window is not None:
             on_window(replace(window, frames=()))
         del window, fr  # before the next window is read: hold a few windows' frames at most

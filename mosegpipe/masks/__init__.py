@@ -31,7 +31,7 @@ Methods (`MaskConfig.method`):
 Every method but "motion" leaves pixels farther than `max_distance_px` from every labelled track unknown (255).
 
 Modules: labels (the mask values, MaskConfig, the track-only methods), moving (the "motion" masks) and
-overlays (overlay_mask, overlay_image). Every public name is re-exported here.
+overlays (overlay_mask, overlay_image, overlay_with_legend). Every public name is re-exported here.
 """
 
 from __future__ import annotations
@@ -55,8 +55,10 @@ from mosegpipe.masks.moving import (
     split_unexplained,
 )
 from mosegpipe.masks.overlays import (
+    draw_legend,
     overlay_image,
     overlay_mask,
+    overlay_with_legend,
 )
 
 __all__ = [
@@ -71,8 +73,10 @@ __all__ = [
     "labels_to_masks",
     "motion_masks",
     "moving_to_labels",
+    "draw_legend",
     "overlay_image",
     "overlay_mask",
+    "overlay_with_legend",
     "reassign_along",
     "reassign_by_flow",
     "split_unexplained",

@@ -104,8 +104,7 @@ class PipelineConfig:
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix fit explains less of it is outliers.
         video_k_step: whole videos: a window tries K up to the previous window's K plus this (None = the full sweep).
         video_cut_survival: whole videos: fewer surviving tracks than this share is a shot cut (None = no cut detection).
-        max_side: segment frames whose longer side exceeds this many pixels shrunk to it, and write the masks at
-            the input's size (nearest-neighbour labels; mosegpipe.resize). None = at the input's size.
+        max_side: frames with a longer side shrunk to it to segment, masks written at the input's size (None = off).
     """
 
     frames: int = 5
