@@ -287,7 +287,7 @@ def read_tracks_file(path: Path) -> tuple[Any, Any]:
 @_friendly
 @option_blocks
 def tracks(
-    file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: README).")],
+    file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: docs/CLI.md).")],
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Output folder (default: beside FILE, named after it + '_moseg')."),
