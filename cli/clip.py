@@ -4,7 +4,6 @@ tracks made elsewhere): parse the options, one library call, print."""
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
@@ -28,6 +27,7 @@ from mosegpipe.cli.options import (
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
+    MaxSide,
     Method,
     MethodChoice,
     ModelOpt,
@@ -48,7 +48,7 @@ from mosegpipe.cli.options import (
     option_blocks,
 )
 from mosegpipe.errors import InputError
-from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES, MIN_MAX_SIDE_PX
+from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES
 from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
 
@@ -104,15 +104,7 @@ def run(
     masks: MaskOptions = MaskOptions(),
     mask_extra_tracks: MaskExtraTracks = MASK_EXTRA_TRACKS,
     preset: Preset = PresetChoice(PRESET_NAMES[0]),
-    max_side: Annotated[
-        int | None,
-        typer.Option(
-            "--max-side",
-            min=MIN_MAX_SIDE_PX,
-            help="Segment frames whose longer side exceeds N px shrunk to N (faster on HD video); the masks "
-            "are written at the input's size (nearest-neighbour labels).",
-        ),
-    ] = None,
+    max_side: MaxSide = None,
     outputs: Annotated[
         RunOutputs,
         typer.Option(
@@ -164,9 +156,8 @@ def run(
         masks=masks,
         mask_extra_tracks=mask_extra_tracks,
         preset=preset,
+        max_side=max_side,
     )
-    if max_side is not None:
-        cfg = replace(cfg, max_side=max_side)
     views = outputs == RunOutputs.all
     rrd = views and not no_rrd
     out = out or _default_out(clip, "_moseg")
