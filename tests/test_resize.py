@@ -12,7 +12,7 @@ import pytest
 from mosegpipe.errors import ConfigError
 from mosegpipe.io import read_palette_png
 from mosegpipe.pipeline import PipelineConfig, segment_frames
-from mosegpipe.resize import shrink_factor, upscale_labels, upscale_xy
+from mosegpipe.resize import shrink_factor, snap_labels, upscale_labels, upscale_mask, upscale_xy
 from mosegpipe.types import Frames
 
 from helpers import moseg, render_scene, write_avi
@@ -36,6 +36,24 @@ def test_upscaled_labels_are_the_small_masks_labels_only() -> None:
     np.testing.assert_allclose(
         upscale_xy(np.array([[0.0, 0.0], [39.0, 29.0]], np.float32), 0.25), [[1.5, 1.5], [157.5, 117.5]]
     )
+
+
+def test_snapped_masks_follow_the_frames_edges() -> None:
+    """The object's edge in the full-size frame (column 322) lies between two small pixels: nearest-neighbour
+    upsampling puts the label's edge on the small grid (column 320), snapping moves it onto the frame's."""
+    image = np.zeros((480, 640, 3), np.uint8)
+    image[:, 322:] = 200
+    image[100:140, 500:540] = 60  # texture inside the object: no label change there
+    small = np.zeros((120, 160), np.uint8)
+    small[:, 80:] = 3
+    nearest = upscale_labels(small, (480, 640))
+    snapped = snap_labels(small, image, 8)
+    assert np.flatnonzero(nearest[240])[0] == 320
+    assert np.flatnonzero(snapped[240])[0] == 322
+    assert set(np.unique(snapped)) == {0, 3} and (snapped[:, 340:] == 3).all() and (snapped[:, :300] == 0).all()
+    np.testing.assert_array_equal(upscale_mask(small, image), snap_labels(small, image, 8))  # radius 2 small px
+    one = np.full((120, 160), 7, np.uint8)
+    assert (snap_labels(one, image, 8) == 7).all()
 
 
 def test_max_side_is_checked() -> None:

@@ -32,7 +32,7 @@ from mosegpipe.pipeline.common import (
     world_to_zero,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.resize import shrink_factor, shrink_image, shrink_images, upscale_labels, upscale_xy
+from mosegpipe.resize import shrink_factor, shrink_image, shrink_images, upscale_mask, upscale_xy
 from mosegpipe.rigid import label_by_rigid_motion
 from mosegpipe.track import spread_corners, track_klt, track_points
 from mosegpipe.trajectories import build_trajectories
@@ -149,7 +149,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     note saying why).
 
     With cfg.max_side, frames whose longer side exceeds it are segmented shrunk to it and the result is
-    brought back to their size (`full_size`): masks upsampled (nearest neighbour), track positions scaled.
+    brought back to their size (`full_size`): masks upsampled (edges snapped to the frames'), track positions scaled.
     """
     scale = shrink_factor(frames.images.shape[1:3], cfg.max_side)
     if scale >= 1.0:
@@ -167,8 +167,9 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
 
 def full_size(result: ClipResult, frames: Frames, scale: float, resize_s: float = 0.0) -> ClipResult:
     """A clip's result on frames shrunk by `scale` brought back to `frames` (the input): its frames, its
-    tracks' positions on the input's grid, its masks upsampled by nearest neighbour; timings gain "resize"
-    (the shrinking and the upsampling, seconds)."""
+        tracks' positions on the input's grid, its masks upsampled with their edges snapped to the input's frames
+    (resize.upscale_mask); timings gain "resize"
+        (the shrinking and the upsampling, seconds)."""
     t0 = time.perf_counter()
     tracks = Tracks(
         xy=upscale_xy(result.tracks.xy, scale),
@@ -179,7 +180,7 @@ def full_size(result: ClipResult, frames: Frames, scale: float, resize_s: float 
         result.trajectories,
         data=upscale_xy(result.trajectories.data.reshape(-1, 2), scale).reshape(result.trajectories.data.shape),
     )
-    masks = upscale_labels(result.masks, tracks.size_hw)
+    masks = np.stack([upscale_mask(m, image) for m, image in zip(result.masks, frames.images)])
     timings = {**result.timings, "resize": resize_s + time.perf_counter() - t0}
     return replace(result, frames=frames, tracks=tracks, trajectories=traj, masks=masks, timings=timings)
 
