@@ -173,7 +173,7 @@ MaxSide = Annotated[
         "--max-side",
         min=MIN_MAX_SIDE_PX,
         help="Segment frames whose longer side exceeds N px shrunk to N (faster on HD video); the masks are "
-        "written at the input's size (nearest-neighbour labels).",
+        "written at the input's size (labels upsampled, edges snapped to the frame's).",
     ),
 ]
 
