@@ -42,6 +42,7 @@ from mosegpipe.settings import (
     MAX_MIN_DISTANCE_PX,
     MAX_THREADS,
     MAX_WIN_SIZE_PX,
+    MIN_MAX_SIDE_PX,
     SettingError,
 )
 from mosegpipe.types import K_METHODS, MASK_METHODS, PRESET_NAMES, SEGMENT_METHODS, TRACKERS
@@ -164,6 +165,17 @@ Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results al
 
 
 NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
+
+
+MaxSide = Annotated[
+    int | None,
+    typer.Option(
+        "--max-side",
+        min=MIN_MAX_SIDE_PX,
+        help="Segment frames whose longer side exceeds N px shrunk to N (faster on HD video); the masks are "
+        "written at the input's size (labels upsampled, edges snapped to the frame's).",
+    ),
+]
 
 
 Start = Annotated[
@@ -453,9 +465,13 @@ def pipeline_cfg(
     masks: MaskOptions | None = None,
     mask_extra_tracks: int | None = None,
     preset: StrEnum | str | None = None,
+    max_side: int | None = None,
 ) -> Any:
     """The PipelineConfig of a command's options (`PipelineConfig.from_options`; tracker / masks None: the
-    library's defaults; mask_extra_tracks None: not an option of the command; preset None: "best")."""
+    library's defaults; mask_extra_tracks None: not an option of the command; preset None: "best"; max_side
+    None: frames segmented at their size)."""
+    from dataclasses import replace
+
     from mosegpipe.pipeline import PipelineConfig
 
     track = tracker.config_fields() if tracker is not None else {}
@@ -463,7 +479,7 @@ def pipeline_cfg(
     if mask_extra_tracks is not None:
         mask["extra_tracks"] = mask_extra_tracks
     try:
-        return PipelineConfig.from_options(
+        config = PipelineConfig.from_options(
             frames,
             start=start,
             k=clustering.k,
@@ -477,6 +493,7 @@ def pipeline_cfg(
             mask=mask,
             preset=enum_value(preset),
         )
+        return config if max_side is None else replace(config, max_side=max_side)
     except SettingError as exc:  # named by the option that set it
         if exc.path not in SETTING_OPTIONS:
             raise
