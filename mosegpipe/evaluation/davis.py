@@ -56,7 +56,13 @@ from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_
 from mosegpipe.errors import MosegError, check_choice
 from mosegpipe.evaluation.flow_baseline import FlowHomographyConfig as FlowHomographyConfig  # re-exported
 from mosegpipe.evaluation.flow_baseline import flow_homography_labels
-from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard
+from mosegpipe.evaluation.metrics import (
+    BOUNDARY_TOLERANCE,
+    background_points_moving,
+    boundary_f,
+    jaccard,
+    union_shares,
+)
 from mosegpipe.masks import UNKNOWN, WORLD
 from mosegpipe.outputs import write_clip_outputs, write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip
@@ -70,8 +76,26 @@ MODES: dict[str, int | None] = {"clip5": 5, "whole": None}
 DAVIS_MODES = {"davis": "whole", "davis-clip5": "clip5"}
 """`moseg eval` protocol name -> mode."""
 
-MaskMethod = Callable[[DavisClip, str], npt.NDArray[np.uint8]]
-"""A mask method: (clip, mode) -> (T, H, W) uint8 labels for clip.images, k = motion k, 255 = unknown.
+TrackPoints = list[tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]]
+"""Per frame of a clip, the tracks' (xy (N, 2) float32 pixels, labels (N,) int64, -1 = unlabelled) as written."""
+
+
+@dataclass(frozen=True)
+class MethodOutput:
+    """What a mask method gives: labels, and the tracks' labelled points when it has tracks.
+
+    Attributes:
+        labels: (T, H, W) uint8 labels, k = motion k, 255 = unknown.
+        points: the tracks per frame (`TrackPoints`); None for a method without tracks.
+    """
+
+    labels: npt.NDArray[np.uint8]
+    points: TrackPoints | None = None
+
+
+MaskMethod = Callable[[DavisClip, str], "npt.NDArray[np.uint8] | MethodOutput"]
+"""A mask method: (clip, mode) -> (T, H, W) uint8 labels for clip.images, k = motion k, 255 = unknown
+(or a MethodOutput with them and the tracks' labelled points).
 
 The clip holds the frames to segment (images (T, H, W, 3) uint8 RGB, and frames_dir / start for
 methods that read the frames themselves); it must not look at clip.gt.
@@ -239,19 +263,32 @@ def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | 
             models[frames] = load_embedder(frames, checkpoint)
         return models[frames]
 
-    def run(clip: DavisClip, mode: str) -> npt.NDArray[np.uint8]:
+    def run(clip: DavisClip, mode: str) -> MethodOutput:
         with tempfile.TemporaryDirectory(prefix="moseg-davis-") as tmp:
             out = Path(tmp) / "out"
+            seen: dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]] = {}
             if mode == "clip5":
                 clip_cfg = replace(base, frames=clip.num_frames, start=clip.start)
                 result = segment_clip(clip.frames_dir, clip_cfg, model_for(clip.num_frames))
                 write_clip_outputs(result, out, clip_cfg, rrd=False)
+                ids = result.trajectories.track_ids
+                for t in range(clip.num_frames):
+                    on = result.tracks.visible[ids, t]
+                    seen[clip.start + t] = (result.tracks.xy[ids[on], t], result.clustering.labels[on])
             else:
                 video_cfg = replace(base, start=clip.start)
                 write_video_outputs(
-                    clip.frames_dir, out, video_cfg, model_for(base.frames), rrd=False, max_frames=clip.num_frames
+                    clip.frames_dir,
+                    out,
+                    video_cfg,
+                    model_for(base.frames),
+                    rrd=False,
+                    max_frames=clip.num_frames,
+                    on_frame=lambda fr, _mask: seen.__setitem__(fr.index, (fr.xy.copy(), fr.labels.copy())),
                 )
-            return read_written_masks(out, clip.start, clip.num_frames, clip.gt.shape[1:])
+            empty = (np.zeros((0, 2), np.float32), np.zeros(0, np.int64))
+            points = [seen.get(clip.start + t, empty) for t in range(clip.num_frames)]
+            return MethodOutput(read_written_masks(out, clip.start, clip.num_frames, clip.gt.shape[1:]), points)
 
     return run
 
@@ -315,6 +352,11 @@ class DavisRow:
         world_off: share of frames in which the label covering most of the true background is not 0.
         majority_j: mean J with the clip's most common label as background (the earlier, after-the-fact
             reading; for comparison).
+        fp_share: mean over frames of the union's share that is background written as moving (false positives).
+        miss_share: mean over frames of the union's share that is the object written as world (misses);
+            j_mean + fp_share + miss_share = 1.
+        bg_tracks_moving: the share of labelled track points on the true background labelled as a mover
+            (NaN for a method without tracks).
         k: labels found over the clip (255 excluded); 0 on failure.
         seconds: wall time of the method on the clip (reading and scoring excluded).
         error: the MosegError's message when the method failed ("" otherwise).
@@ -335,6 +377,9 @@ class DavisRow:
     error: str = ""
     world_off: float = 0.0
     majority_j: float = 0.0
+    fp_share: float = 0.0
+    miss_share: float = 0.0
+    bg_tracks_moving: float = math.nan
 
 
 SCORE_FIELDS = (
@@ -347,6 +392,9 @@ SCORE_FIELDS = (
     "best_label_j",
     "world_off",
     "majority_j",
+    "fp_share",
+    "miss_share",
+    "bg_tracks_moving",
     "k",
     "seconds",
 )
@@ -375,18 +423,22 @@ class DavisReport:
         return {"mode": self.mode, "method": self.method, "rows": [asdict(r) for r in self.rows], "means": self.means}
 
 
-def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
+def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike, points: TrackPoints | None = None) -> dict[str, float]:
     """The DavisRow scores of one clip's labels.
 
     Args:
         labels: (T, H, W) uint8 labels, 255 = unknown.
         gt: (T, H, W) bool ground truth.
+        points: the tracks' labelled points per frame (None: bg_tracks_moving is NaN).
 
     Returns:
-        dict with the j_*, f_*, best_label_j, world_off, majority_j and k fields of DavisRow.
+        dict with the j_*, f_*, best_label_j, world_off, majority_j, fp_share, miss_share,
+        bg_tracks_moving and k fields of DavisRow.
     """
     lab = np.asarray(labels, dtype=np.uint8)
-    j, f = per_frame_scores(foreground_from_labels(lab), gt)
+    fg = foreground_from_labels(lab)
+    j, f = per_frame_scores(fg, gt)
+    shares = np.array([union_shares(p, g) for p, g in zip(fg, np.asarray(gt, dtype=bool))]).reshape(-1, 2)
     j_majority, _ = per_frame_scores(majority_foreground(lab), gt)
     jm, jr, jd = clip_statistics(j)
     fm, fr, fd = clip_statistics(f)
@@ -401,12 +453,21 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
         "best_label_j": best_single_label(lab, gt)[1],
         "world_off": world_off_share(lab, gt),
         "majority_j": float(np.mean(j_majority)),
+        "fp_share": float(shares[:, 0].mean()),
+        "miss_share": float(shares[:, 1].mean()),
+        "bg_tracks_moving": math.nan if points is None else background_points_moving(points, gt, WORLD),
         "k": int(np.count_nonzero(present != UNKNOWN)),
     }
 
 
 WORLD_OFF_LIMIT = 0.1
 """A clip counts as "world off" in a report's means when more than this share of its frames is."""
+
+
+def _mean(values: Sequence[float]) -> float:
+    """The mean of the values that are not NaN (NaN when none is)."""
+    x = np.asarray(values, np.float64)
+    return float(x[~np.isnan(x)].mean()) if (~np.isnan(x)).any() else math.nan
 
 
 def summarize_rows(rows: Sequence[DavisRow]) -> dict[str, dict[str, float]]:
@@ -416,7 +477,7 @@ def summarize_rows(rows: Sequence[DavisRow]) -> dict[str, dict[str, float]]:
     for part in ("dev", "val", "all"):
         chosen = [r for r in rows if part == "all" or r.part == part]
         if chosen:
-            means[part] = {name: float(np.mean([getattr(r, name) for r in chosen])) for name in SCORE_FIELDS}
+            means[part] = {name: _mean([getattr(r, name) for r in chosen]) for name in SCORE_FIELDS}
             means[part].update(
                 clips=len(chosen),
                 failed=sum(bool(r.error) for r in chosen),
@@ -467,8 +528,11 @@ def run_davis(
         clip = read_davis_clip(root, clip_name, max_frames=max_frames)
         error = ""
         t0 = time.perf_counter()
+        points: TrackPoints | None = None
         try:
-            labels = run(clip, mode)
+            given = run(clip, mode)
+            labels = given.labels if isinstance(given, MethodOutput) else given
+            points = given.points if isinstance(given, MethodOutput) else None
         except MosegError as exc:
             error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             labels = np.full(clip.gt.shape, UNKNOWN, dtype=np.uint8)
@@ -476,7 +540,7 @@ def run_davis(
         seconds = time.perf_counter() - t0
         if labels.shape != clip.gt.shape:
             raise ValueError(f"method {name!r} gave labels {labels.shape} for {clip_name} {clip.gt.shape}")
-        scores = score_clip(labels, clip.gt)
+        scores = score_clip(labels, clip.gt, points)
         row = DavisRow(
             clip=clip_name,
             part=davis_part(clip_name),
@@ -493,6 +557,9 @@ def run_davis(
             error=error,
             world_off=scores["world_off"],
             majority_j=scores["majority_j"],
+            fp_share=scores["fp_share"],
+            miss_share=scores["miss_share"],
+            bg_tracks_moving=scores["bg_tracks_moving"],
         )
         log.info("%s: J %.3f F %.3f (%.1f s)", clip_name, row.j_mean, row.f_mean, seconds)
         rows.append(row)
@@ -507,22 +574,7 @@ def _fmt(value: float | int | str) -> str:
 
 def format_table(report: DavisReport) -> str:
     """A plain-text table: one line per clip, then the dev / val / all means; failures listed below."""
-    head = [
-        "clip",
-        "part",
-        "T",
-        "J",
-        "J rec",
-        "J dec",
-        "F",
-        "F rec",
-        "F dec",
-        "best-lbl J",
-        "world off",
-        "majority J",
-        "K",
-        "s",
-    ]
+    head = "clip|part|T|J|J rec|J dec|F|F rec|F dec|best-lbl J|world off|majority J|FP|miss|bg trk mov|K|s".split("|")
     lines = [[r.clip, r.part, str(r.frames)] + [_fmt(getattr(r, n)) for n in SCORE_FIELDS] for r in report.rows]
     for part, m in report.means.items():
         label = f"mean {part} ({int(m['clips'])}; world off {int(m['world_off_clips'])})"
