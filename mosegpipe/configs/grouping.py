@@ -253,6 +253,19 @@ class WorldConfig:
         parallax: a pixel nearest a world track is static when its flow lies on the world's epipolar line.
         parallax_sigma_px: the noise of a track's position, pixels (GRIC and RANSAC thresholds).
         parallax_min_points: fewest world tracks to fit a fundamental matrix from.
+        rigid_scene: every pixel judged against the camera's 3D motion over the window, fitted to all tracks
+            (`mosegpipe.scene3d`): where GRIC picks a fundamental matrix, a pixel whose flow keeps one
+            projective depth along its epipolar lines is static.
+        rigid_scene_px: the inlier threshold of that fit (distance to the epipolar line; twice for the
+            homography it is weighed against), full-resolution pixels.
+        rigid_scene_world: least share of the world's tracks among the fit's inliers for the frame to be judged.
+        rigid_scene_scale: the pixels are judged at this share of the flow's resolution.
+        rigid_scene_gate: how the fundamental matrix is chosen over the homography: "gric" (Torr's criterion,
+            `twoview.gric`), or "parallax" (at least rigid_scene_parallax of the tracks are its inliers and not
+            the homography's, and it has as many inliers).
+        rigid_scene_parallax: that share, for the "parallax" gate.
+        rigid_scene_region: which pixels the 3D motion may explain: "all", or "world" (those whose nearest
+            labelled track is the world's).
     """
 
     enabled: bool = True
@@ -264,6 +277,13 @@ class WorldConfig:
     parallax: bool = True
     parallax_sigma_px: float = 1.0
     parallax_min_points: int = 30
+    rigid_scene: bool = False
+    rigid_scene_px: float = 1.0
+    rigid_scene_world: float = 0.7
+    rigid_scene_scale: float = 0.5
+    rigid_scene_gate: str = "gric"
+    rigid_scene_parallax: float = 0.05
+    rigid_scene_region: str = "world"
 
     def __post_init__(self) -> None:
         check_fields(self, _WORLD_CHECKS)
@@ -273,6 +293,12 @@ _WORLD_CHECKS: tuple[Check, ...] = (
     ("grid", lambda v: 2 <= v <= 64, "lie in 2..64"),
     ("parallax_min_points", lambda v: v >= 8, "be >= 8"),
     ("parallax_sigma_px", lambda v: v > 0, "be > 0"),
+    ("rigid_scene_px", lambda v: v > 0, "be > 0"),
+    ("rigid_scene_world", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("rigid_scene_scale", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("rigid_scene_gate", lambda v: v in ("gric", "parallax"), "be 'gric' or 'parallax'"),
+    ("rigid_scene_parallax", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("rigid_scene_region", lambda v: v in ("all", "world"), "be 'all' or 'world'"),
     *((name, lambda v: v >= 0, "be >= 0") for name in ("border_weight", "continuity", "static_px", "static_floor")),
 )
 """WorldConfig's checks: (field, test, what it must be)."""

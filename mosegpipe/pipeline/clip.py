@@ -33,6 +33,7 @@ from mosegpipe.pipeline.common import (
 )
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.rigid import label_by_rigid_motion
+from mosegpipe.scene3d import explain_rigid_scene
 from mosegpipe.track import spread_corners, track_klt, track_points
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import FLOW_MASK_METHODS, Clustering, Frames, Tracks, Trajectories
@@ -229,6 +230,7 @@ def clip_masks(
         # as it was trained on it, before this step)
         if motion is not None and cfg.mask.method == "motion":
             motion = explain_parallax(motion, tracks.xy[track_ids], labels, cfg.world)
+            motion = explain_rigid_scene(motion, tracks.xy[track_ids], labels, cfg.world)
         return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:

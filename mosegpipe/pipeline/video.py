@@ -56,6 +56,7 @@ from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.labels import LabelBook, match_labels, small_guard
 from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
 from mosegpipe.runtime import run_ahead, warnings_held
+from mosegpipe.scene3d import explain_rigid_scene
 from mosegpipe.track import KLTTracker, tracks_from_steps
 from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import FLOW_MASK_METHODS, Trajectories
@@ -493,6 +494,7 @@ def _window_pixels(
         return moving, which, motion
     if found.track_ids.size and cfg.mask.method == "motion":  # the world's 3D structure: its parallax is not motion
         motion = explain_parallax(motion, found.xy, found.labels, cfg.world)
+        motion = explain_rigid_scene(motion, found.xy, found.labels, cfg.world)
     indices = [t for t, _, _, _ in window]
     images = np.stack([img for _, img, _, _ in window])
     shown = _shown_motions(run.last_mask)
