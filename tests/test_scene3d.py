@@ -1,12 +1,16 @@
 """Every pixel judged against the camera's 3D motion: near structure in front of a translating camera is static,
-a mover across the epipolar lines is not, and a planar scene keeps the homography's residual."""
+a mover across the epipolar lines is not, and a planar scene keeps the homography's residual; a moving
+region the world's tracks hold stays with the world."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from mosegpipe.colours import WORLD
 from mosegpipe.configs.grouping import WorldConfig
 from mosegpipe.flow import FrameMotion, camera_residual, fit_camera
+from mosegpipe.masks import MaskConfig
+from mosegpipe.masks.moving import moving_to_labels, world_held
 from mosegpipe.scene3d import explain_rigid_scene, partners
 
 H, W, T = 96, 128, 5
@@ -67,3 +71,19 @@ def test_a_planar_scene_keeps_the_homography_residual() -> None:
     for gate in ("gric", "parallax"):
         out = explain_rigid_scene(motion, xy, labels, WorldConfig(rigid_scene=True, rigid_scene_gate=gate))
         assert np.array_equal(out.residual, motion.residual), gate
+
+
+def test_a_moving_region_full_of_world_tracks_stays_with_the_world() -> None:
+    moving = np.zeros((40, 60), bool)
+    moving[2:12, 2:20] = True  # water: 12 world tracks in it
+    moving[20:35, 30:50] = True  # a mover: 10 tracks of its own and 2 of the world at its edge
+    water = [(x, y) for x in range(4, 19, 5) for y in (4, 7, 10, 11)]
+    mover = [(x, y) for x in range(32, 49, 4) for y in (22, 30)]
+    xy = np.array(water + mover + [(30, 20), (49, 34)], np.float32)
+    labels = np.array([WORLD] * len(water) + [3] * len(mover) + [WORLD, WORLD])
+    held = world_held(moving, xy, labels, WORLD, share=0.95, min_tracks=10)
+    assert not held[2:12, 2:20].any() and held[20:35, 30:50].all()
+    assert world_held(moving, xy, labels, WORLD, share=0.95, min_tracks=20) is moving  # too few tracks to judge
+    mask = moving_to_labels(moving, xy, labels, WORLD, cfg=MaskConfig(world_regions=0.95, world_region_tracks=10))
+    assert (mask[2:12, 2:20] == WORLD).all() and (mask[20:35, 30:50] == 3).all()
+    assert (moving_to_labels(moving, xy, labels, WORLD)[2:12, 2:20] == 3).all()  # off: the nearest mover's

@@ -61,6 +61,46 @@ def label_moving_pixels(
     return out
 
 
+def world_held(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    share: float,
+    min_tracks: int,
+) -> npt.NDArray[np.bool_]:
+    """`moving` less its regions that the world's tracks hold: the tracks' grouping has the last word on a
+    moving region full of tracks it calls static (parallax, a texture the flow gets wrong).
+
+    Args:
+        moving: (H, W) bool moving pixels.
+        xy: (N, 2) float32 the frame's track positions, pixels.
+        labels: (N,) int64 their labels (-1 = unlabelled, not counted).
+        background: the world's label.
+        share: least share of a region's labelled tracks that are the world's.
+        min_tracks: least number of labelled tracks in the region.
+
+    Returns:
+        (H, W) bool (`moving` itself when nothing changes).
+    """
+    height, width = moving.shape
+    ij = np.round(xy).astype(np.int64)
+    ok = (labels >= 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
+    ok[ok] = moving[ij[ok, 1], ij[ok, 0]]
+    if ok.sum() < min_tracks or not (labels[ok] == background).any():
+        return moving
+    num, regions = cv2.connectedComponents(moving.astype(np.uint8), connectivity=8)
+    where = regions[ij[ok, 1], ij[ok, 0]]
+    total = np.bincount(where, minlength=num)
+    world = np.bincount(where[labels[ok] == background], minlength=num)
+    held = (total >= min_tracks) & (world >= share * np.maximum(total, 1))
+    held[0] = False
+    if not held.any():
+        return moving
+    out: npt.NDArray[np.bool_] = moving & ~held[regions]
+    return out
+
+
 def carry_unclustered(
     mask: npt.NDArray[np.uint8], previous: npt.NDArray[np.uint8] | None, min_share: float = 0.3
 ) -> npt.NDArray[np.uint8]:
@@ -132,6 +172,8 @@ def moving_to_labels(
     """
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     xy = np.asarray(xy, np.float32).reshape(-1, 2)
+    if cfg.world_regions > 0:
+        moving = world_held(moving, xy, labels, background, cfg.world_regions, cfg.world_region_tracks)
     out = label_moving_pixels(moving, xy, labels, background, MOVING_UNCLUSTERED)
     keep = labels >= 0
     # The flood only decides between two or more moving motions: with one, every moving pixel has its
