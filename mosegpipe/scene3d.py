@@ -161,8 +161,10 @@ def rigid_residual(
     to_full = 1.0 / (motion.scale * js)
     p = grid.reshape(-1, 2).astype(np.float64) * to_full
     dense_par, dense_bas = [], []
+    dense_par_far_at = p
     for u, v in zip(partners(t, num), chosen):
         at = _chained(flows, t, u, grid).reshape(-1, 2).astype(np.float64) * to_full
+        dense_par_far_at = at if u == partners(t, num)[0] else dense_par_far_at
         mapped, basis = twoview.parallax_basis(v.plane, v.epipole, p)
         dense_par.append(at - mapped)
         dense_bas.append(basis)
@@ -171,6 +173,10 @@ def rigid_residual(
     res[sign * g < farthest] = np.inf  # beyond the world's farthest depth: not explained (a followed mover)
     if cfg.rigid_scene_region == "world":
         res[~_world_side(xy[:, t], labels, (jh, jw), motion.scale * js).ravel()] = np.inf
+    elif cfg.rigid_scene_region == "faster":
+        # nearer static structure sweeps past at least as fast as the world; a mover the camera follows lags
+        world_step = float(np.median(np.linalg.norm(pts[world, partners(t, num)[0]] - pts[world, t], axis=1)))
+        res[np.linalg.norm(dense_par_far_at - p, axis=1) < world_step] = np.inf
     small = (res * motion.scale).reshape(jh, jw).astype(np.float32)
     out: npt.NDArray[np.float32] = cv2.resize(np.minimum(small, 1e6), (w, h), interpolation=cv2.INTER_LINEAR)
     return out

@@ -264,8 +264,9 @@ class WorldConfig:
             `twoview.gric`), or "parallax" (at least rigid_scene_parallax of the tracks are its inliers and not
             the homography's, and it has as many inliers).
         rigid_scene_parallax: that share, for the "parallax" gate.
-        rigid_scene_region: which pixels the 3D motion may explain: "all", or "world" (those whose nearest
-            labelled track is the world's).
+        rigid_scene_region: which pixels the 3D motion may explain: "all", "world" (those whose nearest
+            labelled track is the world's) or "faster" (those whose flow to the farthest frame is at least the
+            world's tracks' median: near structure sweeps past faster, a mover the camera follows lags).
     """
 
     enabled: bool = True
@@ -298,7 +299,7 @@ _WORLD_CHECKS: tuple[Check, ...] = (
     ("rigid_scene_scale", lambda v: 0 < v <= 1, "lie in (0, 1]"),
     ("rigid_scene_gate", lambda v: v in ("gric", "parallax"), "be 'gric' or 'parallax'"),
     ("rigid_scene_parallax", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
-    ("rigid_scene_region", lambda v: v in ("all", "world"), "be 'all' or 'world'"),
+    ("rigid_scene_region", lambda v: v in ("all", "world", "faster"), "be 'all', 'world' or 'faster'"),
     *((name, lambda v: v >= 0, "be >= 0") for name in ("border_weight", "continuity", "static_px", "static_floor")),
 )
 """WorldConfig's checks: (field, test, what it must be)."""

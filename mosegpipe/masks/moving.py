@@ -70,7 +70,8 @@ def world_held(
     min_tracks: int,
 ) -> npt.NDArray[np.bool_]:
     """`moving` less its regions that the world's tracks hold: the tracks' grouping has the last word on a
-    moving region full of tracks it calls static (parallax, a texture the flow gets wrong).
+    moving region full of tracks it calls static (parallax, a texture the flow gets wrong), in a frame where it
+    found a mover of its own (at least `min_tracks` tracks of moving motions; else `moving` as it is).
 
     Args:
         moving: (H, W) bool moving pixels.
@@ -87,7 +88,9 @@ def world_held(
     ij = np.round(xy).astype(np.int64)
     ok = (labels >= 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
     ok[ok] = moving[ij[ok, 1], ij[ok, 0]]
-    if ok.sum() < min_tracks or not (labels[ok] == background).any():
+    movers = (labels >= 0) & (labels != background)
+    # a frame whose clustering found no mover of its own is left to the flow (a mover merged into the world)
+    if ok.sum() < min_tracks or not (labels[ok] == background).any() or movers.sum() < min_tracks:
         return moving
     num, regions = cv2.connectedComponents(moving.astype(np.uint8), connectivity=8)
     where = regions[ij[ok, 1], ij[ok, 0]]
