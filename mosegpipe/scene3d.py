@@ -12,9 +12,12 @@ its parallax must lie along its epipolar lines and keep one projective depth in 
 it is smaller.
 
 Which consensus is the world still needs the world's evidence (`mosegpipe.world`): a frame is judged
-only where most of the tracks labelled world are the fundamental matrix's inliers. A mover that the
-camera follows moves along its epipolar lines too (it looks like the far distance); it is kept by the
-depth range: a pixel whose depth lies beyond the farthest world track's is not explained.
+only where most of the tracks labelled world are the fundamental matrix's inliers, and a pixel whose depth
+lies beyond the farthest world track's is not explained. A mover that the camera follows moves along its
+epipolar lines and keeps one depth too (to this geometry it is near structure): `WorldConfig.rigid_scene_region`
+says which pixels may be explained ("world": those whose nearest labelled track is the world's, so that the
+embedding's separation of a mover stands). Measured on the DAVIS dev clips in docs/RESULTS.md ("Which pixels
+move: the camera's 3D motion"); off by default.
 """
 
 from __future__ import annotations
@@ -130,7 +133,8 @@ def rigid_residual(
     num, h, w = motion.residual.shape
     world = labels == WORLD
     pts = xy.astype(np.float64)
-    views = [_view(pts[:, t], pts[:, u], abs(u - t), cfg) for u in partners(t, num)]
+    others = partners(t, num)
+    views = [_view(pts[:, t], pts[:, u], abs(u - t), cfg) for u in others]
     if not views or any(v is None for v in views):
         return None
     chosen = [v for v in views if v is not None]
@@ -139,7 +143,7 @@ def rigid_residual(
         return None
     # the tracks' depths: the partners' scales c_u, and the world's depth range
     par, bas = [], []
-    for u, v in zip(partners(t, num), chosen):
+    for u, v in zip(others, chosen):
         mapped, basis = twoview.parallax_basis(v.plane, v.epipole, pts[:, t])
         par.append(pts[:, u] - mapped)
         bas.append(basis)
@@ -161,10 +165,10 @@ def rigid_residual(
     to_full = 1.0 / (motion.scale * js)
     p = grid.reshape(-1, 2).astype(np.float64) * to_full
     dense_par, dense_bas = [], []
-    dense_par_far_at = p
-    for u, v in zip(partners(t, num), chosen):
+    far_at: list[npt.NDArray[np.float64]] = []  # where the pixels go in the farthest frame
+    for u, v in zip(others, chosen):
         at = _chained(flows, t, u, grid).reshape(-1, 2).astype(np.float64) * to_full
-        dense_par_far_at = at if u == partners(t, num)[0] else dense_par_far_at
+        far_at = far_at or [at]
         mapped, basis = twoview.parallax_basis(v.plane, v.epipole, p)
         dense_par.append(at - mapped)
         dense_bas.append(basis)
@@ -175,8 +179,8 @@ def rigid_residual(
         res[~_world_side(xy[:, t], labels, (jh, jw), motion.scale * js).ravel()] = np.inf
     elif cfg.rigid_scene_region == "faster":
         # nearer static structure sweeps past at least as fast as the world; a mover the camera follows lags
-        world_step = float(np.median(np.linalg.norm(pts[world, partners(t, num)[0]] - pts[world, t], axis=1)))
-        res[np.linalg.norm(dense_par_far_at - p, axis=1) < world_step] = np.inf
+        world_step = float(np.median(np.linalg.norm(pts[world, others[0]] - pts[world, t], axis=1)))
+        res[np.linalg.norm(far_at[0] - p, axis=1) < world_step] = np.inf
     small = (res * motion.scale).reshape(jh, jw).astype(np.float32)
     out: npt.NDArray[np.float32] = cv2.resize(np.minimum(small, 1e6), (w, h), interpolation=cv2.INTER_LINEAR)
     return out
