@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from world_static import seed_list  # benchmarks/ is the script's folder
 
-from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.apps.video_outputs import write_video_outputs
 from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.io.read import read_palette_png
 from mosegpipe.pipeline import PipelineConfig

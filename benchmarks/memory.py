@@ -5,7 +5,7 @@
 
 Length sweep (the default): writes one synthetic video (a textured background panning back and
 forth and two textured rectangles moving across it, MJPG) as long as the longest length, then
-segments its first L frames in a fresh subprocess per length (mosegpipe.apps.outputs.write_video_outputs,
+segments its first L frames in a fresh subprocess per length (mosegpipe.apps.video_outputs.write_video_outputs,
 as `moseg run --whole`, with the model loaded as `moseg run` loads it: NumPy, no torch; the parent
 loads it once first so that the copy exists). Each subprocess reports its peak resident set size (resource.getrusage
 ru_maxrss) right after the imports and the model (the baseline) and after the run. Flat memory means
@@ -100,7 +100,7 @@ def make_h264_video(path: Path, frames: int, size_wh: tuple[int, int], fps: floa
 
 def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     """Runs in the subprocess: segments the first `frames` frames, prints one JSON line."""
-    from mosegpipe.apps.outputs import write_video_outputs
+    from mosegpipe.apps.video_outputs import write_video_outputs
     from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.runtime import set_threads

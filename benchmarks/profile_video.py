@@ -42,7 +42,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-import mosegpipe.apps.outputs as outputs_mod
+import mosegpipe.apps.video_outputs as video_outputs_mod
+import mosegpipe.apps.window_log as window_log_mod
+import mosegpipe.embed.numpy_net as numpy_net_mod
+import mosegpipe.group.refine as refine_mod
+import mosegpipe.io.write as write_mod
+import mosegpipe.masks.compose as compose_mod
 import mosegpipe.masks.moving_pixels as motion_mod
 import mosegpipe.pipeline.video as video_mod
 import mosegpipe.pipeline.window as window_mod
@@ -74,25 +79,25 @@ _WRAPPED: list[tuple[Any, str, str]] = [
     (motion_mod, "local_colour_contrast", "mask: local colour contrast"),
     (motion_mod, "keep_strong", "mask: components (strength test)"),
     (motion_mod, "_add_anchored", "mask: anchored regions"),
-    (video_mod, "moving_from_motion", "mask: the rest (resizes, logs, fb blur, floor)"),
+    (compose_mod, "moving_from_motion", "mask: the rest (resizes, logs, fb blur, floor)"),
     (window_mod, "moving_to_labels", "labels onto moving pixels"),
-    (video_mod, "carry_unclustered", "labels: carried unclustered regions"),
+    (compose_mod, "carry_unclustered", "labels: carried unclustered regions"),
     (window_mod, "labels_to_mask", "labels onto pixels (other mask methods)"),
     (video_mod, "tracks_from_steps", "trajectories"),
     (video_mod, "build_trajectories", "trajectories"),
-    (video_mod, "embed_at_model_frames", "embedding"),
-    (video_mod, "cluster_auto_k", "automatic K"),
-    (video_mod, "group_geometric", "automatic K"),
-    (video_mod, "check_rigid", "rigid-motion check"),
-    (video_mod, "world_to_zero", "world (label 0)"),
-    (video_mod, "explain_parallax", "world: parallax (epipolar residual)"),
+    (numpy_net_mod.NumpySubspaceNet, "embed", "embedding"),
+    (refine_mod, "cluster_auto_k", "automatic K"),
+    (refine_mod, "group_geometric", "automatic K"),
+    (refine_mod, "check_rigid", "rigid-motion check"),
+    (refine_mod, "world_to_zero", "world (label 0)"),
+    (compose_mod, "explain_parallax", "world: parallax (epipolar residual)"),
     (video_mod, "match_labels", "label matching"),
     (video_mod, "_label_window", "window bookkeeping"),
-    (outputs_mod, "write_mask_png", "write: mask PNG"),
-    (outputs_mod, "overlay_image", "write: overlay image"),
-    (outputs_mod, "write_video", "write: overlay video encoding"),
-    (outputs_mod, "write_npz", "write: labels.npz, summary"),
-    (outputs_mod, "write_json", "write: labels.npz, summary"),
+    (video_outputs_mod, "write_mask_png", "write: mask PNG"),
+    (video_outputs_mod, "overlay_with_legend", "write: overlay image"),
+    (write_mod.H264Encoder, "add", "write: overlay video encoding"),
+    (window_log_mod, "write_npz", "write: labels.npz, summary"),
+    (video_outputs_mod, "write_json", "write: labels.npz, summary"),
 ]
 _DIS_FLOW = "flow: DIS {} (each direction)"
 _FILTERS = [
@@ -326,7 +331,7 @@ def profile(name: str, folder: Path, cfg: PipelineConfig, model: Any, work: Path
     timer = StageTimer()
     with installed(timer):
         t0, c0 = time.perf_counter(), time.process_time()
-        summary = outputs_mod.write_video_outputs(folder, work / name, cfg, model, overwrite=True, rrd=False)
+        summary = video_outputs_mod.write_video_outputs(folder, work / name, cfg, model, overwrite=True, rrd=False)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = summary["frames"]
     return {

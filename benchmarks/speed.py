@@ -5,7 +5,7 @@
 (a) `moseg run` on 5 frames at 640x480 (a rendered clip and the first frames of vtest.avi resized),
     stage by stage: the first (cold) call after the imports, then the median of --repeats calls
     after one warm-up call. "write" is masks + overlays + labels + summary, "rrd" the recording.
-(b) whole-video mode (`moseg run --whole`, mosegpipe.apps.outputs.write_video_outputs) on --video-frames frames
+(b) whole-video mode (`moseg run --whole`, mosegpipe.apps.video_outputs.write_video_outputs) on --video-frames frames
     of a rendered 640x480 video (~900 tracks) and of vtest.avi resized to 640x480 (~400 tracks):
     frames per second, vtest.avi with and without the Rerun recording.
 (c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
@@ -173,7 +173,7 @@ def bare_klt_fps(video: Path) -> float:
 def video_table(runs: list[tuple[str, Path, bool]], model: Embedder, work: Path) -> str:
     """Whole-video mode on each (name, video, with recording) run, against bare KLT on the same frames
     measured just before it (timings on shared machines drift: the ratio is the figure to compare)."""
-    from mosegpipe.apps.outputs import write_video_outputs
+    from mosegpipe.apps.video_outputs import write_video_outputs
     from mosegpipe.pipeline import segment_video
 
     cfg = PipelineConfig(frames=5)
@@ -222,7 +222,7 @@ def dense_table(video: Path, model: Embedder, work: Path, methods: tuple[str, ..
     """Whole-video mode (no recording) with each mask method, against bare DIS and KLT loops measured just before."""
     from dataclasses import replace
 
-    from mosegpipe.apps.outputs import write_video_outputs
+    from mosegpipe.apps.video_outputs import write_video_outputs
     from mosegpipe.masks import MaskConfig
 
     lines = [

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.apps.video_outputs import write_video_outputs
 from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.io.read import read_palette_png
 from mosegpipe.pipeline import PipelineConfig

@@ -168,7 +168,7 @@ def test_a_failed_run_leaves_no_reader_thread_behind(
     def read_only(self: object) -> None:
         raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(tmp_path / "o"))
 
-    monkeypatch.setattr(outputs._OutputDir, "__enter__", read_only)
+    monkeypatch.setattr(outputs.OutputDir, "__enter__", read_only)
     with pytest.raises(OSError, match="Read-only file system"):
         run_live(parse_source(str(video)), PipelineConfig(frames=5), load_embedder(5), out_dir=tmp_path / "o")
     assert [t for t in threading.enumerate() if t.name == "moseg-source"] == []
@@ -181,7 +181,7 @@ import errno, os, sys
 from mosegpipe.apps import outputs
 def read_only(self):
     raise OSError(errno.EROFS, os.strerror(errno.EROFS), {str(tmp_path / "o")!r})
-outputs._OutputDir.__enter__ = read_only
+outputs.OutputDir.__enter__ = read_only
 from mosegpipe.cli.main import app
 sys.argv[0] = "moseg"
 app()

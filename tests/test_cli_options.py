@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import typer.main
 
-from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.apps.video_outputs import write_video_outputs
 from mosegpipe.cli import batch as cli_batch
 from mosegpipe.cli import config as cli_config
 from mosegpipe.cli import evaluate as cli_evaluate

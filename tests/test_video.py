@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from mosegpipe.apps.outputs import WINDOWS_AHEAD, write_video_outputs
+from mosegpipe.apps.video_outputs import WINDOWS_AHEAD, write_video_outputs
 from mosegpipe.apps.window_log import WindowLog
 from mosegpipe.cli.main import app
 from mosegpipe.embed.model import SubspaceNet

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.apps.video_outputs import write_video_outputs
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import ConfigError
 from mosegpipe.group.world import (

@@ -11,10 +11,8 @@ from __future__ import annotations
 
 import shutil
 import time
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import ExitStack
-from dataclasses import asdict, replace
-from functools import partial
+from collections.abc import Callable, Iterator
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -22,36 +20,26 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe import __version__
-from mosegpipe.apps.window_log import WindowLog
 from mosegpipe.colours import mask_palette
-from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.errors import InputError, OutputExistsError
 from mosegpipe.io.provenance import source_identity
-from mosegpipe.io.read import video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
+from mosegpipe.io.read import write_jpeg, write_json, write_npz, write_palette_png, write_video
 from mosegpipe.masks import overlay_with_legend
 from mosegpipe.pipeline import (
     ClipResult,
     PairResult,
     PipelineConfig,
     TracksResult,
-    VideoFrame,
-    WindowResult,
-    check_video_settings,
-    decode_errors,
-    frame_mask,
-    model_info,
-    segment_video,
 )
-from mosegpipe.runtime import run_ahead
 from mosegpipe.viz import k_statement
 
 if TYPE_CHECKING:
-    from mosegpipe.embed.numpy_net import Embedder
-    from mosegpipe.viz import VideoRecorder, VizConfig
+    pass
 
 SUMMARY_SCHEMA = "mosegpipe.summary/2"
 """Version 2: mask value = motion label (0 = the world), 255 = unknown (version 1: label + 1, 0 unknown)."""
-_FALLBACK_FPS = 10.0  # frame folders carry no rate; the overlay video needs one
+FALLBACK_FPS = 10.0
+"""The overlay video's rate when the source has none (frame folders)."""
 
 
 def check_output_dir(out_dir: str | Path, overwrite: bool) -> None:
@@ -78,7 +66,7 @@ def check_output_dir(out_dir: str | Path, overwrite: bool) -> None:
         raise InputError(f"{out}: holds files but no summary.json, so it is not a moseg output; refusing to replace it")
 
 
-class _OutputDir:
+class OutputDir:
     """Builds an output folder under a temporary name; renames it into place only when complete.
 
     The temporary folder `.NAME.partial` sits beside the final one (same file system, so the rename
@@ -150,7 +138,7 @@ def _write_masks_and_overlays(
         for _ in overlays():
             pass
     else:
-        write_video(folder / "overlay.mp4", overlays(), fps or _FALLBACK_FPS)
+        write_video(folder / "overlay.mp4", overlays(), fps or FALLBACK_FPS)
 
 
 def _write_clip_views(
@@ -251,7 +239,7 @@ def write_clip_outputs(
         OutputExistsError, InputError: see check_output_dir.
     """
     summary = {**clip_summary(result, cfg), **(extra or {})}
-    with _OutputDir(Path(out_dir), overwrite) as tmp:
+    with OutputDir(Path(out_dir), overwrite) as tmp:
         traj = result.trajectories
         write_npz(
             tmp / "labels.npz",
@@ -318,7 +306,7 @@ def write_pair_outputs(
         OutputExistsError, InputError: see check_output_dir.
     """
     summary = pair_summary(result, cfg, sources)
-    with _OutputDir(Path(out_dir), overwrite) as tmp:
+    with OutputDir(Path(out_dir), overwrite) as tmp:
         m = result.matches
         write_npz(
             tmp / "labels.npz",
@@ -341,168 +329,6 @@ def write_pair_outputs(
             _timed_recording(summary, write_pair_recording, tmp / "recording.rrd", *pair_args, c.scores, c.k, **k_why)
         write_json(tmp / "summary.json", summary)
     return summary
-
-
-def video_summary(
-    path: str | Path,
-    info: dict[str, Any],
-    windows: WindowLog,
-    cfg: PipelineConfig,
-    model: Embedder,
-    seconds: float,
-) -> dict[str, Any]:
-    """The JSON summary of a whole-video run (schema: docs/OUTPUTS.md)."""
-    num_frames = windows.num_frames_read
-    records = windows.records()
-    return {
-        "schema": SUMMARY_SCHEMA,
-        "kind": "video",
-        "source": str(path),
-        "source_identity": source_identity(path),
-        "version": __version__,
-        "frames": num_frames,
-        "size_hw": list(info["size_hw"]),
-        "video_fps": float(info.get("fps") or 0.0),
-        "window_frames": cfg.frames,
-        "num_windows": len(records),
-        "num_windows_labelled": sum(r["k"] > 0 for r in records),
-        "num_motions": windows.num_motions,
-        "num_labels_reused": windows.num_labels_reused,
-        "shot_cuts": [r["start"] for r in records if r["shot_start"]],
-        "k_method": "fixed" if cfg.k is not None else cfg.cluster.method,
-        "windows": records,
-        "seconds": round(seconds, 3),
-        "processing_fps": round(num_frames / seconds, 3) if seconds > 0 else 0.0,
-        "model": model_info(model),
-        "config": asdict(cfg),
-    }
-
-
-WINDOWS_AHEAD = 2
-"""Windows the tracking thread may run ahead of the writer (memory: that many windows' frames)."""
-
-
-def write_video_outputs(
-    path: str | Path,
-    out_dir: str | Path,
-    cfg: PipelineConfig = PipelineConfig(),
-    model: Embedder | None = None,
-    overwrite: bool = False,
-    rrd: bool = True,
-    max_frames: int | None = None,
-    on_window: Callable[[WindowResult], None] | None = None,
-    viz: VizConfig | None = None,
-    frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
-    info: dict[str, Any] | None = None,
-    on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None = None,
-    summary_extra: Callable[[], dict[str, Any]] | None = None,
-    overlays: bool = True,
-) -> dict[str, Any]:
-    """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
-
-    Output folder (built atomically; see docs/OUTPUTS.md): masks/NNNNNN.png for every frame (palette
-    PNG, value = global motion label, 255 = unknown), overlay.mp4 (H.264), labels.npz, summary.json
-    and recording.rrd (frames as one H.264 video asset, K per window). Flat memory: a few windows' frames.
-
-    Args:
-        path: video file or frame folder.
-        out_dir: output folder.
-        cfg: pipeline settings; cfg.frames is the window length F (>= 2).
-        model: the model (None = shipped default for cfg.frames).
-        overwrite: replace an existing moseg output folder.
-        rrd: also write a Rerun recording (frames downscaled to keep it small).
-        max_frames: stop after this many frames (None = whole video).
-        on_window: called in this thread after each window's frames were written, with the window
-            (its `frames` emptied; `num_frames_read` counts the frames done): a progress display.
-        viz: settings of the recording (None = viz.VIDEO_VIZ: frames of at most 960 px as one H.264
-            video asset).
-        frames: the frames themselves, read in place of `path` (a live source; see segment_video).
-        info: what video_info says of the source, "fps" (0.0 unknown) and "size_hw" (None: read from
-            `path`; given with `frames`).
-        on_frame: called in this thread with each frame and its mask once they were written (a live
-            view).
-        summary_extra: called once the frames ended; its keys are added to summary.json (a live run's
-            counts).
-        overlays: also write overlay.mp4.
-
-    Returns:
-        The summary dict written to summary.json.
-
-    Raises:
-        InputError: unreadable input, fewer than F frames, F < 2 or max_frames < 1.
-        TooFewTracksError: no window had cfg.min_tracks tracks through all its frames.
-        OutputExistsError: out_dir holds results and overwrite is False.
-    """
-    check_video_settings(cfg, max_frames)
-    check_output_dir(out_dir, overwrite)
-    model = model or load_embedder(cfg.frames)
-    if info is None:
-        with decode_errors(path):
-            info = video_info(path)
-    fps = float(info.get("fps") or 0.0) or _FALLBACK_FPS
-    t_start = time.perf_counter()
-    with _OutputDir(Path(out_dir), overwrite) as tmp:
-        (tmp / "masks").mkdir()
-        with ExitStack() as stack:
-            windows = stack.enter_context(WindowLog(tmp))
-            recorder = None
-            if rrd:
-                from mosegpipe.viz import VIDEO_VIZ, VideoRecorder
-
-                # A forced K has no runner-up: no margin chart.
-                rec = VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps, margins=cfg.k is None)
-                recorder = stack.enter_context(rec)
-
-            segmented = partial(segment_video, path, cfg, model, max_frames, masks=False, frames=frames)
-            shown = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window, overlays)
-            _drain(shown, tmp / "overlay.mp4" if overlays else None, fps)
-        windows.write_labels(tmp / "labels.npz")
-        summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
-        if summary_extra is not None:
-            summary.update(summary_extra())
-        write_json(tmp / "summary.json", summary)
-    return summary
-
-
-def _drain(shown: Iterator[npt.NDArray[np.uint8] | None], video: Path | None, fps: float) -> None:
-    """Runs `shown` to its end (each frame's files are written as it is asked for), its overlays into
-    `video` (H.264) when given."""
-    if video is not None:
-        write_video(video, (o for o in shown if o is not None), fps)
-        return
-    for _ in shown:
-        pass
-
-
-def _written_overlays(
-    segmented: Callable[[], Iterator[WindowResult]],
-    cfg: PipelineConfig,
-    tmp: Path,
-    windows: WindowLog,
-    recorder: VideoRecorder | None,
-    on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None,
-    on_window: Callable[[WindowResult], None] | None,
-    overlays: bool = True,
-) -> Iterator[npt.NDArray[np.uint8] | None]:
-    """Writes each frame's mask (and recording) as the windows arrive; yields its overlay (None without
-    `overlays`). The windows come from `segmented()`, called when the first overlay is asked for; each goes
-    into `windows`."""
-    for window in run_ahead(segmented(), WINDOWS_AHEAD, "moseg-segment"):
-        windows.add(window)  # what the summary and labels.npz need, not the images (flat memory)
-        if recorder is not None:
-            recorder.log_window(window.start, window.k, window.k_scores, window.labels)
-        for fr in window.frames:
-            keep = fr.labels >= 0
-            mask = frame_mask(fr, cfg.mask)
-            write_mask_png(tmp / "masks" / f"{fr.index:06d}.png", mask)
-            if recorder is not None:
-                recorder.log_frame(fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask)
-            if on_frame is not None:
-                on_frame(fr, mask)
-            yield overlay_with_legend(fr.image, mask, fr.xy[keep], fr.labels[keep]) if overlays else None
-        if on_window is not None:
-            on_window(replace(window, frames=()))
-        del window, fr  # before the next window is read: hold a few windows' frames at most
 
 
 def tracks_summary(result: TracksResult, cfg: PipelineConfig, source: str) -> dict[str, Any]:
@@ -554,7 +380,7 @@ def write_tracks_outputs(
         summary["video"] = str(Path(clip.frames.source).absolute())
         summary["video_identity"] = source_identity(clip.frames.source)
         summary["timings_s"]["masks"] = round(clip.timings.get("masks", 0.0), 4)
-    with _OutputDir(Path(out_dir), overwrite) as tmp:
+    with OutputDir(Path(out_dir), overwrite) as tmp:
         write_npz(
             tmp / "labels.npz",
             labels=result.labels,

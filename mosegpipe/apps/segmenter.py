@@ -11,13 +11,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy.typing as npt
 
-from mosegpipe.apps.outputs import (
-    check_output_dir,
-    write_clip_outputs,
-    write_pair_outputs,
-    write_tracks_outputs,
-    write_video_outputs,
-)
+from mosegpipe.apps.outputs import check_output_dir, write_clip_outputs, write_pair_outputs, write_tracks_outputs
+from mosegpipe.apps.video_outputs import write_video_outputs
 from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.pipeline import (
     ClipResult,

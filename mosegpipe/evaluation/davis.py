@@ -52,7 +52,8 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
-from mosegpipe.apps.outputs import write_clip_outputs, write_video_outputs
+from mosegpipe.apps.outputs import write_clip_outputs
+from mosegpipe.apps.video_outputs import write_video_outputs
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
 from mosegpipe.evaluation.composite import LABEL_SHARE

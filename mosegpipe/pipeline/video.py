@@ -108,7 +108,7 @@ def segment_video(
         model: the model (None = shipped default for cfg.frames).
         max_frames: stop after this many frames (None = whole video).
         masks: compute each frame's dense mask; False leaves VideoFrame.mask None for the caller
-            to compute with `frame_mask` (e.g. on another thread, as outputs.write_video_outputs does),
+            to compute with `frame_mask` (e.g. on another thread, as video_outputs.write_video_outputs does),
             except with the motion masks: their labels depend on the frame before's mask (its regions
             that no clustered motion reaches keep the label they had there, `masks.carry_unclustered`, and
             the next window keeps the weaker regions of the motions shown, `MotionMaskConfig.anchor_tracks`),

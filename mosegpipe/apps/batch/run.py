@@ -13,7 +13,7 @@ process is one "failed" row with a one-line reason; the other clips go on (a bro
 rebuilt). Which clip killed a pool is found by re-running the clips that were in flight one at a time.
 
 Resume: each clip's output folder is built under a temporary name and renamed into place when
-complete (outputs._OutputDir), and its summary.json records `batch.config_hash`, a hash of every
+complete (outputs.OutputDir), and its summary.json records `batch.config_hash`, a hash of every
 setting that changes the outputs (PipelineConfig, the model's weights, the recording flag). A re-run
 skips the clips whose folder holds summary.json with the same hash and redoes the rest, so a batch
 killed at any moment loses nothing and a re-run with other options redoes what they change.

@@ -55,7 +55,7 @@ from mosegpipe.apps.live.source import (
     stdin_size_suspect,
 )
 from mosegpipe.errors import InputError, MosegError
-from mosegpipe.pipeline import PipelineConfig, VideoFrame, WindowResult, frame_mask, segment_video
+from mosegpipe.pipeline import PipelineConfig, VideoFrame, WindowResult, segment_video
 from mosegpipe.pipeline.video import MIN_VIDEO_SIDE_PX
 from mosegpipe.runtime import run_ahead
 
@@ -400,23 +400,6 @@ def _warn_dropped(name: str, stats: LiveStats) -> None:
         )
 
 
-def _segment_only(
-    name: str,
-    cfg: PipelineConfig,
-    model: Embedder,
-    frames: LiveFrames,
-    on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None],
-    on_window: Callable[[WindowResult], None],
-) -> None:
-    """A run without an output folder: each window's frames and masks, then the window, to the callbacks."""
-    segmented = segment_video(name, cfg, model, masks=False, frames=frames)
-    for window in run_ahead(segmented, WINDOWS_AHEAD, "moseg-segment"):
-        for fr in window.frames:
-            on_frame(fr, frame_mask(fr, cfg.mask))
-        on_window(window)  # after its frames, as write_video_outputs reports it
-        del window
-
-
 def _run_live(
     source: LiveSource,
     cfg: PipelineConfig,
@@ -431,7 +414,7 @@ def _run_live(
     on_status: Callable[[LiveStats], None] | None,
     status_every_s: float,
 ) -> LiveResult:
-    from mosegpipe.apps.outputs import write_video_outputs
+    from mosegpipe.apps.video_outputs import feed_windows, write_video_outputs
 
     buffer, capture = reader.buffer, reader.capture
     height, width, suspect = _check_first_frame(source, _first_frame(reader, stall_timeout_s))
@@ -483,7 +466,8 @@ def _run_live(
                 summary_extra=counts,
             )
         else:
-            _segment_only(source.name, cfg, model, frames, on_frame, on_window)
+            segmented = segment_video(source.name, cfg, model, masks=False, frames=frames)
+            feed_windows(run_ahead(segmented, WINDOWS_AHEAD, "moseg-segment"), cfg, None, on_frame, on_window)
     except MosegError as exc:
         if suspect:  # the likely cause of a failure on such frames (no tracks, too few frames)
             raise type(exc)(f"{exc} ({suspect})") from exc
