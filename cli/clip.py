@@ -142,7 +142,8 @@ def run(
         )
     check_model_path(model)
     setup_run(threads, verbose, "mosegpipe.apps.outputs")
-    from mosegpipe.apps.outputs import check_output_dir, write_clip_outputs, write_video_outputs
+    from mosegpipe.apps.outputs import check_output_dir, write_clip_outputs
+    from mosegpipe.apps.video_outputs import write_video_outputs
     from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import segment_clip
 

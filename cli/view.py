@@ -180,13 +180,8 @@ def replay(
     started = time.perf_counter()
     recorded = _read_run_summary(summary)
     setup_run(threads, verbose)
-    from mosegpipe.apps.outputs import (
-        check_output_dir,
-        write_clip_outputs,
-        write_pair_outputs,
-        write_tracks_outputs,
-        write_video_outputs,
-    )
+    from mosegpipe.apps.outputs import check_output_dir, write_clip_outputs, write_pair_outputs, write_tracks_outputs
+    from mosegpipe.apps.video_outputs import write_video_outputs
     from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_pair, segment_tracks, tracks_clip
 
