@@ -13,6 +13,7 @@ from mosegpipe.cli.app import _friendly, _setup
 from mosegpipe.cli.common import (
     _check_model_path,
     _default_out,
+    _lock_out,
     _frames_progress,
     _print_summary,
     _print_total,
@@ -139,6 +140,7 @@ def run(
         preset=preset,
     )
     out = out or _default_out(clip, "_moseg")
+    _lock_out(out)
     check_output_dir(out, overwrite)
     _import_ahead(cfg, whole=whole, rrd=not no_rrd)
     net = load_embedder(frames, model)
@@ -206,6 +208,7 @@ def pair(
 
     cfg = _pipeline_cfg(2, clustering, masks=masks)
     out = out or _default_out(img1, "_pair_moseg")
+    _lock_out(out)
     check_output_dir(out, overwrite)
     result = segment_pair(img1, img2, cfg, load_embedder(2, model))
     summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
@@ -311,6 +314,7 @@ def tracks(
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
     cfg = _pipeline_cfg(max(2, window), clustering, segment_method=method, start=start, rigid_check=rigid_check)
     out = out or _default_out(file, "_moseg")
+    _lock_out(out)
     check_output_dir(out, overwrite)
     net = load_embedder(max(2, window), model)
     try:

@@ -21,6 +21,15 @@ def _default_out(path: Path, suffix: str) -> Path:
     return path.with_name(f"{path.stem}{suffix}")
 
 
+def _lock_out(out: Path) -> None:
+    """Holds the lock of output folder `out` until the command ends (mosegpipe.locks.output_lock): a second
+    command writing there is refused in one line, and never removes the first one's work."""
+    from mosegpipe.cli.app import _click
+    from mosegpipe.locks import output_lock
+
+    _click.globals.get_current_context().with_resource(output_lock(out))
+
+
 def _check_model_path(model: Path | None) -> None:
     if model is not None and not model.is_file():
         raise InputError(f"{model}: checkpoint file not found (--model)")

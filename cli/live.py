@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import typer
 
 from mosegpipe.cli.app import _STOP_SIGNALS, _click, _friendly, _setup, _stopped, _Terminated
-from mosegpipe.cli.common import _check_model_path, _print_total, _print_video_summary, stop_child
+from mosegpipe.cli.common import _check_model_path, _lock_out, _print_total, _print_video_summary, stop_child
 from mosegpipe.cli.options import (
     RIGID_CHECK,
     ClusterOptions,
@@ -363,6 +363,7 @@ def live(
         preset=preset,
     )
     if out is not None:
+        _lock_out(out)
         check_output_dir(out, overwrite)
     net = load_embedder(frames, model)
     status = sys.stderr.isatty() and not quiet

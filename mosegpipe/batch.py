@@ -56,6 +56,7 @@ from mosegpipe.batch_pool import MAX_WORKER_WARNINGS, _run_process
 from mosegpipe.batch_ray import _run_ray, check_ray
 from mosegpipe.errors import InputError
 from mosegpipe.io import atomic_write, write_json
+from mosegpipe.locks import exclusive_lock
 from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.settings import MAX_CLIP_TIMEOUT_S
@@ -90,22 +91,8 @@ LOCK_FILE = ".moseg-batch.lock"
 @contextlib.contextmanager
 def _locked(out: Path) -> Iterator[None]:
     """Holds out/.moseg-batch.lock: two batches writing into one folder would undo each other's work."""
-    try:
-        import fcntl
-    except ImportError:  # not POSIX: no lock
+    with exclusive_lock(out / LOCK_FILE, f"{out}: another moseg batch is writing into this folder (it holds {LOCK_FILE})"):
         yield
-        return
-    with open(out / LOCK_FILE, "a+") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise InputError(f"{out}: another moseg batch is writing into this folder (it holds {LOCK_FILE})") from None
-        try:
-            yield
-        finally:
-            with contextlib.suppress(OSError):
-                (out / LOCK_FILE).unlink()
-            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def _sweep(out: Path) -> None:
