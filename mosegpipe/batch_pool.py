@@ -142,17 +142,18 @@ def _exit_reason(codes: list[int]) -> str:
 
 
 @contextlib.contextmanager
-def _hangup_blocked() -> Iterator[None]:
-    """SIGHUP blocked in this thread while the pool's processes start (the workers, the forkserver
-    and multiprocessing's resource tracker): they inherit the mask. A closed terminal sends SIGHUP
-    to every process of the job; the tracker died of it (and was relaunched with warnings on
-    stderr) while the batch process was still cleaning up, which ends the workers itself. A SIGHUP
-    that arrives meanwhile is delivered when the mask is restored."""
+def _stops_blocked() -> Iterator[None]:
+    """SIGHUP and SIGINT blocked in this thread while the pool's processes start (the workers, the
+    forkserver and multiprocessing's resource tracker): they inherit the mask. A closed terminal sends
+    SIGHUP, Ctrl-C SIGINT, to every process of the job; the tracker died of SIGHUP (and was relaunched
+    with warnings on stderr) while the batch process was still cleaning up, which ends the workers
+    itself, and a worker that had not yet set SIGINT aside (`_init_worker`) printed its traceback. A
+    signal that arrives meanwhile is delivered to this process when the mask is restored."""
     hangup = getattr(signal, "SIGHUP", None)
     if hangup is None or not hasattr(signal, "pthread_sigmask"):  # Windows
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {hangup})
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {hangup, signal.SIGINT})
     try:
         yield
     finally:
@@ -164,7 +165,7 @@ class _Pool:
 
     def __init__(self, workers: int, model: SubspaceNet, job: _Job, startup_timeout: float = 600.0) -> None:
         ctx = _mp_context()
-        with _hangup_blocked():  # the queue's lock starts the resource tracker, the pings the workers
+        with _stops_blocked():  # the queue's lock starts the resource tracker, the pings the workers
             self.ready = ctx.Queue()
             # Only this process holds the sending end: when it dies, however it dies, the workers see EOF and exit.
             lifeline, self.lifeline = ctx.Pipe(duplex=False)

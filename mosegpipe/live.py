@@ -40,7 +40,7 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.errors import InputError, MosegError
+from mosegpipe.errors import InputError, MosegError, TooFewTracksError
 from mosegpipe.live_reader import _POLL_S, BUFFER_FRAMES, FrameBuffer, LiveFrames, SourceReader
 from mosegpipe.live_source import (
     MAX_CAMERA_INDEX,
@@ -325,11 +325,14 @@ def run_live(
             MIN_VIDEO_SIDE_PX, or it ended before a window's worth of frames.
         TooFewTracksError: no window had enough tracks.
         OutputExistsError: out_dir holds results and overwrite is False.
+        CheckpointError: a mask network the settings ask for cannot be used (`check_mask_networks`).
     """
+    from mosegpipe.learned.moving import check_mask_networks
     from mosegpipe.outputs import check_output_dir
 
     if out_dir is not None:
         check_output_dir(out_dir, overwrite)
+    check_mask_networks(cfg.mask)
     stop = stop or threading.Event()
     capture = open_source(source, timeout_s=stall_timeout_s, stdin=stdin)
     fps = source.fps or capture.fps or DEFAULT_FPS
@@ -487,6 +490,8 @@ def _run_live(
     except MosegError as exc:
         if suspect:  # the likely cause of a failure on such frames (no tracks, too few frames)
             raise type(exc)(f"{exc} ({suspect})") from exc
+        if source.kind == "stdin" and isinstance(exc, TooFewTracksError):  # a width wrong by 1 px shears too little to tell
+            raise type(exc)(f"{exc} (raw frames read as {width}x{height}: is --stdin-size right?)") from exc
         raise
     finally:
         reader.finish()  # the reader stops at its next frame

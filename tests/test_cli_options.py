@@ -639,7 +639,7 @@ def test_presets_are_settings_applied_through_from_options() -> None:
         cfg = PipelineConfig.from_options(5, preset=name)
         assert cfg == PipelineConfig().with_settings(PRESETS[name]), name
         assert (cfg != PipelineConfig()) == bool(PRESETS[name]), name
-    # The options apply before the preset, --set after it.
+    # The preset applies first, the options after it (an option given wins), --set last.
     fast = PipelineConfig.from_options(
         5, preset="fast", mask={"method": "motion"}, settings=["mask.motion.work_scale=1"]
     )

@@ -104,6 +104,14 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
     )
 
 
+def _check_mask_networks(cfg: PipelineConfig) -> None:
+    """The mask networks of the settings, checked once before any clip (learned.moving.check_mask_networks): a
+    checkpoint that cannot be used is one error, not a warning per clip and a table of zeros."""
+    from mosegpipe.learned.moving import check_mask_networks
+
+    check_mask_networks(cfg.mask)
+
+
 def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
 
@@ -111,8 +119,11 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     from mosegpipe.inference import load_model
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
+    if req.folds:
+        raise ConfigError(f"--folds {','.join(req.folds)}: {protocol.name} has no folds (it runs every clip)")
     f = req.frames or protocol.default_frames
     cfg = _pipeline_config(req, f)
+    _check_mask_networks(cfg)
     net = load_model(f, req.model)
     rows = protocol.end_to_end(req.data_root, net, cfg, None, req.baselines or None)
     config = {
@@ -140,13 +151,16 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """
     from dataclasses import asdict
 
-    from mosegpipe.evaluation.davis import DAVIS_MODES, format_table, pipeline_method, run_davis
+    from mosegpipe.evaluation.davis import DAVIS_MODES, MODES, format_table, pipeline_method, run_davis
     from mosegpipe.evaluation.report import write_results
+    from mosegpipe.inference import load_embedder
 
     if req.data_root is None:
         raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
     mode = DAVIS_MODES[protocol.name]
     cfg = _pipeline_config(req, req.frames or protocol.default_frames)
+    _check_mask_networks(cfg)
+    load_embedder(MODES[mode] or cfg.frames, req.model)  # a checkpoint that cannot be used: refused before any clip
     methods: list[tuple[str, Any]] = [("pipeline", pipeline_method(cfg, req.model))]
     if req.baselines:
         methods.append(("flow-homography", "flow-homography"))
@@ -186,7 +200,9 @@ def run_composite_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     object; `req.folds` picks a part (dev, the default; val; all) or composites by name."""
     from mosegpipe.evaluation.composite import run_composite
 
-    return run_composite(protocol.name, req, _pipeline_config(req, req.frames or protocol.default_frames))
+    cfg = _pipeline_config(req, req.frames or protocol.default_frames)
+    _check_mask_networks(cfg)
+    return run_composite(protocol.name, req, cfg)
 
 
 def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:

@@ -18,6 +18,7 @@ from mosegpipe.flow_tracks import combine_tracks, track_flow
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder
 from mosegpipe.io import check_images, read_video, video_info
+from mosegpipe.learned.moving import check_mask_networks
 from mosegpipe.masks import labels_to_masks, motion_masks
 from mosegpipe.motion import stack_motion
 from mosegpipe.pipeline.common import (
@@ -142,13 +143,15 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     Raises:
         TooFewTracksError: fewer than cfg.min_tracks tracks live through all frames.
         InputError: cfg.k larger than the number of tracks.
-        CheckpointError: no model given and no shipped weights.
+        CheckpointError: no model given and no shipped weights, or a mask network the settings ask for cannot
+            be used (`check_mask_networks`).
 
     One frame shows no motion: unless cfg.k says otherwise, its tracks are one motion (K = 1, with a
     note saying why).
     """
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
+    check_mask_networks(cfg.mask)
     model = _model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     # Flow points, the world's camera evidence and the motion masks share the clip's flows: computed once, here.

@@ -33,7 +33,7 @@ from mosegpipe.geometry_select import geometry_supported
 from mosegpipe.grouping import group_geometric
 from mosegpipe.inference import Embedder, load_model
 from mosegpipe.io import iter_video, video_info
-from mosegpipe.learned.moving import learned_moving
+from mosegpipe.learned.moving import check_mask_networks, learned_moving
 from mosegpipe.learned.which import which_motion, window_features
 from mosegpipe.masks import (
     MOVING_UNCLUSTERED,
@@ -73,11 +73,13 @@ def check_video_settings(cfg: PipelineConfig, max_frames: int | None) -> None:
 
     Raises:
         InputError: cfg.frames < 2 or max_frames < 1.
+        CheckpointError: a mask network the settings ask for cannot be used (`check_mask_networks`).
     """
     if cfg.frames < 2:
         raise InputError(f"--frames {cfg.frames}: whole-video mode needs windows of at least 2 frames")
     if max_frames is not None and max_frames < 1:
         raise InputError(f"--max-frames {max_frames} must be >= 1")
+    check_mask_networks(cfg.mask)
 
 
 def video_frames_to_read(path: str | Path, cfg: PipelineConfig, max_frames: int | None = None) -> int | None:
