@@ -13,8 +13,8 @@ from mosegpipe.cli.app import _friendly, _setup
 from mosegpipe.cli.common import (
     _check_model_path,
     _default_out,
-    _lock_out,
     _frames_progress,
+    _lock_out,
     _print_summary,
     _print_total,
     _print_tracks_summary,

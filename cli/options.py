@@ -45,7 +45,15 @@ from mosegpipe.settings import (
     MAX_WIN_SIZE_PX,
     SettingError,
 )
-from mosegpipe.types import DEVICE_CHOICES, K_METHODS, MASK_METHODS, PRESET_NAMES, SEGMENT_METHODS, TRACKERS, is_device_name
+from mosegpipe.types import (
+    DEVICE_CHOICES,
+    K_METHODS,
+    MASK_METHODS,
+    PRESET_NAMES,
+    SEGMENT_METHODS,
+    TRACKERS,
+    is_device_name,
+)
 
 # The upper bounds of the numeric options are the library's (mosegpipe.settings), checked before any work
 # (a usage error naming the option): past them OpenCV crashes, overflows or runs for minutes.

@@ -91,7 +91,9 @@ LOCK_FILE = ".moseg-batch.lock"
 @contextlib.contextmanager
 def _locked(out: Path) -> Iterator[None]:
     """Holds out/.moseg-batch.lock: two batches writing into one folder would undo each other's work."""
-    with exclusive_lock(out / LOCK_FILE, f"{out}: another moseg batch is writing into this folder (it holds {LOCK_FILE})"):
+    with exclusive_lock(
+        out / LOCK_FILE, f"{out}: another moseg batch is writing into this folder (it holds {LOCK_FILE})"
+    ):
         yield
 
 

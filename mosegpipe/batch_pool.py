@@ -142,22 +142,41 @@ def _exit_reason(codes: list[int]) -> str:
 
 
 @contextlib.contextmanager
-def _stops_blocked() -> Iterator[None]:
-    """SIGHUP and SIGINT blocked in this thread while the pool's processes start (the workers, the
-    forkserver and multiprocessing's resource tracker): they inherit the mask. A closed terminal sends
-    SIGHUP, Ctrl-C SIGINT, to every process of the job; the tracker died of SIGHUP (and was relaunched
-    with warnings on stderr) while the batch process was still cleaning up, which ends the workers
-    itself, and a worker that had not yet set SIGINT aside (`_init_worker`) printed its traceback. A
-    signal that arrives meanwhile is delivered to this process when the mask is restored."""
+def _hangup_blocked() -> Iterator[None]:
+    """SIGHUP blocked in this thread while the pool's processes start (the workers, the forkserver
+    and multiprocessing's resource tracker): they inherit the mask. A closed terminal sends SIGHUP
+    to every process of the job; the tracker died of it (and was relaunched with warnings on
+    stderr) while the batch process was still cleaning up, which ends the workers itself. A SIGHUP
+    that arrives meanwhile is delivered when the mask is restored."""
     hangup = getattr(signal, "SIGHUP", None)
     if hangup is None or not hasattr(signal, "pthread_sigmask"):  # Windows
         yield
         return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {hangup, signal.SIGINT})
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {hangup})
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _start_forkserver(ctx: Any) -> None:
+    """Starts multiprocessing's forkserver (once per process; nothing for another start method) with Ctrl-C
+    ignored, which it passes to every worker it forks from birth. Ctrl-C reaches the terminal's whole process
+    group: a worker it reached before `_init_worker` set it aside printed its traceback after the batch's
+    error line (a mask of blocked signals would not do: the forkserver unblocks SIGINT for its children).
+    A Ctrl-C in the milliseconds of the start is lost."""
+    if ctx.get_start_method() != "forkserver":
+        return
+    from multiprocessing import forkserver
+
+    if threading.current_thread() is not threading.main_thread():  # signal handlers are the main thread's
+        forkserver.ensure_running()
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 class _Pool:
@@ -165,7 +184,8 @@ class _Pool:
 
     def __init__(self, workers: int, model: SubspaceNet, job: _Job, startup_timeout: float = 600.0) -> None:
         ctx = _mp_context()
-        with _stops_blocked():  # the queue's lock starts the resource tracker, the pings the workers
+        with _hangup_blocked():  # the queue's lock starts the resource tracker, the pings the workers
+            _start_forkserver(ctx)
             self.ready = ctx.Queue()
             # Only this process holds the sending end: when it dies, however it dies, the workers see EOF and exit.
             lifeline, self.lifeline = ctx.Pipe(duplex=False)

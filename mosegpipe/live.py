@@ -490,7 +490,9 @@ def _run_live(
     except MosegError as exc:
         if suspect:  # the likely cause of a failure on such frames (no tracks, too few frames)
             raise type(exc)(f"{exc} ({suspect})") from exc
-        if source.kind == "stdin" and isinstance(exc, TooFewTracksError):  # a width wrong by 1 px shears too little to tell
+        if source.kind == "stdin" and isinstance(
+            exc, TooFewTracksError
+        ):  # a width wrong by 1 px shears too little to tell
             raise type(exc)(f"{exc} (raw frames read as {width}x{height}: is --stdin-size right?)") from exc
         raise
     finally:

@@ -190,3 +190,265 @@ def test_an_option_given_wins_over_the_preset(tmp_path: Path) -> None:
         config = json.loads((out / "summary.json").read_text())["config"]
         assert config["track"]["win_size_px"] == (11 if name == "preset only" else 31), name
         assert config["mask"]["motion"]["flow"]["scale"] == 0.5 and config["mask"]["motion"]["work_scale"] == 0.5
+
+
+# ---------------------------------------------------------------------------------------------
+# 5, 6, 14. moseg train: --out, --lr, --seed and --device checked before any data is read
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("preset", ["masknet", "whichnet", "clip-f5"])
+@pytest.mark.parametrize(
+    ("option", "value", "reason"),
+    [
+        ("--lr", "nan", "a learning rate is a finite number above 0"),
+        ("--lr", "-1", "a learning rate is a finite number above 0"),
+        ("--lr", "inf", "a learning rate is a finite number above 0"),
+        ("--seed", "-1", "Input should be greater than or equal to 0"),
+        ("--seed", "9" * 70, "Input should be less than or equal to 4294967295"),
+        ("--device", "banana", "choose cpu, cuda, cuda:N, auto"),
+        ("--device", "cuda:x", "choose cpu, cuda, cuda:N, auto"),
+    ],
+)
+def test_train_option_values_are_usage_errors(
+    tmp_path: Path, preset: str, option: str, value: str, reason: str
+) -> None:
+    # --lr nan, --seed -1 and a 70-digit seed were tracebacks; --device banana trained on the CPU (masknet) or exited 1.
+    out = tmp_path / "m.pt"
+    code, _, err = moseg("train", "--preset", preset, "--out", out, "--data-root", tmp_path / "none", option, value)
+    assert code == 2 and one_error_line(err) == f"moseg: error: {option} {value}: {reason} (see 'moseg train --help')"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("preset", ["masknet", "whichnet"])
+def test_train_out_is_checked_before_the_data(tmp_path: Path, preset: str) -> None:
+    # A folder as --out left a 225 KB d.tmp after the training; '' was a traceback; all after building the data.
+    folder = tmp_path / "d"
+    folder.mkdir()
+    (tmp_path / "file").write_text("")
+    cases = {
+        folder: f"--out {folder}: a folder; give the checkpoint's file name (e.g. {folder / 'model.pt'})",
+        Path(""): "--out .: a folder; give the checkpoint's file name (e.g. model.pt)",
+        tmp_path / "file" / "m.pt": f"--out {tmp_path / 'file' / 'm.pt'}: {tmp_path / 'file'} is not a folder",
+    }
+    for out, message in cases.items():
+        code, _, err = moseg("train", "--preset", preset, "--out", out, "--data-root", tmp_path / "none")
+        assert code == 1 and one_error_line(err) == f"moseg: error: {message}", err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d", "file"] and list(folder.iterdir()) == []
+
+
+def test_train_out_read_only_is_refused_before_the_data(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The suite may run as root, for whom every folder is writable: the answer of access(2) is what is tested.
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) == tmp_path else real(p, mode))
+    code, _, err = moseg("train", "--preset", "masknet", "--out", tmp_path / "m.pt", "--data-root", tmp_path / "none")
+    assert code == 1 and one_error_line(err) == (
+        f"moseg: error: --out {tmp_path / 'm.pt'}: cannot write there ({tmp_path} is read-only)"
+    )
+
+
+def test_train_mask_recipe_refuses_a_device_torch_does_not_see(tmp_path: Path) -> None:
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is here")
+    for device in ("cuda", "cuda:99"):
+        code, _, err = moseg("train", "--preset", "masknet", "--out", tmp_path / "m.pt", "--device", device)
+        assert code == 1 and "torch sees no CUDA device here" in one_error_line(err), err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_eval_device_name_is_a_usage_error(tmp_path: Path) -> None:
+    # eval davis-clip5 --device banana was accepted.
+    code, _, err = moseg("eval", "davis-clip5", "--out", tmp_path / "o", "--device", "banana")
+    assert code == 2 and "--device banana: choose cpu, cuda, cuda:N, auto" in one_error_line(err)
+
+
+def test_mask_network_save_leaves_no_temporary_file_on_a_full_disk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A full disk left m.pt.tmp beside the checkpoint.
+    import errno
+
+    import torch
+
+    from mosegpipe.learned.net import MaskNet
+
+    def full(obj: object, f: object) -> None:
+        Path(f).write_bytes(b"half a checkpoint")  # type: ignore[arg-type]
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", full)
+    with pytest.raises(OSError, match="No space left"):
+        MaskNet().save(tmp_path / "m.pt")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_fit_runs_on_the_device_and_returns_a_cpu_network() -> None:
+    import numpy as np
+    import torch
+
+    from mosegpipe.learned.net import MaskNet
+    from mosegpipe.learned.train import fit, mask_loss
+
+    seen: list[str] = []
+    net = MaskNet(widths=(4,))
+    original = net.forward
+
+    def forward(x: torch.Tensor) -> torch.Tensor:
+        seen.append(str(x.device))
+        return original(x)
+
+    net.forward = forward  # type: ignore[method-assign]
+    batch = lambda: (torch.zeros(2, net.in_channels, 8, 8), torch.zeros(2, 8, 8))  # noqa: E731
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    fit(net, 2, 1e-3, 0.0, 1, batch, mask_loss, lambda n: np.array([float(next(n.parameters()).is_cpu)]), None, device)
+    assert seen == [device.split(":")[0]] * 2 and next(net.parameters()).is_cpu
+
+
+# ---------------------------------------------------------------------------------------------
+# 8, 9. Signals: batch workers start with Ctrl-C blocked; live --serve's server is out of its reach
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_batch_workers_are_born_ignoring_ctrl_c(tmp_path: Path) -> None:
+    # A Ctrl-C while the workers started reached them before their initializer set it aside: a traceback each.
+    import signal
+
+    from mosegpipe.batch_plan import _Job
+    from mosegpipe.batch_pool import _mp_context, _Pool
+    from mosegpipe.pipeline import PipelineConfig, segment_clip
+
+    from helpers import tiny_model
+
+    pool = _Pool(1, tiny_model(5), _Job(PipelineConfig(), False, "h", segment_clip))
+    pool.kill()
+    # A process the forkserver forks, before any code of ours runs in it: Ctrl-C does nothing there.
+    child = _mp_context().Process(target=signal.raise_signal, args=(signal.SIGINT,))
+    child.start()
+    child.join(60)
+    assert child.exitcode == 0  # 1: a KeyboardInterrupt (and its traceback on stderr)
+    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # this process's handler is back
+
+
+def test_live_serve_server_has_a_session_of_its_own(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Ctrl-C reached the server with the rest of the terminal's process group: Rerun's client then printed two
+    # raw ANSI ERROR lines while the last frames were flushed to a server that was gone.
+    import subprocess
+
+    from mosegpipe.cli import live
+    from mosegpipe.cli.view import _find_viewer
+
+    if _find_viewer() is None:
+        pytest.skip("no rerun program here")
+    started: list[subprocess.Popen[bytes]] = []
+    real = subprocess.Popen
+
+    def popen(*args: object, **kwargs: object) -> subprocess.Popen[bytes]:
+        started.append(real(*args, **kwargs))  # type: ignore[call-overload]
+        return started[-1]
+
+    monkeypatch.setattr(subprocess, "Popen", popen)
+    with live._sinks(False, None, True) as sinks:
+        assert len(sinks) == 1 and len(started) == 1
+        assert os.getsid(started[0].pid) == started[0].pid != os.getsid(0)
+    assert started[0].poll() is not None  # ended with the command
+
+
+# ---------------------------------------------------------------------------------------------
+# 11, 12, 14. eval: composite records --preset, --folds once each, --folds where there are none
+# ---------------------------------------------------------------------------------------------
+
+
+def test_composite_records_the_preset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mosegpipe.evaluation import composite
+    from mosegpipe.evaluation.protocols import EvalRequest
+    from mosegpipe.pipeline import PipelineConfig
+    from mosegpipe.synth import composite as synth
+
+    row = {"name": "dev-00", "plate": "bear", "objects": 2, "kinds": "", "j_per_object": "", "error": ""}
+    row |= {key: 0.5 for key in (*composite.SUMMARY_FIELDS, "seconds")}
+    monkeypatch.setattr(synth, "composite_set", lambda root, part, names=None: [])
+    monkeypatch.setattr(composite, "composite_rows", lambda clips, mode, cfg, model: [dict(row)])
+    req = EvalRequest(out_dir=tmp_path / "out", data_root=tmp_path, preset="fast", folds=("dev-00",))
+    composite.run_composite("composite-clip5", req, PipelineConfig.from_options(5, preset="fast"))
+    assert json.loads((tmp_path / "out" / "results.json").read_text())["config"]["preset"] == "fast"
+
+
+def test_folds_are_taken_once_each_without_spaces(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # --folds bear,bear ran bear twice and counted it twice; ' dev-03' was refused as 'dev-03'.
+    from mosegpipe.evaluation import protocols
+
+    asked: list[object] = []
+
+    class Fake:
+        data = None
+
+        @staticmethod
+        def run(proto: object, req: protocols.EvalRequest) -> protocols.EvalResult:
+            asked.append(req.folds)
+            return protocols.EvalResult([], {}, "table")
+
+    monkeypatch.setattr(protocols, "get_protocol", lambda name: Fake)
+    code, _, err = moseg("eval", "davis", "--out", tmp_path / "o", "--folds", "bear,bear, dev-03 ,,")
+    assert code == 0 and asked == [("bear", "dev-03")], err
+
+
+def test_folds_of_a_protocol_without_folds_are_refused(tmp_path: Path) -> None:
+    # eval rendered --folds nope ran every clip.
+    code, _, err = moseg("eval", "rendered", "--out", tmp_path / "o", "--folds", "nope")
+    assert code == 1 and one_error_line(err) == "moseg: error: --folds nope: rendered has no folds (it runs every clip)"
+    assert not (tmp_path / "o").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# 13. One --config file for every command: a key of another command is not an error
+# ---------------------------------------------------------------------------------------------
+
+
+def test_a_config_file_is_shared_across_commands(tmp_path: Path) -> None:
+    # CLI.md's own example broke `moseg pair` (unknown key 'frames'), a top-level preset pair and tracks.
+    shared = tmp_path / "moseg.toml"
+    shared.write_text('frames = 5\nk-method = "residual"\npreset = "fast"\nwin-size = 31\n[run]\nwhole = true\n')
+    for command in (("pair", tmp_path / "a.png", tmp_path / "b.png"), ("tracks", tmp_path / "t.npz")):
+        code, _, err = moseg(*command, "--config", shared, "-o", tmp_path / "o")
+        assert code == 1 and one_error_line(err).endswith(
+            ": no such image file" if command[0] == "pair" else ": no such file"
+        )
+    # A key no command reads, and a command's own table, are still checked.
+    (tmp_path / "typo.toml").write_text("framez = 5\n")
+    code, _, err = moseg("pair", tmp_path / "a.png", tmp_path / "b.png", "--config", tmp_path / "typo.toml")
+    assert code == 1 and "unknown key 'framez' for 'moseg pair'" in one_error_line(err)
+    (tmp_path / "table.toml").write_text("[pair]\nframes = 5\n")
+    code, _, err = moseg("pair", tmp_path / "a.png", tmp_path / "b.png", "--config", tmp_path / "table.toml")
+    assert code == 1 and "unknown key 'pair.frames' for 'moseg pair'" in one_error_line(err)
+
+
+# ---------------------------------------------------------------------------------------------
+# 15. Words that point at the cause
+# ---------------------------------------------------------------------------------------------
+
+
+def test_a_one_frame_track_file_says_so(tmp_path: Path) -> None:
+    import numpy as np
+
+    path = tmp_path / "t.npz"
+    np.savez(path, xy=np.random.default_rng(0).random((30, 1, 2)).astype(np.float32) * 100)
+    code, _, err = moseg("tracks", path, "-o", tmp_path / "o")
+    assert code == 1 and one_error_line(err) == (
+        f"moseg: error: {path}: the tracks span 1 frame; segmenting needs tracks over 2 or more frames"
+    )
+
+
+def test_stdin_frames_without_tracks_name_the_stdin_size(tmp_path: Path) -> None:
+    # 384-px frames given as 383 px wide got "textureless video?" only: a 1-px shear is too little to tell.
+    from typer.testing import CliRunner
+
+    from mosegpipe.cli.main import app
+
+    data = bytes(20 * 160 * 120 * 3)  # blank frames: no tracks, nothing to tell a shear by
+    args = ["live", "-", "--stdin-size", "159x120", "--no-rrd", "--out", str(tmp_path / "o")]
+    result = CliRunner().invoke(app, args, input=data)
+    assert result.exit_code == 1, result.stderr
+    assert one_error_line(result.stderr).endswith("(raw frames read as 159x120: is --stdin-size right?)")

@@ -129,8 +129,6 @@ def _to_cpu(obj: Any) -> Any:
     return obj
 
 
-
-
 def resolve_device(name: str) -> str:
     """The torch device a `--device` value names, checked: "cpu", "cuda", "cuda:N" or "auto".
 
