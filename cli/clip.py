@@ -106,8 +106,8 @@ def run(
 ) -> None:
     """Segment the motions in --frames frames of CLIP from --start (or the whole video with --whole).
 
-    Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ and recording.rrd into the
-    output folder; see docs/OUTPUTS.md. With --whole a progress bar with the time left is drawn on
+    Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ (--whole: overlay.mp4) and
+    recording.rrd into the output folder; see docs/OUTPUTS.md. With --whole a progress bar with the time left is drawn on
     stderr when it is a terminal. Exit code 1 with one 'moseg: error:' line on failure.
     """
     started = time.perf_counter()

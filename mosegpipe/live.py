@@ -420,6 +420,14 @@ def _segment_only(
         del window
 
 
+def _stdin_size_hint(source: LiveSource, exc: MosegError, width: int, height: int) -> str:
+    """What to check when raw stdin frames gave no tracks ("" for another source or failure): a width wrong by a
+    pixel or two shears the frames too little for `stdin_size_suspect` to tell, and leaves nothing to track."""
+    if source.kind == "stdin" and isinstance(exc, TooFewTracksError):
+        return f"raw frames read as {width}x{height}: is --stdin-size right?"
+    return ""
+
+
 def _run_live(
     source: LiveSource,
     cfg: PipelineConfig,
@@ -488,12 +496,9 @@ def _run_live(
         else:
             _segment_only(source.name, cfg, model, frames, on_frame, on_window)
     except MosegError as exc:
-        if suspect:  # the likely cause of a failure on such frames (no tracks, too few frames)
-            raise type(exc)(f"{exc} ({suspect})") from exc
-        if source.kind == "stdin" and isinstance(
-            exc, TooFewTracksError
-        ):  # a width wrong by 1 px shears too little to tell
-            raise type(exc)(f"{exc} (raw frames read as {width}x{height}: is --stdin-size right?)") from exc
+        hint = suspect or _stdin_size_hint(source, exc, width, height)
+        if hint:  # the likely cause of a failure on such frames (no tracks, too few frames)
+            raise type(exc)(f"{exc} ({hint})") from exc
         raise
     finally:
         reader.finish()  # the reader stops at its next frame

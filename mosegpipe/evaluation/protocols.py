@@ -88,10 +88,12 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
 
 
 def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
-    """The pipeline settings an end-to-end protocol runs with: F frames, the request's options and settings."""
+    """The pipeline settings an end-to-end protocol runs with: F frames, the request's options and settings; the mask
+    networks they ask for loaded before any clip (learned.moving.check_mask_networks: one error, not a zero per clip)."""
+    from mosegpipe.learned.moving import check_mask_networks
     from mosegpipe.pipeline import PipelineConfig
 
-    return PipelineConfig.from_options(
+    cfg = PipelineConfig.from_options(
         frames,
         k_method=req.k_method,
         k_max=req.k_max,
@@ -102,14 +104,8 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
         preset=req.preset,
         settings=req.settings,
     )
-
-
-def _check_mask_networks(cfg: PipelineConfig) -> None:
-    """The mask networks of the settings, checked once before any clip (learned.moving.check_mask_networks): a
-    checkpoint that cannot be used is one error, not a warning per clip and a table of zeros."""
-    from mosegpipe.learned.moving import check_mask_networks
-
     check_mask_networks(cfg.mask)
+    return cfg
 
 
 def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
@@ -123,7 +119,6 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
         raise ConfigError(f"--folds {','.join(req.folds)}: {protocol.name} has no folds (it runs every clip)")
     f = req.frames or protocol.default_frames
     cfg = _pipeline_config(req, f)
-    _check_mask_networks(cfg)
     net = load_model(f, req.model)
     rows = protocol.end_to_end(req.data_root, net, cfg, None, req.baselines or None)
     config = {
@@ -159,7 +154,6 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
         raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
     mode = DAVIS_MODES[protocol.name]
     cfg = _pipeline_config(req, req.frames or protocol.default_frames)
-    _check_mask_networks(cfg)
     load_embedder(MODES[mode] or cfg.frames, req.model)  # a checkpoint that cannot be used: refused before any clip
     methods: list[tuple[str, Any]] = [("pipeline", pipeline_method(cfg, req.model))]
     if req.baselines:
@@ -200,9 +194,7 @@ def run_composite_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     object; `req.folds` picks a part (dev, the default; val; all) or composites by name."""
     from mosegpipe.evaluation.composite import run_composite
 
-    cfg = _pipeline_config(req, req.frames or protocol.default_frames)
-    _check_mask_networks(cfg)
-    return run_composite(protocol.name, req, cfg)
+    return run_composite(protocol.name, req, _pipeline_config(req, req.frames or protocol.default_frames))
 
 
 def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
