@@ -12,7 +12,7 @@ import typer
 from mosegpipe.cli.app import _friendly, _setup
 from mosegpipe.cli.common import (
     _check_model_path,
-    _default_out,
+    _default_out_here,
     _frames_progress,
     _lock_out,
     _print_summary,
@@ -68,7 +68,7 @@ def run(
     start: Start = 0,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder (default: beside the clip, named after it + '_moseg')."),
+        typer.Option("--out", "-o", help="Output folder (default: in the current folder, the clip's name + '_moseg')."),
     ] = None,
     whole: Annotated[
         bool,
@@ -139,7 +139,7 @@ def run(
         mask_extra_tracks=mask_extra_tracks,
         preset=preset,
     )
-    out = out or _default_out(clip, "_moseg")
+    out = out or _default_out_here(clip, "_moseg")
     _lock_out(out)
     check_output_dir(out, overwrite)
     _import_ahead(cfg, whole=whole, rrd=not no_rrd)
@@ -184,7 +184,9 @@ def pair(
     img2: Annotated[Path, typer.Argument(help="Second image (may differ in size).")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg')."),
+        typer.Option(
+            "--out", "-o", help="Output folder (default: in the current folder, IMG1's name + '_pair_moseg')."
+        ),
     ] = None,
     clustering: ClusterOptions = ClusterOptions(),
     masks: MaskOptions = MaskOptions(),
@@ -207,7 +209,7 @@ def pair(
     from mosegpipe.pipeline import segment_pair
 
     cfg = _pipeline_cfg(2, clustering, masks=masks)
-    out = out or _default_out(img1, "_pair_moseg")
+    out = out or _default_out_here(img1, "_pair_moseg")
     _lock_out(out)
     check_output_dir(out, overwrite)
     result = segment_pair(img1, img2, cfg, load_embedder(2, model))
@@ -262,7 +264,7 @@ def tracks(
     file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: README).")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder (default: beside FILE, named after it + '_moseg')."),
+        typer.Option("--out", "-o", help="Output folder (default: in the current folder, FILE's name + '_moseg')."),
     ] = None,
     start: Start = 0,
     frames: Annotated[
@@ -313,7 +315,7 @@ def tracks(
     xy, visible = read_tracks_file(file)
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
     cfg = _pipeline_cfg(max(2, window), clustering, segment_method=method, start=start, rigid_check=rigid_check)
-    out = out or _default_out(file, "_moseg")
+    out = out or _default_out_here(file, "_moseg")
     _lock_out(out)
     check_output_dir(out, overwrite)
     net = load_embedder(max(2, window), model)

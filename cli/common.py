@@ -16,9 +16,17 @@ from mosegpipe.errors import InputError
 
 
 def _default_out(path: Path, suffix: str) -> Path:
-    """<name><suffix> beside the input (resolved, so that "." or "clip/" still have a name)."""
+    """<name><suffix> beside `path` (resolved, so that "." or "clip/" still have a name): replay's folder beside
+    the run's."""
     path = path.resolve()
     return path.with_name(f"{path.stem}{suffix}")
+
+
+def _default_out_here(path: Path, suffix: str) -> Path:
+    """<name><suffix> in the current folder, named after the input (resolved, so that "." or "clip/" still have
+    a name): run's, pair's and tracks' folder without --out. Not beside the input, whose folder may be shared,
+    read-only or a folder of clips that a later `moseg batch` reads."""
+    return Path(f"{path.resolve().stem}{suffix}")
 
 
 def _lock_out(out: Path) -> None:

@@ -20,6 +20,7 @@ from mosegpipe.cli.clip import read_tracks_file
 from mosegpipe.cli.common import (
     _default_out,
     _frames_progress,
+    _lock_out,
     _print_summary,
     _print_total,
     _print_tracks_summary,
@@ -193,6 +194,7 @@ def replay(
     kind, source = recorded["kind"], recorded["source"]
     cfg = PipelineConfig.from_dict(recorded.get("config", {}), f"{summary}: config")
     out = out or _default_out(summary.parent, "_replay")
+    _lock_out(out)
     check_output_dir(out, overwrite)
     net = load_embedder(recorded["model"]["model_frames"], recorded["model"].get("checkpoint"))
     _check_same_model(net, recorded["model"], summary)

@@ -52,7 +52,7 @@ from mosegpipe.batch_plan import (
     plan_paths,
     process_clip,
 )
-from mosegpipe.batch_pool import MAX_WORKER_WARNINGS, _run_process
+from mosegpipe.batch_pool import MAX_WORKER_WARNINGS, _inline_clip, _run_process
 from mosegpipe.batch_ray import _run_ray, check_ray
 from mosegpipe.errors import InputError
 from mosegpipe.io import atomic_write, write_json
@@ -294,7 +294,7 @@ def _run_items(
         try:
             if todo and engine == "inline":
                 for index, item in todo:
-                    emit(index, process_clip(item, job, model))
+                    emit(index, _inline_clip(item, job, model))
             elif todo and engine == "process":
                 _run_process(todo, workers, model, job, clip_timeout, emit)
             elif todo:

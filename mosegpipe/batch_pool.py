@@ -77,6 +77,31 @@ def _worker_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, An
     return row
 
 
+def _inline_clip(item: BatchItem, job: _Job, model: SubspaceNet) -> dict[str, Any]:
+    """process_clip in this process (engine "inline"), its warnings carried in the row as a worker's are, so
+    that they are logged under the clip's name too; meanwhile the handlers of this process take the rest."""
+    caught = _WorkerLog()
+    root = logging.getLogger()
+    handlers = list(root.handlers)
+
+    def not_a_warning(record: logging.LogRecord) -> bool:
+        return record.levelno < logging.WARNING
+
+    for handler in handlers:
+        handler.addFilter(not_a_warning)
+    root.addHandler(caught)
+    try:
+        row = process_clip(item, job, model)
+    finally:
+        root.removeHandler(caught)
+        for handler in handlers:
+            handler.removeFilter(not_a_warning)
+    warnings = caught.take()
+    if warnings:
+        row["_warnings"] = warnings
+    return row
+
+
 def _watch_parent(lifeline: Any) -> None:
     """Ends this worker when the batch process is gone (its end of the lifeline pipe closes).
 
