@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, get_args
@@ -159,6 +160,10 @@ def _check_checkpoint_out(out: Path) -> None:
         raise InputError(f"--out {out}: {folder} is not a folder")
     if not os.access(folder, os.W_OK | os.X_OK) or (out.exists() and not os.access(out, os.W_OK)):
         raise InputError(f"--out {out}: cannot write there ({folder} is read-only)")
+    try:  # what access(2) cannot tell: a read-only file system, or /proc, for root
+        os.rmdir(tempfile.mkdtemp(prefix=".moseg-train-", dir=folder))
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write there ({folder}: {exc.strerror})") from None
 
 
 def _train_mask_networks(

@@ -204,23 +204,48 @@ def _start_forkserver(ctx: Any) -> None:
         signal.signal(signal.SIGINT, previous)
 
 
+@contextlib.contextmanager
+def _stops_deferred() -> Iterator[None]:
+    """Ctrl-C and SIGTERM held back while the pool's processes start, then delivered (to the command's own
+    handlers). Interrupted half way through a worker's start, the batch went away with that worker unrecorded
+    (not killed), and the worker printed a traceback when it could not find the queue the batch had removed.
+    Only in the main thread, where Python runs signal handlers; elsewhere nothing is held back."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        received.append(signum)
+
+    previous = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if received:
+            signal.raise_signal(received[0])
+
+
 class _Pool:
     """A ProcessPoolExecutor whose workers are all started and ready (so deadlines count clip time)."""
 
     def __init__(self, workers: int, model: SubspaceNet, job: _Job, startup_timeout: float = 600.0) -> None:
         ctx = _mp_context()
-        with _hangup_blocked():  # the queue's lock starts the resource tracker, the pings the workers
-            _start_forkserver(ctx)
-            self.ready = ctx.Queue()
-            # Only this process holds the sending end: when it dies, however it dies, the workers see EOF and exit.
-            lifeline, self.lifeline = ctx.Pipe(duplex=False)
-            self.executor = cf.ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
-            )
-            self.pids: set[int] = set()
-            pings = [self.executor.submit(_ping) for _ in range(workers)]  # one submit starts one worker
-        deadline = time.monotonic() + startup_timeout
+        self.pids: set[int] = set()
         try:
+            # The queue's lock starts the resource tracker, the pings the workers.
+            with _hangup_blocked(), _stops_deferred():
+                _start_forkserver(ctx)
+                self.ready = ctx.Queue()
+                # Only this process holds the sending end: when it dies, however it dies, the workers see EOF.
+                lifeline, self.lifeline = ctx.Pipe(duplex=False)
+                self.executor = cf.ProcessPoolExecutor(
+                    workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
+                )
+                pings = [self.executor.submit(_ping) for _ in range(workers)]  # one submit starts one worker
+            deadline = time.monotonic() + startup_timeout
             while len(self.pids) < workers:
                 try:
                     self.pids.add(self.ready.get(timeout=0.2))
@@ -246,7 +271,12 @@ class _Pool:
         return [p.exitcode for p in list(procs.values()) if p.exitcode]
 
     def kill(self) -> None:
-        """Kills every worker (a hung one included) and shuts the executor down without waiting."""
+        """Kills every worker (a hung one included) and shuts the executor down without waiting (also a pool
+        whose start failed half way)."""
+        if not hasattr(self, "executor"):
+            with contextlib.suppress(Exception):
+                self.lifeline.close()
+            return
         procs = list((getattr(self.executor, "_processes", None) or {}).values())
         for p in procs:
             with contextlib.suppress(Exception):

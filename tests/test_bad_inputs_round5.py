@@ -332,6 +332,24 @@ def test_batch_workers_are_born_ignoring_ctrl_c(tmp_path: Path) -> None:
     assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # this process's handler is back
 
 
+def test_ctrl_c_while_the_workers_start_waits_until_they_are_all_recorded() -> None:
+    # Interrupted inside a worker's start, the batch left without killing that worker, which then printed
+    # a FileNotFoundError traceback (the queue it was to read was gone).
+    import signal
+    import threading
+
+    from mosegpipe.batch_pool import _stops_deferred
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers are the main thread's")
+    before = signal.getsignal(signal.SIGINT)
+    reached = []
+    with pytest.raises(KeyboardInterrupt), _stops_deferred():
+        signal.raise_signal(signal.SIGINT)
+        reached.append("the start went on")
+    assert reached == ["the start went on"] and signal.getsignal(signal.SIGINT) is before
+
+
 def test_live_serve_server_has_a_session_of_its_own(monkeypatch: pytest.MonkeyPatch) -> None:
     # Ctrl-C reached the server with the rest of the terminal's process group: Rerun's client then printed two
     # raw ANSI ERROR lines while the last frames were flushed to a server that was gone.
@@ -452,3 +470,21 @@ def test_stdin_frames_without_tracks_name_the_stdin_size(tmp_path: Path) -> None
     result = CliRunner().invoke(app, args, input=data)
     assert result.exit_code == 1, result.stderr
     assert one_error_line(result.stderr).endswith("(raw frames read as 159x120: is --stdin-size right?)")
+
+
+def test_a_full_disk_names_the_file_being_written(tmp_path: Path) -> None:
+    # A full disk shows when a file is closed, and Python's OSError then names no file: `--overwrite` on a full
+    # disk said "moseg: error: No space left on device" alone.
+    import errno
+
+    from mosegpipe.io import atomic_write
+
+    final = tmp_path / ".o.partial" / "overlay" / "000003.jpg"
+    with pytest.raises(OSError) as caught, atomic_write(final) as tmp:
+        tmp.write_bytes(b"half a frame")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(final)
+    assert list(final.parent.iterdir()) == []
+    from mosegpipe.cli.app import _shown_path
+
+    assert _shown_path(caught.value.filename) == str(tmp_path / "o" / "overlay" / "000003.jpg")
