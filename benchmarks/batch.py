@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from speed import machine_info  # noqa: E402
 
-from mosegpipe.batch import run_batch  # noqa: E402
+from mosegpipe.apps.batch.run import run_batch  # noqa: E402
 from mosegpipe.pipeline import PipelineConfig, load_model  # noqa: E402
 from mosegpipe.runtime import set_threads  # noqa: E402
 

@@ -37,8 +37,8 @@ from unittest import mock
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.evaluation import composite as ev
-from mosegpipe.inference import load_embedder
 from mosegpipe.masks import UNKNOWN, WORLD
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.pipeline import video as vid
@@ -83,11 +83,11 @@ def _compact(truth: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], int]:
 
 def _errors(emb: npt.NDArray[np.float32], truth: npt.NDArray[np.int64], k: int) -> tuple[float, float]:
     """(K-means error with the true K, nearest-true-centre error), percent."""
-    from mosegpipe.cluster import _fixed_k
     from mosegpipe.evaluation.metrics import misclassification_error
+    from mosegpipe.group.cluster import fixed_k
 
     x = np.asarray(emb, np.float64)
-    km = _fixed_k(x, PipelineConfig().cluster, k).labels if k > 1 else np.zeros(len(x), np.int64)
+    km = fixed_k(x, PipelineConfig().cluster, k).labels if k > 1 else np.zeros(len(x), np.int64)
     centres = np.stack([x[truth == g].mean(axis=0) for g in range(k)])
     nearest = np.argmin(((x[:, None, :] - centres[None]) ** 2).sum(-1), axis=1)
     return 100.0 * misclassification_error(km, truth), 100.0 * float(np.mean(nearest != truth))

@@ -28,9 +28,9 @@ import cv2
 import numpy as np
 from world_static import seed_list  # benchmarks/ is the script's folder
 
-from mosegpipe.inference import load_embedder
-from mosegpipe.io import read_palette_png
-from mosegpipe.outputs import write_video_outputs
+from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.embed.numpy_net import load_embedder
+from mosegpipe.io.read import read_palette_png
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.runtime import set_threads
 from mosegpipe.synth.water import CAMERAS, water_clip

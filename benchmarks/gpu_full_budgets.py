@@ -63,7 +63,7 @@ def _quiet_logs() -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # Only the first frame of each KT3DMoSeg sequence travels (for the image size): no warning per load.
     logging.getLogger("mosegpipe.data.kt3dmoseg").setLevel(logging.ERROR)
-    logging.getLogger("mosegpipe.cluster").setLevel(logging.ERROR)
+    logging.getLogger("mosegpipe.group.cluster").setLevel(logging.ERROR)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -112,7 +112,7 @@ def cmd_lce(args: argparse.Namespace) -> None:
     val, test = (4, 6) if TINY else (100, 200)
     cal = 6 if TINY else 80
     t0 = time.perf_counter()
-    res = train_model(sl._train_sampler(), cfg, cc.model, log_every=2, stop_after=cal, device=device)
+    res = train_model(sl.train_sampler(), cfg, cc.model, log_every=2, stop_after=cal, device=device)
     hist = res.history
     step_s = (hist[-1]["seconds"] - hist[1]["seconds"]) / (hist[-1]["step"] - hist[1]["step"])
     clips = sl._splits(sl.CurveBudget(num_checkpoints=1, val_clips=1, test_clips=20))["test"]
@@ -198,14 +198,14 @@ def _run_losses(task: dict[str, Any], work: Path, root: Path, device: str, deadl
     from mosegpipe.studies.training import (
         LOSSES_STUDY,
         TrainingBudget,
-        _datasets,
         fold_key,
+        load_datasets,
         make_folds,
         scored_clips,
         train_and_score,
     )
 
-    data = _datasets()[task["dataset"]]
+    data = load_datasets()[task["dataset"]]
     budget = TrainingBudget(steps=LOSS_STEPS)  # two folds, as the cpu budget
     variant = next(v for v in LOSSES_STUDY.variants if v.label == task["label"])
     clips = scored_clips(data, root, budget)
@@ -332,7 +332,7 @@ def _collect_lce(work: Path) -> tuple[str, dict[str, Any]]:
 
 def _collect_losses(work: Path, out: Path) -> tuple[str, dict[str, Any]]:
     from mosegpipe.studies import common as st
-    from mosegpipe.studies.training import LOSSES_STUDY, _plot, _table, summarize_variants
+    from mosegpipe.studies.training import LOSSES_STUDY, plot_summary, summarize_variants, table_text
 
     parts = [json.loads(p.read_text()) for p in sorted((work / "losses" / "parts").glob("*.json"))]
     if not parts:
@@ -347,9 +347,9 @@ def _collect_losses(work: Path, out: Path) -> tuple[str, dict[str, Any]]:
         "Error: misclassification rate with the automatic K (silhouette, K <= 8), mean over the test clips; "
         "a dataset whose two folds did not both finish is scored on half its clips (see clips in results.json).",
     ]
-    table = _table(spec, summary, notes)
+    table = table_text(spec, summary, notes)
     req = st.StudyRequest(out_dir=out)
-    st._write_outputs(req, table, {"summary": summary, "parts": parts, "steps": LOSS_STEPS}, _plot(spec, summary))
+    st.write_outputs(req, table, {"summary": summary, "parts": parts, "steps": LOSS_STEPS}, plot_summary(spec, summary))
     return table, {"summary": summary, "parts": parts}
 
 

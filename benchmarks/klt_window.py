@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 
 from mosegpipe.configs.tracking import TrackConfig
-from mosegpipe.io import iter_video, read_image
-from mosegpipe.track import KLTTracker
+from mosegpipe.io.read import iter_video, read_image
+from mosegpipe.points.klt import KLTTracker
 
 _DATA = Path(os.environ.get("MOSEG_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data"))
 VARIANTS: dict[str, dict[str, int]] = {

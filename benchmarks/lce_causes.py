@@ -77,9 +77,9 @@ def main() -> None:
     from mosegpipe.runtime import set_threads
 
     set_threads(1)
-    logging.getLogger("mosegpipe.cluster").setLevel(logging.ERROR)
-    from mosegpipe.model import ModelConfig
-    from mosegpipe.studies.lce import _train, _train_sampler, score_clips
+    logging.getLogger("mosegpipe.group.cluster").setLevel(logging.ERROR)
+    from mosegpipe.embed.model import ModelConfig
+    from mosegpipe.studies.lce import run_training, score_clips, train_sampler
     from mosegpipe.synth.lce import LCEConfig, lce_splits
     from mosegpipe.training.loop import train_model
 
@@ -94,7 +94,7 @@ def main() -> None:
         if name in res:
             continue
         mc = ModelConfig(in_dim=2, width=64, num_blocks=blocks, embed_dim=5, input_norm=norm)
-        cfg = _train(steps=steps, batch_size=batch, loss=loss, lr=lr)
+        cfg = run_training(steps=steps, batch_size=batch, loss=loss, lr=lr)
         if sigma != 0.05:
             splits = lce_splits(cfg=LCEConfig(noise_sigma=sigma))
             train = splits["train"]
@@ -104,7 +104,7 @@ def main() -> None:
 
             clips = [splits["val"][i] for i in range(args.val)]
         else:
-            sampler, clips = _train_sampler(), val
+            sampler, clips = train_sampler(), val
         if lift:
             plain = sampler
 

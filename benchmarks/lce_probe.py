@@ -29,10 +29,10 @@ def main() -> None:
     from mosegpipe.runtime import set_threads
 
     set_threads(1)
-    logging.getLogger("mosegpipe.cluster").setLevel(logging.ERROR)  # K-ambiguity warnings per clip
+    logging.getLogger("mosegpipe.group.cluster").setLevel(logging.ERROR)  # K-ambiguity warnings per clip
 
-    from mosegpipe.model import ModelConfig
-    from mosegpipe.studies.lce import _train, _train_sampler, score_clips
+    from mosegpipe.embed.model import ModelConfig
+    from mosegpipe.studies.lce import run_training, score_clips, train_sampler
     from mosegpipe.synth.lce import lce_splits
     from mosegpipe.training.loop import train_model
 
@@ -50,9 +50,9 @@ def main() -> None:
     print("|---|---|---|---|---|")
     for name, (model_kw, train_kw) in candidates.items():
         model_cfg = ModelConfig(**{"in_dim": 2, "width": 64, "num_blocks": 30, "embed_dim": 5, **model_kw})
-        cfg = _train(steps=args.steps, **train_kw)
+        cfg = run_training(steps=args.steps, **train_kw)
         t0 = time.perf_counter()
-        result = train_model(_train_sampler(), cfg, model_cfg, log_every=100)
+        result = train_model(train_sampler(), cfg, model_cfg, log_every=100)
         seconds = time.perf_counter() - t0
         s = score_clips(result.model, val)
         scores[name] = {**s, "train_seconds": round(seconds, 1), "loss": [round(h["loss"], 4) for h in result.history]}

@@ -19,13 +19,13 @@ import cv2
 import numpy as np
 
 from mosegpipe.data.davis import read_davis_clip
-from mosegpipe.learned.features import LearnedMaskConfig, clip_features
-from mosegpipe.learned.moving import learned_moving
-from mosegpipe.learned.net import load_masknet, predict
-from mosegpipe.learned.which import which_motion
-from mosegpipe.learned.which_train import frame_corners
-from mosegpipe.motion import MotionMaskConfig, moving_from_motion, stack_motion
+from mosegpipe.masks.learned.features import LearnedMaskConfig, clip_features
+from mosegpipe.masks.learned.net import load_masknet, predict
+from mosegpipe.masks.learned.probability import learned_moving
+from mosegpipe.masks.learned.which import which_motion
+from mosegpipe.masks.moving_pixels import MotionMaskConfig, moving_from_motion, stack_motion
 from mosegpipe.runtime import set_threads
+from mosegpipe.training.masks.whichnet import frame_corners
 
 set_threads(1)
 root = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1].parent / "shared" / "data"

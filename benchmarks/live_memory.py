@@ -26,11 +26,11 @@ _DEFAULT_VIDEO = Path(os.environ.get("MOSEG_DATA", Path(__file__).resolve().pare
 _DEFAULT_VIDEO = _DEFAULT_VIDEO / "videos" / "vtest.avi"
 
 
-def _frames(video: Path, size: tuple[int, int]) -> list[bytes]:
+def frames_text(video: Path, size: tuple[int, int]) -> list[bytes]:
     """The video's frames resized, as raw BGR (what `moseg live -` reads), then the same backwards."""
     import cv2
 
-    from mosegpipe.io import iter_video
+    from mosegpipe.io.read import iter_video
 
     frames = [cv2.resize(rgb[..., ::-1], size, interpolation=cv2.INTER_AREA).tobytes() for _, rgb in iter_video(video)]
     if not frames:
@@ -83,7 +83,7 @@ def main() -> None:
     ap.add_argument("moseg_args", nargs="*", help="more options for moseg live (after --)")
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
-    frames = _frames(args.video, (width, height))
+    frames = frames_text(args.video, (width, height))
     rerun = shutil.which("rerun")
     if rerun is None:
         sys.exit("the `rerun` program of rerun-sdk is not on PATH")

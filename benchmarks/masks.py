@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.evaluation.e2e import rendered_config
 from mosegpipe.evaluation.metrics import mask_scores
 from mosegpipe.masks import UNKNOWN, MaskConfig, labels_to_masks
-from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, load_model, segment_frames
 from mosegpipe.runtime import set_threads
 from mosegpipe.synth.render import render_clip

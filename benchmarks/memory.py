@@ -5,14 +5,14 @@
 
 Length sweep (the default): writes one synthetic video (a textured background panning back and
 forth and two textured rectangles moving across it, MJPG) as long as the longest length, then
-segments its first L frames in a fresh subprocess per length (mosegpipe.outputs.write_video_outputs,
+segments its first L frames in a fresh subprocess per length (mosegpipe.apps.outputs.write_video_outputs,
 as `moseg run --whole`, with the model loaded as `moseg run` loads it: NumPy, no torch; the parent
 loads it once first so that the copy exists). Each subprocess reports its peak resident set size (resource.getrusage
 ru_maxrss) right after the imports and the model (the baseline) and after the run. Flat memory means
 the peak does not grow with L. One thread throughout.
 
 Long video (--minutes M): streams an M-minute synthetic video of the same kind, H.264 in an .mp4
-(mosegpipe.io.write_video, frame by frame, so that writing it holds one frame), or takes --video;
+(mosegpipe.io.read.write_video, frame by frame, so that writing it holds one frame), or takes --video;
 then runs the real command, `moseg run VIDEO --whole --no-rrd` (or with the recording: --rrd), and
 samples the child's /proc/PID/status (VmRSS, VmHWM) every --interval seconds. Progress is the
 number of masks/NNNNNN.png files in the command's temporary output folder, one per finished frame.
@@ -92,7 +92,7 @@ def make_video(path: Path, frames: int, size_wh: tuple[int, int], seed: int = 0)
 
 def make_h264_video(path: Path, frames: int, size_wh: tuple[int, int], fps: float, seed: int = 0) -> Path:
     """A synthetic H.264 .mp4 (see synthetic_frames), streamed: one frame is held at a time."""
-    from mosegpipe.io import write_video
+    from mosegpipe.io.read import write_video
 
     write_video(path, synthetic_frames(frames, size_wh, seed), fps)
     return path
@@ -100,8 +100,8 @@ def make_h264_video(path: Path, frames: int, size_wh: tuple[int, int], fps: floa
 
 def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     """Runs in the subprocess: segments the first `frames` frames, prints one JSON line."""
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import write_video_outputs
+    from mosegpipe.apps.outputs import write_video_outputs
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.runtime import set_threads
 
@@ -160,7 +160,7 @@ TABLE_HEAD = (
 )
 
 
-def _row(label: str, frames: float, t_s: float, rss: str, peak: str) -> str:
+def summary_row(label: str, frames: float, t_s: float, rss: str, peak: str) -> str:
     return f"| {label} | {frames:.0f} | {t_s:.0f} | {frames / max(t_s, 1e-9):.1f} | {rss} | {peak} |"
 
 
@@ -210,7 +210,7 @@ def sample_run(
                 while pending and sample["frames_done"] >= pending[0] * total_frames:
                     label = f"{100 * pending.pop(0):.0f} %"
                     rss, hwm = f"{sample['rss_mib']:.0f}", f"{sample['hwm_mib']:.0f}"
-                    print(_row(label, sample["frames_done"], now, rss, hwm), flush=True)
+                    print(summary_row(label, sample["frames_done"], now, rss, hwm), flush=True)
             if deadline_s is not None and now > deadline_s and not stopped:
                 stopped = True
                 if samples:
@@ -218,7 +218,8 @@ def sample_run(
                     pct = 100 * last["frames_done"] / total_frames
                     rss, hwm = f"{last['rss_mib']:.0f}", f"{last['hwm_mib']:.0f}"
                     print(
-                        _row(f"{pct:.0f} % (stopped at the deadline)", last["frames_done"], now, rss, hwm), flush=True
+                        summary_row(f"{pct:.0f} % (stopped at the deadline)", last["frames_done"], now, rss, hwm),
+                        flush=True,
                     )
                 child.terminate()
             time.sleep(interval_s)
@@ -264,7 +265,9 @@ def long_video(args: argparse.Namespace) -> None:
         done = json.loads(summary_path.read_text())["frames"] if summary_path.is_file() else None
     if code == 0:
         last_rss = f"{samples[-1]['rss_mib']:.0f} (last sample)" if samples else "n/a"
-        print(_row("100 % (exit)", done or 0, final["wall_s"], last_rss, f"{final['maxrss_mib']:.0f} (ru_maxrss)"))
+        print(
+            summary_row("100 % (exit)", done or 0, final["wall_s"], last_rss, f"{final['maxrss_mib']:.0f} (ru_maxrss)")
+        )
     elif code is not None:
         print(f"\nthe command failed (exit {code}) after {final['wall_s']:.0f} s:\n{tail}")
     if samples:
@@ -308,7 +311,7 @@ def main(argv: list[str] | None = None) -> None:
     w, h = (int(v) for v in args.size.lower().split("x"))
     env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     print(f"# whole-video peak memory, {w}x{h} MJPG, windows of 5 frames, recording {'on' if args.rrd else 'off'}\n")
-    from mosegpipe.inference import load_embedder
+    from mosegpipe.embed.numpy_net import load_embedder
 
     load_embedder(5, args.model)  # makes the NumPy copy that the children load, as a second `moseg run` does
     print(f"model: {args.model or 'the shipped 5-frame weights'}, NumPy inference (no torch in the children)\n")

@@ -5,7 +5,7 @@
 Re-scores the fold models a leave-one-out run stored (OUT/folds/<held-out>.pt, `moseg eval kt3d-loo
 --out OUT`): each held-out clip is embedded by the model that never saw it, K is chosen by the
 silhouette or the residual rule (second-order difference), and then, in the "+ rigid" rows,
-`mosegpipe.rigid.split_by_rigid_motion` (the pipeline's check, its default settings) splits off the
+`mosegpipe.group.rigid.split_by_rigid_motion` (the pipeline's check, its default settings) splits off the
 coherent groups of tracks that their cluster's rigid motion (a fundamental matrix or a homography)
 does not explain. Prints a Markdown table: auto-K error mean / median, correct K, K too small / too
 large, NMI. Nothing is trained; one thread.
@@ -30,12 +30,12 @@ def main() -> None:
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
 
-    from mosegpipe.cluster import ClusterConfig, cluster_auto_k
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.evaluation.benchmark import embed_clip
     from mosegpipe.evaluation.metrics import misclassification_error, nmi
     from mosegpipe.evaluation.protocols import get_protocol
-    from mosegpipe.model import SubspaceNet
-    from mosegpipe.rigid import split_by_rigid_motion
+    from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
+    from mosegpipe.group.rigid import split_by_rigid_motion
     from mosegpipe.runtime import set_threads
 
     set_threads(1)

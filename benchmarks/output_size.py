@@ -3,7 +3,7 @@
     python benchmarks/output_size.py [--data-root ../shared/data] [--frames-limit N] [--keep DIR] [--trails-row]
     python benchmarks/output_size.py --startup [--repeats 5]
 
-(a) Sizes (default): `moseg run VIDEO --whole` (mosegpipe.outputs.write_video_outputs, shipped
+(a) Sizes (default): `moseg run VIDEO --whole` (mosegpipe.apps.outputs.write_video_outputs, shipped
     5-frame model, default settings) on videos/vtest.avi (795 frames, 768x576), once with the
     recording's frames as one JPEG per frame (VizConfig(video_frames="jpeg"), the recording
     before) and once as one H.264 video asset with a VideoFrameReference per frame (the default).
@@ -70,7 +70,7 @@ def _size(path: Path) -> float:
 
 
 def sizes(video: Path, frames_limit: int | None, keep: Path | None, trails_row: bool) -> str:
-    from mosegpipe.outputs import write_video_outputs
+    from mosegpipe.apps.outputs import write_video_outputs
     from mosegpipe.pipeline import PipelineConfig, load_model
     from mosegpipe.runtime import set_threads
     from mosegpipe.viz import VIDEO_VIZ

@@ -42,14 +42,14 @@ from typing import Any
 import cv2
 import numpy as np
 
-import mosegpipe.flow as flow_mod
-import mosegpipe.motion as motion_mod
-import mosegpipe.outputs as outputs_mod
+import mosegpipe.apps.outputs as outputs_mod
+import mosegpipe.masks.moving_pixels as motion_mod
 import mosegpipe.pipeline.video as video_mod
 import mosegpipe.pipeline.window as window_mod
-import mosegpipe.track as track_mod
-from mosegpipe.inference import load_embedder
-from mosegpipe.io import iter_video
+import mosegpipe.points.flow as flow_mod
+import mosegpipe.points.klt as track_mod
+from mosegpipe.embed.numpy_net import load_embedder
+from mosegpipe.io.read import iter_video
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.runtime import set_threads
 
@@ -70,9 +70,9 @@ _WRAPPED: list[tuple[Any, str, str]] = [
     (motion_mod, "_flow_spread", "mask: flow spread"),
     (motion_mod, "_flow_maps", "mask: carried along the flow"),
     (motion_mod, "_carried_along_flow", "mask: carried along the flow"),
-    (motion_mod, "_colour_log_ratio", "mask: colour model (histograms)"),
-    (motion_mod, "_local_colour_contrast", "mask: local colour contrast"),
-    (motion_mod, "_keep_strong", "mask: components (strength test)"),
+    (motion_mod, "colour_log_ratio", "mask: colour model (histograms)"),
+    (motion_mod, "local_colour_contrast", "mask: local colour contrast"),
+    (motion_mod, "keep_strong", "mask: components (strength test)"),
     (motion_mod, "_add_anchored", "mask: anchored regions"),
     (video_mod, "moving_from_motion", "mask: the rest (resizes, logs, fb blur, floor)"),
     (window_mod, "moving_to_labels", "labels onto moving pixels"),

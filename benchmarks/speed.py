@@ -5,7 +5,7 @@
 (a) `moseg run` on 5 frames at 640x480 (a rendered clip and the first frames of vtest.avi resized),
     stage by stage: the first (cold) call after the imports, then the median of --repeats calls
     after one warm-up call. "write" is masks + overlays + labels + summary, "rrd" the recording.
-(b) whole-video mode (`moseg run --whole`, mosegpipe.outputs.write_video_outputs) on --video-frames frames
+(b) whole-video mode (`moseg run --whole`, mosegpipe.apps.outputs.write_video_outputs) on --video-frames frames
     of a rendered 640x480 video (~900 tracks) and of vtest.avi resized to 640x480 (~400 tracks):
     frames per second, vtest.avi with and without the Rerun recording.
 (c) embedding + automatic K for the 22 KT3DMoSeg test clips (the datasets' own trajectories).
@@ -47,10 +47,10 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from mosegpipe.cluster import cluster_auto_k  # noqa: E402
-from mosegpipe.inference import Embedder, NumpySubspaceNet  # noqa: E402
-from mosegpipe.model import ModelConfig, SubspaceNet  # noqa: E402
-from mosegpipe.outputs import write_clip_outputs  # noqa: E402
+from mosegpipe.apps.outputs import write_clip_outputs  # noqa: E402
+from mosegpipe.embed.model import ModelConfig, SubspaceNet  # noqa: E402
+from mosegpipe.embed.numpy_net import Embedder, NumpySubspaceNet  # noqa: E402
+from mosegpipe.group.cluster import cluster_auto_k  # noqa: E402
 from mosegpipe.pipeline import PipelineConfig, segment_clip  # noqa: E402
 from mosegpipe.runtime import set_threads  # noqa: E402
 
@@ -111,7 +111,7 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float = 10.0) -> Path
 
 def resized_frames(video: Path, count: int, size_wh: tuple[int, int] = (640, 480)) -> list[np.ndarray]:
     """The first `count` frames of a video, resized, RGB."""
-    from mosegpipe.io import iter_video
+    from mosegpipe.io.read import iter_video
 
     return [cv2.resize(f, size_wh, interpolation=cv2.INTER_AREA) for _, f in iter_video(video, max_frames=count)]
 
@@ -157,8 +157,8 @@ def clip_table(clips: dict[str, Path], model: Embedder, repeats: int, work: Path
 def bare_klt_fps(video: Path) -> float:
     """Frames/s of a bare OpenCV KLT loop on the decoded frames of `video`: the same corner settings
     (TrackConfig defaults), forward LK only, no checks, no re-seeding. The reference of (b)."""
-    from mosegpipe.io import iter_video
-    from mosegpipe.track import TrackConfig
+    from mosegpipe.io.read import iter_video
+    from mosegpipe.points.klt import TrackConfig
 
     c = TrackConfig()
     grays = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for _, f in iter_video(video)]
@@ -173,7 +173,7 @@ def bare_klt_fps(video: Path) -> float:
 def video_table(runs: list[tuple[str, Path, bool]], model: Embedder, work: Path) -> str:
     """Whole-video mode on each (name, video, with recording) run, against bare KLT on the same frames
     measured just before it (timings on shared machines drift: the ratio is the figure to compare)."""
-    from mosegpipe.outputs import write_video_outputs
+    from mosegpipe.apps.outputs import write_video_outputs
     from mosegpipe.pipeline import segment_video
 
     cfg = PipelineConfig(frames=5)
@@ -208,7 +208,7 @@ def video_table(runs: list[tuple[str, Path, bool]], model: Embedder, work: Path)
 def bare_dis_fps(video: Path) -> float:
     """Frames/s of a bare OpenCV DIS loop (medium preset, forward flow only, full resolution) on the
     decoded frames of `video`: the reference of (e), the flow that the "motion" masks compute twice."""
-    from mosegpipe.io import iter_video
+    from mosegpipe.io.read import iter_video
 
     grays = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for _, f in iter_video(video)]
     dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
@@ -222,8 +222,8 @@ def dense_table(video: Path, model: Embedder, work: Path, methods: tuple[str, ..
     """Whole-video mode (no recording) with each mask method, against bare DIS and KLT loops measured just before."""
     from dataclasses import replace
 
+    from mosegpipe.apps.outputs import write_video_outputs
     from mosegpipe.masks import MaskConfig
-    from mosegpipe.outputs import write_video_outputs
 
     lines = [
         "| mask method | frames | wall s | frames/s | bare DIS frames/s | x bare DIS | bare KLT frames/s | x bare KLT "
@@ -254,16 +254,16 @@ _STARTUP_PROBE = """
 import json, sys, time
 marks = {"started": time.time()}
 from mosegpipe.cli import main as cli
-from mosegpipe.cli.app import _setup
-from mosegpipe.cli.options import ClusterOptions, _pipeline_cfg
+from mosegpipe.cli.app import setup_run
+from mosegpipe.cli.options import ClusterOptions, pipeline_cfg
 marks["cli_imported"] = time.time()
-_setup(1, False, "mosegpipe.outputs")
+setup_run(1, False, "mosegpipe.apps.outputs")
 marks["setup"] = time.time()
-from mosegpipe.outputs import write_clip_outputs
-from mosegpipe.inference import load_embedder
+from mosegpipe.apps.outputs import write_clip_outputs
+from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.pipeline import segment_clip
 from mosegpipe.cli.clip import _import_ahead
-cfg = _pipeline_cfg(5, ClusterOptions())
+cfg = pipeline_cfg(5, ClusterOptions())
 _import_ahead(cfg)
 model = load_embedder(5)
 marks["model"] = time.time()

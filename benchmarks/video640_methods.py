@@ -13,9 +13,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from speed import bare_klt_fps, resized_frames, write_video
 
-from mosegpipe.inference import load_embedder
+from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.masks import MaskConfig
-from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.runtime import set_threads
 

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mosegpipe.inference import load_embedder
-from mosegpipe.io import read_palette_png
-from mosegpipe.outputs import write_video_outputs
+from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.embed.numpy_net import load_embedder
+from mosegpipe.io.read import read_palette_png
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.runtime import set_threads
 from mosegpipe.synth.render import RenderConfig, render_clip

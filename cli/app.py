@@ -1,8 +1,8 @@
 """The Typer app and the error policy of every moseg command, in one place.
 
 Only the CLI prints, and only here does a MosegError (or an OS error, Ctrl-C, SIGTERM) become one
-line on stderr and exit code 1, 130 or 143 (`_friendly`, `_fail`); usage errors are one line with exit code 2
-(`_MosegGroup`). `_setup` sets logging, native log levels and threads before a command imports the
+line on stderr and exit code 1, 130 or 143 (`friendly`, `exit_with_error`); usage errors are one line with exit code 2
+(`_MosegGroup`). `setup_run` sets logging, native log levels and threads before a command imports the
 library; `--version` is the app's callback. The commands live in the modules beside this one and are
 registered, in the order --help lists them, by cli/main.py.
 """
@@ -29,9 +29,9 @@ from mosegpipe import __version__
 from mosegpipe.errors import MosegError
 
 try:  # Typer >= 0.26 bundles its own copy of Click; its exceptions are the ones raised
-    from typer import _click
+    from typer import _click as click_api
 except ImportError:  # pragma: no cover - older Typer uses the click package
-    import click as _click  # type: ignore[no-redef]
+    import click as click_api  # type: ignore[no-redef]
 
 
 EXIT_CODES = {
@@ -46,7 +46,7 @@ EXIT_CODES = {
 
 INTERRUPTED = 130
 TERMINATED = 143
-_STOP_SIGNALS = tuple(
+STOP_SIGNALS = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
 )  # no SIGHUP on Windows
 
@@ -140,13 +140,15 @@ class MosegCommand(TyperCommand):
             super().format_help(ctx, formatter)
 
 
-class _PlainFormatter(_click.HelpFormatter):
+class _PlainFormatter(click_api.HelpFormatter):
     """Click's plain help layout, with help texts wrapped at spaces only: `hopkins-test`, not
     `hopkins-` / `test` (names are copied from help)."""
 
     def write_dl(self, rows: Any, col_max: int = 30, col_spacing: int = 2) -> None:
         rows = list(rows)
-        first_col = min(max((_click.formatting.term_len(term) for term, _ in rows), default=0), col_max) + col_spacing
+        first_col = (
+            min(max((click_api.formatting.term_len(term) for term, _ in rows), default=0), col_max) + col_spacing
+        )
         width = max(self.width - first_col - 2, 10)
         # A paragraph that starts with \b is kept as given (click's wrap_text), so the wrapping here stays.
         kept = [
@@ -164,29 +166,29 @@ def _reclass(param: Any) -> Any:
     return param
 
 
-def _one_line(text: str) -> str:
+def one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def _bad_value(exc: Any) -> str:
+def bad_value(exc: Any) -> str:
     """The reason in a BadParameter, one line, without the validator's "Value error, " prefix."""
-    return _one_line(exc.message).removeprefix("Value error, ").rstrip(".")
+    return one_line(exc.message).removeprefix("Value error, ").rstrip(".")
 
 
 def _usage_message(exc: Any, args: list[str]) -> str:
     """One line for a usage error; a bad option value is named with the value given (`--frames 0: ...`)."""
     param = getattr(exc, "param", None)
-    if isinstance(exc, _click.exceptions.BadParameter) and param is not None and getattr(param, "opts", None):
+    if isinstance(exc, click_api.exceptions.BadParameter) and param is not None and getattr(param, "opts", None):
         for i, arg in enumerate(args):
             for opt in param.opts:
                 if arg == opt and i + 1 < len(args):
-                    return f"{opt} {args[i + 1]}: {_bad_value(exc)}"
+                    return f"{opt} {args[i + 1]}: {bad_value(exc)}"
                 if arg.startswith(f"{opt}="):
-                    return f"{opt} {arg[len(opt) + 1 :]}: {_bad_value(exc)}"
-        missing = isinstance(exc, _click.exceptions.MissingParameter)
+                    return f"{opt} {arg[len(opt) + 1 :]}: {bad_value(exc)}"
+        missing = isinstance(exc, click_api.exceptions.MissingParameter)
         if not missing and not any(opt.startswith("-") for opt in param.opts):  # PROTOCOL: 'x' is not one of ...
-            return f"{param.name.upper()}: {_bad_value(exc)}"
-    return _one_line(exc.format_message()).replace(": Value error, ", ": ").rstrip(".")
+            return f"{param.name.upper()}: {bad_value(exc)}"
+    return one_line(exc.format_message()).replace(": Value error, ", ": ").rstrip(".")
 
 
 class _MosegGroup(TyperGroup):
@@ -225,16 +227,16 @@ class _MosegGroup(TyperGroup):
                 **extra,
             )
             code = rv if isinstance(rv, int) else 0
-        except _click.exceptions.NoArgsIsHelpError as exc:
+        except click_api.exceptions.NoArgsIsHelpError as exc:
             typer.echo(exc.ctx.get_help() if exc.ctx is not None else "")
             code = exc.exit_code
-        except _click.exceptions.UsageError as exc:
+        except click_api.exceptions.UsageError as exc:
             where = exc.ctx.command_path if exc.ctx is not None else "moseg"
             message = _usage_message(exc, sys.argv[1:] if args is None else list(args))
             typer.echo(f"moseg: error: {message} (see '{where} --help')", err=True)
             code = exc.exit_code
-        except _click.exceptions.ClickException as exc:
-            typer.echo(f"moseg: error: {_one_line(exc.format_message())}", err=True)
+        except click_api.exceptions.ClickException as exc:
+            typer.echo(f"moseg: error: {one_line(exc.format_message())}", err=True)
             code = exc.exit_code
         except typer.Abort:
             typer.echo("moseg: error: interrupted", err=True)
@@ -279,19 +281,19 @@ def _quiet_ends() -> Any:
         raise
 
 
-def _fail(message: str, code: int = 1) -> None:
+def exit_with_error(message: str, code: int = 1) -> None:
     _WARNINGS.drop()
     typer.echo(f"moseg: error: {message}", err=True)
     raise typer.Exit(code=code)
 
 
-def _shown_path(name: object) -> str:
+def shown_path(name: object) -> str:
     """A path as the user knows it: `OUT/file`, not the temporary `.OUT.partial/.file.1a2b3c4d.tmp`."""
     text = re.sub(r"(^|/)\.([^/]+)\.partial(?=/|$)", r"\1\2", os.fsdecode(name))  # type: ignore[arg-type]
     return re.sub(r"(^|/)\.([^/]+)\.[0-9a-f]{8}\.tmp(\.[^/.]*)?$", r"\1\2\3", text)
 
 
-class _Terminated(KeyboardInterrupt):
+class Terminated(KeyboardInterrupt):
     """SIGTERM or SIGHUP (its terminal closed), raised in the main thread like Ctrl-C so that the same
     clean-up runs (no .partial folder left behind)."""
 
@@ -310,28 +312,28 @@ def _stop(signum: int, frame: Any) -> None:
     the clean-up short (a second Ctrl-C inside a closing generator printed "Exception ignored in"
     and a traceback). The signal is also recorded: Ray's waits turn the exception into a plain
     KeyboardInterrupt."""
-    for other in _STOP_SIGNALS:
+    for other in STOP_SIGNALS:
         signal.signal(other, signal.SIG_IGN)
     _RECEIVED[:] = [signum]
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
-    raise _Terminated(signum)
+    raise Terminated(signum)
 
 
-def _stopped(exc: KeyboardInterrupt) -> None:
+def report_stopped(exc: KeyboardInterrupt) -> None:
     """Ctrl-C, SIGTERM or SIGHUP -> one line, exit code 128 + the signal. After SIGHUP the terminal
     may be gone: a line that cannot be written is not an error, and stdout is pointed at /dev/null
     so that its flush at exit does not fail either."""
-    signum = exc.signum if isinstance(exc, _Terminated) else (_RECEIVED or [signal.SIGINT])[0]
+    signum = exc.signum if isinstance(exc, Terminated) else (_RECEIVED or [signal.SIGINT])[0]
     if signum == signal.SIGINT:
-        _fail("interrupted", INTERRUPTED)
+        exit_with_error("interrupted", INTERRUPTED)
     name = signal.Signals(signum).name
     try:
         sys.stdout.flush()
     except OSError:  # EIO: no terminal to write to
         _silence_stdout()
     try:
-        _fail(f"terminated ({name})", 128 + signum)
+        exit_with_error(f"terminated ({name})", 128 + signum)
     except OSError:  # stderr went with the terminal
         raise typer.Exit(code=128 + signum) from None
 
@@ -343,7 +345,7 @@ def _signal_policy() -> Iterator[None]:
     previous: dict[int, Any] = {}
     _RECEIVED.clear()
     try:
-        for signum in _STOP_SIGNALS:
+        for signum in STOP_SIGNALS:
             previous[signum] = signal.signal(signum, _stop)
     except ValueError:  # not the main thread
         pass
@@ -376,7 +378,7 @@ class _DeferredWarnings(logging.Handler):
     def show(self) -> None:
         """Prints the warnings held, each text once (a folder searched twice warns twice about one link)."""
         records, self.records = self.records, []
-        lines = list(dict.fromkeys(_one_line(record.getMessage()) for record in records))
+        lines = list(dict.fromkeys(one_line(record.getMessage()) for record in records))
         for line in lines[: self.limit]:
             typer.echo(f"moseg: warning: {line}", err=True)
         if len(lines) > self.limit:
@@ -386,7 +388,7 @@ class _DeferredWarnings(logging.Handler):
 _WARNINGS = _DeferredWarnings()
 
 
-def _friendly(fn: F) -> F:
+def friendly(fn: F) -> F:
     """Turns MosegError, OS errors (a full disk, a read-only folder), Ctrl-C, SIGTERM and SIGHUP into
     one line on stderr and exit code 1 (128 + the signal for a signal: 130, 143, 129); a stdout
     closed by its reader ends quietly with 0 (see _MosegGroup). The library's warnings are shown
@@ -401,16 +403,16 @@ def _friendly(fn: F) -> F:
                 _WARNINGS.show()
                 return result
             except MosegError as exc:
-                _fail(_one_line(str(exc)))
+                exit_with_error(one_line(str(exc)))
             except BrokenPipeError:
                 if _stdout_closed():  # the reader of our output went away: not an error of ours
                     raise
-                _fail("Broken pipe")
+                exit_with_error("Broken pipe")
             except OSError as exc:
-                where = f"{_shown_path(exc.filename)}: " if exc.filename else ""
-                _fail(f"{where}{exc.strerror or exc}")
+                where = f"{shown_path(exc.filename)}: " if exc.filename else ""
+                exit_with_error(f"{where}{exc.strerror or exc}")
             except KeyboardInterrupt as exc:
-                _stopped(exc)
+                report_stopped(exc)
 
     return wrapper  # type: ignore[return-value]
 
@@ -428,7 +430,7 @@ def _quiet_native_logs() -> None:
     quiet_native_logs()
 
 
-def _setup(threads: int, verbose: bool, *preload: str) -> None:
+def setup_run(threads: int, verbose: bool, *preload: str) -> None:
     """Logging, native log levels and thread counts; then `preload`, the modules the command imports
     next (names for importlib), imported with the collector paused (see runtime.collector_paused)."""
     from mosegpipe.runtime import collector_paused, set_threads

@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeAlias
 
 import typer
 
-from mosegpipe.cli.app import _fail, _friendly, _setup
-from mosegpipe.cli.common import _check_model_path, _print_total, _progress_columns
+from mosegpipe.cli.app import exit_with_error, friendly, setup_run
+from mosegpipe.cli.common import check_model_path, print_total, progress_columns
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
     MASK_EXTRA_TRACKS,
@@ -33,10 +33,10 @@ from mosegpipe.cli.options import (
     Threads,
     TrackerOptions,
     Verbose,
-    _choices,
-    _pipeline_cfg,
-    _value,
+    choice_type,
+    enum_value,
     option_blocks,
+    pipeline_cfg,
 )
 from mosegpipe.errors import InputError
 from mosegpipe.settings import MAX_CLIP_TIMEOUT_S, MAX_FRAMES
@@ -45,7 +45,7 @@ from mosegpipe.types import ENGINES, PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 if TYPE_CHECKING:
     EngineChoice: TypeAlias = StrEnum
 else:
-    EngineChoice = _choices("EngineChoice", ENGINES)  # --engine
+    EngineChoice = choice_type("EngineChoice", ENGINES)  # --engine
 
 
 MAX_JOBS = 1024
@@ -63,7 +63,7 @@ def _check_clip_timeout(value: float | None) -> float | None:
     raise typer.BadParameter("Input should be greater than 0")
 
 
-@_friendly
+@friendly
 @option_blocks
 def batch(
     folder: Annotated[Path, typer.Argument(help="Folder searched for video files and frame folders.")],
@@ -139,15 +139,15 @@ def batch(
     started = time.perf_counter()
     if not folder.exists():
         raise InputError(f"{folder}: no such file or folder")
-    _check_model_path(model)
-    _setup(threads, verbose)
+    check_model_path(model)
+    setup_run(threads, verbose)
     from rich.markup import escape
     from rich.progress import Progress
 
-    from mosegpipe.batch import check_ray, plan, run_batch
-    from mosegpipe.inference import load_model
+    from mosegpipe.apps.batch.run import check_ray, plan, run_batch
+    from mosegpipe.embed.numpy_net import load_model
 
-    cfg = _pipeline_cfg(
+    cfg = pipeline_cfg(
         frames,
         clustering,
         segment_method=method,
@@ -159,7 +159,7 @@ def batch(
         mask_extra_tracks=mask_extra_tracks,
         preset=preset,
     )
-    engine = _value(engine)
+    engine = enum_value(engine)
     if address is not None and engine != "ray":
         raise InputError("--address only applies with --engine ray")
     if engine == "ray":
@@ -170,7 +170,7 @@ def batch(
     if not items:
         raise InputError(f"{folder}: no video files or frame folders found")
     net = load_model(frames, model)
-    with Progress(*_progress_columns(), transient=True, disable=quiet) as bar:
+    with Progress(*progress_columns(), transient=True, disable=quiet) as bar:
         task = bar.add_task("segmenting", total=len(items))
 
         def step(item: Any, row: dict[str, Any]) -> None:
@@ -200,6 +200,6 @@ def batch(
         f"{counts['ok']} segmented, {counts['skipped']} skipped (done earlier), {counts['failed']} failed; "
         f"wrote {out}/batch_summary.csv and batch_summary.json"
     )
-    _print_total(started)
+    print_total(started)
     if counts["failed"]:
-        _fail(f"{counts['failed']} of {len(rows)} clips failed (reasons in {out}/batch_summary.csv)")
+        exit_with_error(f"{counts['failed']} of {len(rows)} clips failed (reasons in {out}/batch_summary.csv)")

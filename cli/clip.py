@@ -9,16 +9,16 @@ from typing import Annotated, Any
 
 import typer
 
-from mosegpipe.cli.app import _friendly, _setup
+from mosegpipe.cli.app import friendly, setup_run
 from mosegpipe.cli.common import (
-    _check_model_path,
-    _default_out_here,
-    _frames_progress,
-    _lock_out,
-    _print_summary,
-    _print_total,
-    _print_tracks_summary,
-    _print_video_summary,
+    check_model_path,
+    default_out_here,
+    frames_progress,
+    lock_out,
+    print_summary,
+    print_total,
+    print_tracks_summary,
+    print_video_summary,
 )
 from mosegpipe.cli.config import ConfigOpt
 from mosegpipe.cli.options import (
@@ -42,16 +42,16 @@ from mosegpipe.cli.options import (
     Threads,
     TrackerOptions,
     Verbose,
-    _pipeline_cfg,
-    _value,
+    enum_value,
     option_blocks,
+    pipeline_cfg,
 )
 from mosegpipe.errors import InputError
 from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES
 from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
 
-@_friendly
+@friendly
 @option_blocks
 def run(
     clip: Annotated[Path, typer.Argument(help="A video file OpenCV can read, or a folder of frames.")],
@@ -118,15 +118,17 @@ def run(
         raise InputError("--max-frames only applies with --whole (without it, --frames frames are read)")
     if not shot_cuts and not whole:
         raise InputError("--no-shot-cuts only applies with --whole (a clip of --frames frames is one shot)")
-    if whole and _value(points) != "klt":
-        raise InputError(f"--points {_value(points)}: clips only (--whole tracks KLT corners from window to window)")
-    _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_video_outputs
+    if whole and enum_value(points) != "klt":
+        raise InputError(
+            f"--points {enum_value(points)}: clips only (--whole tracks KLT corners from window to window)"
+        )
+    check_model_path(model)
+    setup_run(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.outputs import check_output_dir, write_clip_outputs, write_video_outputs
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import segment_clip
 
-    cfg = _pipeline_cfg(
+    cfg = pipeline_cfg(
         frames,
         clustering,
         segment_method=method,
@@ -139,23 +141,23 @@ def run(
         mask_extra_tracks=mask_extra_tracks,
         preset=preset,
     )
-    out = out or _default_out_here(clip, "_moseg")
-    _lock_out(out)
+    out = out or default_out_here(clip, "_moseg")
+    lock_out(out)
     check_output_dir(out, overwrite)
     _import_ahead(cfg, whole=whole, rrd=not no_rrd)
     net = load_embedder(frames, model)
     if whole:
-        with _frames_progress(clip, cfg, max_frames, quiet) as on_window:
+        with frames_progress(clip, cfg, max_frames, quiet) as on_window:
             summary = write_video_outputs(
                 clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=max_frames, on_window=on_window
             )
-        _print_video_summary(summary, out, not no_rrd)
-        _print_total(started)
+        print_video_summary(summary, out, not no_rrd)
+        print_total(started)
         return
     result = segment_clip(clip, cfg, net)
     summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
-    _print_summary(summary, out)
-    _print_total(started)
+    print_summary(summary, out)
+    print_total(started)
 
 
 def _import_ahead(cfg: Any, whole: bool = False, rrd: bool = True) -> None:
@@ -177,7 +179,7 @@ def _import_ahead(cfg: Any, whole: bool = False, rrd: bool = True) -> None:
     )
 
 
-@_friendly
+@friendly
 @option_blocks
 def pair(
     img1: Annotated[Path, typer.Argument(help="First image.")],
@@ -202,20 +204,20 @@ def pair(
     for p in (img1, img2):
         if not p.is_file():
             raise InputError(f"{p}: no such image file")
-    _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import check_output_dir, write_pair_outputs
+    check_model_path(model)
+    setup_run(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.outputs import check_output_dir, write_pair_outputs
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import segment_pair
 
-    cfg = _pipeline_cfg(2, clustering, masks=masks)
-    out = out or _default_out_here(img1, "_pair_moseg")
-    _lock_out(out)
+    cfg = pipeline_cfg(2, clustering, masks=masks)
+    out = out or default_out_here(img1, "_pair_moseg")
+    lock_out(out)
     check_output_dir(out, overwrite)
     result = segment_pair(img1, img2, cfg, load_embedder(2, model))
     summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
-    _print_summary(summary, out)
-    _print_total(started)
+    print_summary(summary, out)
+    print_total(started)
 
 
 def read_tracks_file(path: Path) -> tuple[Any, Any]:
@@ -258,7 +260,7 @@ def read_tracks_file(path: Path) -> tuple[Any, Any]:
     )
 
 
-@_friendly
+@friendly
 @option_blocks
 def tracks(
     file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: README).")],
@@ -306,17 +308,17 @@ def tracks(
         raise InputError(f"{file}: no such file")
     if video is not None and not video.exists():
         raise InputError(f"{video}: no such file or folder")
-    _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import check_output_dir, write_tracks_outputs
+    check_model_path(model)
+    setup_run(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.outputs import check_output_dir, write_tracks_outputs
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import segment_tracks, tracks_clip
 
     xy, visible = read_tracks_file(file)
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
-    cfg = _pipeline_cfg(max(2, window), clustering, segment_method=method, start=start, rigid_check=rigid_check)
-    out = out or _default_out_here(file, "_moseg")
-    _lock_out(out)
+    cfg = pipeline_cfg(max(2, window), clustering, segment_method=method, start=start, rigid_check=rigid_check)
+    out = out or default_out_here(file, "_moseg")
+    lock_out(out)
     check_output_dir(out, overwrite)
     net = load_embedder(max(2, window), model)
     try:
@@ -325,5 +327,5 @@ def tracks(
         raise type(exc)(f"{file}: {exc}") from exc
     clip = None if video is None else tracks_clip(result, video, cfg)
     summary = write_tracks_outputs(result, out, cfg, source=str(file), overwrite=overwrite, clip=clip, rrd=not no_rrd)
-    _print_tracks_summary(summary, out)
-    _print_total(started)
+    print_tracks_summary(summary, out)
+    print_total(started)

@@ -15,35 +15,35 @@ import typer
 from mosegpipe.errors import InputError
 
 
-def _default_out(path: Path, suffix: str) -> Path:
+def default_out(path: Path, suffix: str) -> Path:
     """<name><suffix> beside `path` (resolved, so that "." or "clip/" still have a name): replay's folder beside
     the run's."""
     path = path.resolve()
     return path.with_name(f"{path.stem}{suffix}")
 
 
-def _default_out_here(path: Path, suffix: str) -> Path:
+def default_out_here(path: Path, suffix: str) -> Path:
     """<name><suffix> in the current folder, named after the input (resolved, so that "." or "clip/" still have
     a name): run's, pair's and tracks' folder without --out. Not beside the input, whose folder may be shared,
     read-only or a folder of clips that a later `moseg batch` reads."""
     return Path(f"{path.resolve().stem}{suffix}")
 
 
-def _lock_out(out: Path) -> None:
-    """Holds the lock of output folder `out` until the command ends (mosegpipe.locks.output_lock): a second
+def lock_out(out: Path) -> None:
+    """Holds the lock of output folder `out` until the command ends (mosegpipe.io.locks.output_lock): a second
     command writing there is refused in one line, and never removes the first one's work."""
-    from mosegpipe.cli.app import _click
-    from mosegpipe.locks import output_lock
+    from mosegpipe.cli.app import click_api
+    from mosegpipe.io.locks import output_lock
 
-    _click.globals.get_current_context().with_resource(output_lock(out))
+    click_api.globals.get_current_context().with_resource(output_lock(out))
 
 
-def _check_model_path(model: Path | None) -> None:
+def check_model_path(model: Path | None) -> None:
     if model is not None and not model.is_file():
         raise InputError(f"{model}: checkpoint file not found (--model)")
 
 
-def _progress_columns() -> tuple[Any, ...]:
+def progress_columns() -> tuple[Any, ...]:
     """Description, bar, n/N done, elapsed and remaining time (rich.progress)."""
     from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -58,7 +58,7 @@ def _progress_columns() -> tuple[Any, ...]:
 
 
 @contextlib.contextmanager
-def _frames_progress(clip: Path, cfg: Any, max_frames: int | None, quiet: bool) -> Any:
+def frames_progress(clip: Path, cfg: Any, max_frames: int | None, quiet: bool) -> Any:
     """A progress bar over the frames of a whole-video run, on stderr; yields write_video_outputs' on_window.
 
     Only on a terminal: with --quiet, or when stderr is a file or a pipe (scripts, CI), nothing is
@@ -75,12 +75,12 @@ def _frames_progress(clip: Path, cfg: Any, max_frames: int | None, quiet: bool) 
     from mosegpipe.pipeline import video_frames_to_read
 
     total = video_frames_to_read(clip, cfg, max_frames)
-    with Progress(*_progress_columns(), console=Console(stderr=True), transient=True) as bar:
+    with Progress(*progress_columns(), console=Console(stderr=True), transient=True) as bar:
         task = bar.add_task(f"{escape(clip.name)} frames", total=total)
         yield lambda window: bar.update(task, completed=window.num_frames_read)
 
 
-def _print_total(started: float) -> None:
+def print_total(started: float) -> None:
     typer.echo(f"total {time.perf_counter() - started:.1f} s")
 
 
@@ -88,7 +88,7 @@ def _plural(n: int, word: str, plural: str = "") -> str:
     return f"{n} {word}" if n == 1 else f"{n} {plural or word + 's'}"
 
 
-def _print_summary(summary: dict[str, Any], out: Path) -> None:
+def print_summary(summary: dict[str, Any], out: Path) -> None:
     """Three or four lines: what was found, the evidence for K, where the time went, what was written."""
     if summary["kind"] == "clip":
         typer.echo(
@@ -120,7 +120,7 @@ def _print_view_hint(out: Path) -> None:
         typer.echo(f"open it with `moseg view {out / 'recording.rrd'}`")
 
 
-def _print_video_summary(summary: dict[str, Any], out: Path, rrd: bool) -> None:
+def print_video_summary(summary: dict[str, Any], out: Path, rrd: bool) -> None:
     typer.echo(
         f"{summary['frames']} frames in {summary['num_windows']} windows of {summary['window_frames']} "
         f"({summary['num_windows_labelled']} labelled) -> {summary['num_motions']} motion labels"
@@ -130,7 +130,7 @@ def _print_video_summary(summary: dict[str, Any], out: Path, rrd: bool) -> None:
     _print_view_hint(out)
 
 
-def _print_tracks_summary(summary: dict[str, Any], out: Path) -> None:
+def print_tracks_summary(summary: dict[str, Any], out: Path) -> None:
     typer.echo(
         f"{_plural(summary['num_tracks_segmented'], 'track')} of {summary['num_tracks']} over {summary['frames']} "
         f"frames -> K = {summary['k']} ({summary['k_method']}) · tracks per motion {summary['tracks_per_motion']}"

@@ -9,13 +9,13 @@ from typing import Annotated, Any, get_args
 
 import typer
 
-from mosegpipe.cli.app import _bad_value, _click, _one_line, app
+from mosegpipe.cli.app import app, bad_value, click_api, one_line
 
 CONFIG_COMMANDS = ("run", "pair", "batch", "tracks")
 """The commands that take --config (a [table] named after one of them applies to that command only)."""
 
 
-class _ConfigError(_click.exceptions.ClickException):
+class _ConfigError(click_api.exceptions.ClickException):
     """A bad config file: one 'moseg: error:' line and exit code 1 (not a usage error)."""
 
     exit_code = 1
@@ -89,7 +89,7 @@ def _config_defaults(path: Path, ctx: Any) -> dict[str, Any]:
     except (OSError, UnicodeDecodeError) as exc:
         raise _ConfigError(f"{path}: cannot read the config file ({getattr(exc, 'strerror', None) or exc})") from None
     except tomllib.TOMLDecodeError as exc:
-        raise _ConfigError(f"{path}: not valid TOML ({_one_line(str(exc))})") from None
+        raise _ConfigError(f"{path}: not valid TOML ({one_line(str(exc))})") from None
     options = _options_of(ctx.command)
     elsewhere = _other_commands_options(ctx, command)
     for key, value in data.items():
@@ -122,8 +122,8 @@ def _config_defaults(path: Path, ctx: Any) -> dict[str, Any]:
         raw = _toml_value(value, hints.get(param.name, str), where, path.parent)
         try:
             param.process_value(ctx, raw)
-        except _click.exceptions.BadParameter as exc:
-            raise _ConfigError(f"{where} = {value!r}: {_bad_value(exc)}") from None
+        except click_api.exceptions.BadParameter as exc:
+            raise _ConfigError(f"{where} = {value!r}: {bad_value(exc)}") from None
         defaults[param.name] = raw
     return defaults
 

@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, get_args
 
 import typer
 
-from mosegpipe.cli.app import _friendly, _setup
-from mosegpipe.cli.common import _check_model_path
+from mosegpipe.cli.app import friendly, setup_run
+from mosegpipe.cli.common import check_model_path
 from mosegpipe.cli.options import (
     K_MAX,
     K_METHOD,
@@ -30,17 +30,16 @@ from mosegpipe.cli.options import (
     RigidCheck,
     Seed,
     Verbose,
-    _choices,
-    _data_root,
-    _learning_rate,
-    _value,
+    choice_type,
+    enum_value,
+    learning_rate,
+    resolve_data_root,
 )
 from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
-from mosegpipe.learned import MASKNET_PRESET, WHICHNET_PRESET
 from mosegpipe.studies import STUDIES, Budget
-from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, RECIPE_NAMES, TRAIN_PRESETS
+from mosegpipe.types import BASELINE_NAMES, LOSS_NAMES, MASKNET_PRESET, RECIPE_NAMES, TRAIN_PRESETS, WHICHNET_PRESET
 
 if TYPE_CHECKING:
     PresetChoice: TypeAlias = StrEnum
@@ -51,13 +50,13 @@ if TYPE_CHECKING:
     StudyChoice: TypeAlias = StrEnum
     BudgetChoice: TypeAlias = StrEnum
 else:  # the registries and vocabularies of the library (light modules: they import nothing heavy)
-    PresetChoice = _choices("PresetChoice", RECIPE_NAMES)  # eval --recipe
-    TrainPresetChoice = _choices("TrainPresetChoice", TRAIN_PRESETS)  # train --preset
-    LossChoice = _choices("LossChoice", LOSS_NAMES)  # --loss
-    ProtocolChoice = _choices("ProtocolChoice", list(PROTOCOLS))  # eval PROTOCOL
-    VariantChoice = _choices("VariantChoice", get_args(Variant))  # eval --variant
-    StudyChoice = _choices("StudyChoice", list(STUDIES))  # study NAME
-    BudgetChoice = _choices("BudgetChoice", get_args(Budget))  # study --budget
+    PresetChoice = choice_type("PresetChoice", RECIPE_NAMES)  # eval --recipe
+    TrainPresetChoice = choice_type("TrainPresetChoice", TRAIN_PRESETS)  # train --preset
+    LossChoice = choice_type("LossChoice", LOSS_NAMES)  # --loss
+    ProtocolChoice = choice_type("ProtocolChoice", list(PROTOCOLS))  # eval PROTOCOL
+    VariantChoice = choice_type("VariantChoice", get_args(Variant))  # eval --variant
+    StudyChoice = choice_type("StudyChoice", list(STUDIES))  # study NAME
+    BudgetChoice = choice_type("BudgetChoice", get_args(Budget))  # study --budget
 
 
 def _protocol_help() -> str:
@@ -67,7 +66,7 @@ def _protocol_help() -> str:
     return f"{', '.join(bench)}; end to end: {', '.join(e2e)}."
 
 
-@_friendly
+@friendly
 def train(
     preset: Annotated[
         TrainPresetChoice,
@@ -113,27 +112,27 @@ def train(
     synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
     """
     _check_checkpoint_out(out)
-    _setup(threads, verbose)
+    setup_run(threads, verbose)
     from mosegpipe.training.loop import resolve_device
 
     where = resolve_device(device or "cpu")
-    if _value(preset) in (MASKNET_PRESET, WHICHNET_PRESET):
+    if enum_value(preset) in (MASKNET_PRESET, WHICHNET_PRESET):
         overrides = {"steps": steps, "batch_size": batch_size, "lr": lr, "seed": seed}
         unused = (loss, init, exclude, time_budget)
-        _train_mask_networks(_value(preset), out, _data_root(data_root), overrides, unused, where)
+        _train_mask_networks(enum_value(preset), out, resolve_data_root(data_root), overrides, unused, where)
         return
     from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
 
-    preset = _value(preset)
+    preset = enum_value(preset)
     dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
-    root = _data_root(data_root) if needs_data(preset, dropped) else data_root
+    root = resolve_data_root(data_root) if needs_data(preset, dropped) else data_root
     result = train_recipe(
         preset,
         out,
         root,
         init=init,
         overrides=TrainOverrides(
-            steps=steps, batch_size=batch_size, lr=lr, loss=_value(loss), seed=seed, time_budget_s=time_budget
+            steps=steps, batch_size=batch_size, lr=lr, loss=enum_value(loss), seed=seed, time_budget_s=time_budget
         ),
         exclude_sources=dropped,
         command=" ".join(["moseg", *sys.argv[1:]]),
@@ -174,9 +173,9 @@ def _train_mask_networks(
     unused: tuple[object, ...],
     device: str,
 ) -> None:
-    """train --preset masknet / whichnet: the mask network's recipe (mosegpipe.learned.train) or the per-motion
-    network's (mosegpipe.learned.which_train), with the overrides given (--steps, --batch-size, --lr, --seed),
-    on `device` (resolved)."""
+    """train --preset masknet / whichnet: the mask network's recipe (mosegpipe.training.masks.masknet) or the
+    per-motion network's (mosegpipe.training.masks.whichnet), with the overrides given (--steps, --batch-size,
+    --lr, --seed), on `device` (resolved)."""
     if any(u is not None for u in unused):
         raise InputError(f"train --preset {preset}: --loss, --init, --exclude and --time-budget do not apply")
     from dataclasses import replace
@@ -186,14 +185,14 @@ def _train_mask_networks(
     recipe: Any
     trainer: Any
     if preset == WHICHNET_PRESET:
-        from mosegpipe.learned.which_train import WhichTrainConfig as recipe
-        from mosegpipe.learned.which_train import train_whichnet as trainer
+        from mosegpipe.training.masks.whichnet import WhichTrainConfig as recipe
+        from mosegpipe.training.masks.whichnet import train_whichnet as trainer
 
         score = "held-out accuracy {held_out_j:.3f}"
         done = "step {chosen_step}, held-out accuracy {held_out_accuracy}, nearest track {nearest_track_accuracy}"
     else:
-        from mosegpipe.learned.train import MaskTrainConfig as recipe
-        from mosegpipe.learned.train import train_masknet as trainer
+        from mosegpipe.training.masks.masknet import MaskTrainConfig as recipe
+        from mosegpipe.training.masks.masknet import train_masknet as trainer
 
         score = "held-out J {held_out_j:.3f} (threshold {threshold})"
         done = "step {chosen_step}, threshold {threshold}, held-out J {held_out_j}"
@@ -212,7 +211,7 @@ def _train_mask_networks(
     typer.echo(f"wrote {out} ({done.format(**record)})")
 
 
-@_friendly
+@friendly
 def eval_(
     protocol: Annotated[ProtocolChoice, typer.Argument(help=_protocol_help())],
     out: Annotated[
@@ -247,7 +246,7 @@ def eval_(
         int | None, typer.Option("--batch-size", min=1, help="Clips per training step of each fold.")
     ] = None,
     lr: Annotated[
-        float | None, typer.Option("--lr", callback=_learning_rate, help="Learning rate of each fold (> 0).")
+        float | None, typer.Option("--lr", callback=learning_rate, help="Learning rate of each fold (> 0).")
     ] = None,
     loss: Annotated[
         LossChoice | None,
@@ -317,33 +316,33 @@ def eval_(
     verbose: Verbose = False,
 ) -> None:
     """Run a benchmark protocol: per-clip table, mean/median error, NMI, correct K, time, baselines."""
-    _setup(threads, verbose)
+    setup_run(threads, verbose)
     from mosegpipe.evaluation.protocols import EvalRequest, get_protocol
 
-    proto = get_protocol(_value(protocol))
-    k_method = _value(k_method)
+    proto = get_protocol(enum_value(protocol))
+    k_method = enum_value(k_method)
     request = EvalRequest(
         out_dir=out,
-        data_root=_data_root(data_root) if proto.data else data_root,
+        data_root=resolve_data_root(data_root) if proto.data else data_root,
         model=model,
         init=init,
         frames=frames,
-        variant=_value(variant),
-        recipe=_value(recipe),
+        variant=enum_value(variant),
+        recipe=enum_value(recipe),
         steps=steps,
         batch_size=batch_size,
         lr=lr,
-        loss=_value(loss),
+        loss=enum_value(loss),
         synthetic_weight=synthetic_weight,
         baselines=tuple(b for b in baselines.split(",") if b),
         folds=_names(folds),
         k_method=k_method,
         k_max=k_max,
         rigid_check=rigid_check,
-        mask_method=_value(mask_method) if mask_method is not None else None,
-        method=_value(method) if method is not None else None,
-        points=_value(points) if points is not None else None,
-        preset=_value(pipeline_preset),
+        mask_method=enum_value(mask_method) if mask_method is not None else None,
+        method=enum_value(method) if method is not None else None,
+        points=enum_value(points) if points is not None else None,
+        preset=enum_value(pipeline_preset),
         settings=tuple(settings or ()),
         device=device or "cpu",
         progress=typer.echo,
@@ -365,7 +364,7 @@ def _study_help() -> str:
     return "; ".join(f"{s.name} ({s.paper})" for s in STUDIES.values()) + "."
 
 
-@_friendly
+@friendly
 def study(
     name: Annotated[StudyChoice, typer.Argument(help=_study_help())],
     out: Annotated[
@@ -392,17 +391,17 @@ def study(
     verbose: Verbose = False,
 ) -> None:
     """Run a study of the paper: prints and writes a table, results.json and a plot; a re-run skips finished parts."""
-    _setup(threads, verbose)
+    setup_run(threads, verbose)
     from mosegpipe.studies import StudyRequest, get_study
 
-    chosen = get_study(_value(name))
-    _check_model_path(model)
+    chosen = get_study(enum_value(name))
+    check_model_path(model)
     if pair_model is not None and not pair_model.is_file():
         raise InputError(f"{pair_model}: checkpoint file not found (--pair-model)")
     request = StudyRequest(
         out_dir=out,
-        data_root=_data_root(data_root) if chosen.needs_data else data_root,
-        budget=_value(budget),
+        data_root=resolve_data_root(data_root) if chosen.needs_data else data_root,
+        budget=enum_value(budget),
         model=model,
         pair_model=pair_model,
         clips=tuple(c.strip() for c in clips.split(",") if c.strip()) if clips else None,

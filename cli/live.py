@@ -13,8 +13,8 @@ from typing import Annotated, Any
 
 import typer
 
-from mosegpipe.cli.app import _STOP_SIGNALS, _click, _friendly, _setup, _stopped, _Terminated
-from mosegpipe.cli.common import _check_model_path, _lock_out, _print_total, _print_video_summary, stop_child
+from mosegpipe.cli.app import STOP_SIGNALS, Terminated, click_api, friendly, report_stopped, setup_run
+from mosegpipe.cli.common import check_model_path, lock_out, print_total, print_video_summary, stop_child
 from mosegpipe.cli.options import (
     RIGID_CHECK,
     ClusterOptions,
@@ -31,8 +31,8 @@ from mosegpipe.cli.options import (
     Threads,
     TrackerOptions,
     Verbose,
-    _pipeline_cfg,
     option_blocks,
+    pipeline_cfg,
 )
 from mosegpipe.errors import InputError, MosegError
 from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES
@@ -121,7 +121,7 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
 
     import rerun as rr
 
-    from mosegpipe.cli.view import VIEWER_START_S, _find_viewer, _has_display, _reserve_ports
+    from mosegpipe.cli.view import VIEWER_START_S, find_viewer, has_display, reserve_ports
 
     sinks: list[Any] = []
     child = None
@@ -136,7 +136,7 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
                 )
             sinks.append(rr.GrpcSink(connect))
         if viewer:
-            if not _has_display():
+            if not has_display():
                 raise InputError("--viewer needs a display (none here: $DISPLAY is unset); use --serve")
             if not _listening("127.0.0.1", 9876, 0.5):
                 rr.spawn(port=9876, connect=False, hide_welcome_screen=True)
@@ -149,10 +149,10 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
         if serve:
             from urllib.parse import quote
 
-            exe = _find_viewer()
+            exe = find_viewer()
             if exe is None:
                 raise InputError("--serve: the `rerun` program of rerun-sdk is not installed")
-            web_port, grpc_port = _reserve_ports("127.0.0.1", [("--serve", 0, 0), ("--serve", 0, 0)])
+            web_port, grpc_port = reserve_ports("127.0.0.1", [("--serve", 0, 0), ("--serve", 0, 0)])
             args = [exe, "--web-viewer", "--bind", "127.0.0.1", "--port", str(grpc_port)]
             args += ["--web-viewer-port", str(web_port), "--server-memory-limit", SERVER_MEMORY]
             # A session of its own: Ctrl-C (SIGINT to the terminal's whole process group) must not end the server
@@ -178,7 +178,7 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
 def _stdin_size_value(value: str | None) -> str | None:
     """--stdin-size checked as the option is parsed: a bad one is a usage error (exit code 2)."""
     if value is not None:
-        from mosegpipe.live import parse_size  # here: parsing any other live command line stays light
+        from mosegpipe.apps.live.run import parse_size  # here: parsing any other live command line stays light
 
         try:
             parse_size(value)
@@ -208,7 +208,7 @@ class _Signals:
 
     def __enter__(self) -> _Signals:
         with contextlib.suppress(ValueError):  # not the main thread: no handlers
-            for signum in _STOP_SIGNALS:
+            for signum in STOP_SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._caught)
         return self
 
@@ -233,7 +233,7 @@ LIVE_PRESET = "fast"
 """Live mode's preset unless --preset is given: the fastest that keeps the motion masks (docs/RESULTS.md, "Speed")."""
 
 
-@_friendly
+@friendly
 @option_blocks
 def live(
     ctx: typer.Context,
@@ -352,13 +352,13 @@ def live(
     """
     started = time.perf_counter()
     src = _live_source(ctx, source, stdin_size, realtime, fps, drop, viewer, connect, serve, out, no_rrd)
-    _check_model_path(model)
-    _setup(threads, verbose, "mosegpipe.outputs")
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.live import LiveView, run_live
-    from mosegpipe.outputs import check_output_dir
+    check_model_path(model)
+    setup_run(threads, verbose, "mosegpipe.apps.outputs")
+    from mosegpipe.apps.live.run import LiveView, run_live
+    from mosegpipe.apps.outputs import check_output_dir
+    from mosegpipe.embed.numpy_net import load_embedder
 
-    cfg = _pipeline_cfg(
+    cfg = pipeline_cfg(
         frames,
         clustering,
         segment_method=method,
@@ -369,7 +369,7 @@ def live(
         preset=preset,
     )
     if out is not None:
-        _lock_out(out)
+        lock_out(out)
         check_output_dir(out, overwrite)
     net = load_embedder(frames, model)
     status = sys.stderr.isatty() and not quiet
@@ -407,8 +407,8 @@ def live(
                 view.close()
     _print_live_summary(src.name, result)
     if result.summary is not None and out is not None:
-        _print_video_summary(result.summary, out, not no_rrd)
-    _print_total(started)
+        print_video_summary(result.summary, out, not no_rrd)
+    print_total(started)
     if signals.signum is None:
         _warn_end(src, result, stdin_size, stall_timeout)
     if signals.signum is not None:
@@ -428,11 +428,11 @@ def _live_source(
     out: Path | None,
     no_rrd: bool,
 ) -> Any:
-    """The parsed SOURCE (mosegpipe.live.LiveSource), once the options that go with it are checked."""
-    from mosegpipe.live import parse_size, parse_source
+    """The parsed SOURCE (mosegpipe.apps.live.run.LiveSource), once the options that go with it are checked."""
+    from mosegpipe.apps.live.run import parse_size, parse_source
 
     if (source == "-") != (stdin_size is not None):
-        raise _click.exceptions.UsageError(
+        raise click_api.exceptions.UsageError(
             "SOURCE '-' (raw frames on stdin) needs --stdin-size WIDTHxHEIGHT"
             if source == "-"
             else "--stdin-size only applies to SOURCE '-' (raw frames on stdin)",
@@ -466,7 +466,7 @@ def _warn_end(src: Any, result: Any, stdin_size: str | None, stall_timeout: floa
 
 def _stop_line(signum: int) -> None:
     """The signal's line and exit code, as cli/app.py gives them (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP)."""
-    _stopped(KeyboardInterrupt() if signum == signal.SIGINT else _Terminated(signum))
+    report_stopped(KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum))
 
 
 def _print_live_summary(name: str, result: Any) -> None:

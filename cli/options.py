@@ -4,7 +4,7 @@ blocks (dataclasses of them) for the groups several commands take alike.
 An option block (`ClusterOptions`, `TrackerOptions`, `MaskOptions`) is a frozen dataclass whose fields
 are Annotated Typer options with their defaults. A command decorated with `option_blocks` declares one
 parameter typed with the block; Typer sees the block's options in that parameter's place (so --help
-lists them where they stand), and the command receives the one dataclass. `_pipeline_cfg` turns the
+lists them where they stand), and the command receives the one dataclass. `pipeline_cfg` turns the
 blocks into a PipelineConfig.
 
 Every default is the library's, read from its config classes' fields (`mosegpipe.configs`, which import no
@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, cast
 
 import typer
 
-from mosegpipe.cli.app import F, _click
+from mosegpipe.cli.app import F, click_api
 from mosegpipe.configs import ClusterConfig, MaskConfig, RigidCheckConfig, TrackConfig
 from mosegpipe.errors import InputError
 from mosegpipe.settings import (
@@ -59,7 +59,7 @@ from mosegpipe.types import (
 # (a usage error naming the option): past them OpenCV crashes, overflows or runs for minutes.
 
 
-def _choices(name: str, values: Sequence[str]) -> Any:
+def choice_type(name: str, values: Sequence[str]) -> Any:
     """The choices of an option: a StrEnum of the library's vocabulary (Typer lists and checks it), the
     members named after the values (`klt+flow` -> `klt_flow`)."""
     return StrEnum(name, [(re.sub(r"\W", "_", v), v) for v in values])
@@ -72,11 +72,11 @@ if TYPE_CHECKING:
     PointsChoice: TypeAlias = StrEnum
     PresetChoice: TypeAlias = StrEnum
 else:
-    KMethodChoice = _choices("KMethodChoice", K_METHODS)  # --k-method
-    MaskMethodChoice = _choices("MaskMethodChoice", MASK_METHODS)  # --mask-method
-    MethodChoice = _choices("MethodChoice", SEGMENT_METHODS)  # --method
-    PointsChoice = _choices("PointsChoice", TRACKERS)  # --points
-    PresetChoice = _choices("PresetChoice", PRESET_NAMES)  # --preset
+    KMethodChoice = choice_type("KMethodChoice", K_METHODS)  # --k-method
+    MaskMethodChoice = choice_type("MaskMethodChoice", MASK_METHODS)  # --mask-method
+    MethodChoice = choice_type("MethodChoice", SEGMENT_METHODS)  # --method
+    PointsChoice = choice_type("PointsChoice", TRACKERS)  # --points
+    PresetChoice = choice_type("PresetChoice", PRESET_NAMES)  # --preset
 
 Threads = Annotated[
     int,
@@ -118,7 +118,7 @@ def _default(config: type, name: str) -> Any:
     return next(f.default for f in dataclasses.fields(config) if f.name == name)
 
 
-def _value(choice: Any) -> Any:
+def enum_value(choice: Any) -> Any:
     """The plain value of an Enum choice (what the library and summary.json take)."""
     return choice.value if isinstance(choice, Enum) else choice
 
@@ -385,7 +385,7 @@ RIGID_CHECK: bool = _default(RigidCheckConfig, "enabled")
 def _config_fields(block: TrackerOptions | MaskOptions) -> dict[str, Any]:
     given = _given()
     return {
-        f.metadata["config"]: _value(getattr(block, f.name))
+        f.metadata["config"]: enum_value(getattr(block, f.name))
         for f in dataclasses.fields(block)
         if given is None or f.name in given
     }
@@ -395,10 +395,10 @@ def _given() -> set[str] | None:
     """The parameters of the running command that were given (on its command line or in its --config file), not
     left at their defaults: only those are passed on, so that a --preset's settings stay where no option was
     given (None: outside a command, where every value counts as given)."""
-    ctx = _click.globals.get_current_context(silent=True)
+    ctx = click_api.globals.get_current_context(silent=True)
     if ctx is None:
         return None
-    default = _click.core.ParameterSource.DEFAULT
+    default = click_api.core.ParameterSource.DEFAULT
     return {name for name in ctx.params if ctx.get_parameter_source(name) not in (None, default)}
 
 
@@ -465,7 +465,7 @@ def option_blocks(fn: F) -> F:
     return cast(F, wrapper)
 
 
-def _pipeline_cfg(
+def pipeline_cfg(
     frames: int,
     clustering: ClusterOptions,
     *,
@@ -495,15 +495,15 @@ def _pipeline_cfg(
             frames,
             start=start,
             k=clustering.k,
-            k_method=_value(clustering.k_method),
+            k_method=enum_value(clustering.k_method),
             k_max=clustering.k_max,
-            method=_value(segment_method),
-            points=_value(points),
+            method=enum_value(segment_method),
+            points=enum_value(points),
             rigid_check=rigid_check,
             shot_cuts=shot_cuts,
             track=track,
             mask=mask,
-            preset=_value(preset),
+            preset=enum_value(preset),
         )
     except SettingError as exc:  # named by the option that set it
         if exc.path not in SETTING_OPTIONS:
@@ -511,7 +511,7 @@ def _pipeline_cfg(
         raise InputError(f"{SETTING_OPTIONS[exc.path]}: {exc.reason}") from exc
 
 
-def _data_root(data_root: Path | None) -> Path:
+def resolve_data_root(data_root: Path | None) -> Path:
     root = data_root or Path(os.environ.get("MOSEG_DATA", "../shared/data"))
     if not root.is_dir():
         raise InputError(f"{root}: benchmark data folder not found (use --data-root or MOSEG_DATA)")
@@ -531,7 +531,7 @@ def _device_name(value: str | None) -> str | None:
     return value
 
 
-def _learning_rate(value: float | None) -> float | None:
+def learning_rate(value: float | None) -> float | None:
     """--lr's callback: a finite number above 0."""
     if value is not None and not (math.isfinite(value) and value > 0):
         raise typer.BadParameter("a learning rate is a finite number above 0")
@@ -539,7 +539,7 @@ def _learning_rate(value: float | None) -> float | None:
 
 
 LearningRate = Annotated[
-    float | None, typer.Option("--lr", callback=_learning_rate, help="Override the recipe's learning rate (> 0).")
+    float | None, typer.Option("--lr", callback=learning_rate, help="Override the recipe's learning rate (> 0).")
 ]
 
 

@@ -15,16 +15,16 @@ from typing import Annotated, Any
 
 import typer
 
-from mosegpipe.cli.app import _friendly, _one_line, _setup
+from mosegpipe.cli.app import friendly, one_line, setup_run
 from mosegpipe.cli.clip import read_tracks_file
 from mosegpipe.cli.common import (
-    _default_out,
-    _frames_progress,
-    _lock_out,
-    _print_summary,
-    _print_total,
-    _print_tracks_summary,
-    _print_video_summary,
+    default_out,
+    frames_progress,
+    lock_out,
+    print_summary,
+    print_total,
+    print_tracks_summary,
+    print_video_summary,
     stop_child,
 )
 from mosegpipe.cli.options import NoRrd, Overwrite, Quiet, Threads, Verbose
@@ -58,7 +58,7 @@ def _read_run_summary(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
-        raise InputError(f"{path}: not a JSON file ({_one_line(str(exc))})") from exc
+        raise InputError(f"{path}: not a JSON file ({one_line(str(exc))})") from exc
     except RecursionError:  # json gives up on nesting deeper than Python's recursion limit
         raise InputError(f"{path}: not a moseg summary.json (nested too deeply to read)") from None
     if not isinstance(data, dict) or not str(data.get("schema", "")).startswith("mosegpipe.summary/"):
@@ -120,7 +120,7 @@ def _check_source_identity(path: Path, recorded: dict[str, Any]) -> str:
     Raises:
         InputError: the source is gone, or its size, first MiB or files differ from the recorded ones.
     """
-    from mosegpipe.provenance import identity_differences, source_identity
+    from mosegpipe.io.provenance import identity_differences, source_identity
 
     where = recorded["path"]
     now = source_identity(where)
@@ -150,7 +150,7 @@ def _check_same_model(net: Any, recorded: dict[str, Any], where: Path) -> None:
             )
 
 
-@_friendly
+@friendly
 def replay(
     summary: Annotated[
         Path,
@@ -180,32 +180,32 @@ def replay(
     """
     started = time.perf_counter()
     recorded = _read_run_summary(summary)
-    _setup(threads, verbose)
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.outputs import (
+    setup_run(threads, verbose)
+    from mosegpipe.apps.outputs import (
         check_output_dir,
         write_clip_outputs,
         write_pair_outputs,
         write_tracks_outputs,
         write_video_outputs,
     )
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_pair, segment_tracks, tracks_clip
 
     kind, source = recorded["kind"], recorded["source"]
     cfg = PipelineConfig.from_dict(recorded.get("config", {}), f"{summary}: config")
-    out = out or _default_out(summary.parent, "_replay")
-    _lock_out(out)
+    out = out or default_out(summary.parent, "_replay")
+    lock_out(out)
     check_output_dir(out, overwrite)
     net = load_embedder(recorded["model"]["model_frames"], recorded["model"].get("checkpoint"))
     _check_same_model(net, recorded["model"], summary)
     if kind == "video":
         clip = Path(source)
         read = recorded.get("frames")  # the frames the run read: the same ones again
-        with _frames_progress(clip, cfg, read, quiet) as on_window:
+        with frames_progress(clip, cfg, read, quiet) as on_window:
             result = write_video_outputs(
                 clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=read, on_window=on_window
             )
-        _print_video_summary(result, out, not no_rrd)
+        print_video_summary(result, out, not no_rrd)
         then = [w.get("k") for w in recorded.get("windows", [])]
         now = [w["k"] for w in result["windows"]]
         differ = sum(a != b for a, b in zip(then, now)) + abs(len(then) - len(now))
@@ -214,11 +214,11 @@ def replay(
             if not differ
             else f"replayed {summary}: K differs from the recorded run in {differ} of {len(now)} windows"
         )
-        _print_total(started)
+        print_total(started)
         return
     if kind == "clip":
         written = write_clip_outputs(segment_clip(source, cfg, net), out, cfg, overwrite=overwrite, rrd=not no_rrd)
-        _print_summary(written, out)
+        print_summary(written, out)
     elif kind == "pair":
         first, second = source
         written = write_pair_outputs(
@@ -229,7 +229,7 @@ def replay(
             sources=(first, second),
             rrd=not no_rrd,
         )
-        _print_summary(written, out)
+        print_summary(written, out)
     else:
         xy, visible = read_tracks_file(Path(source))
         segmented = segment_tracks(xy, visible, cfg, net, start=recorded.get("start", 0), frames=recorded.get("frames"))
@@ -242,14 +242,14 @@ def replay(
         written = write_tracks_outputs(
             segmented, out, cfg, source=source, overwrite=overwrite, clip=views, rrd=not no_rrd
         )
-        _print_tracks_summary(written, out)
+        print_tracks_summary(written, out)
     same = written["k"] == recorded.get("k")
     typer.echo(
         f"replayed {summary}: K = {written['k']} as recorded"
         if same
         else f"replayed {summary}: K = {written['k']}, the recorded run found K = {recorded.get('k')}"
     )
-    _print_total(started)
+    print_total(started)
 
 
 WEB_PORT = 9090
@@ -259,7 +259,7 @@ VIEWER_START_S = 30.0
 """How long `moseg view --web` waits for the viewer to listen before it reports a failure."""
 
 
-def _find_viewer() -> str | None:
+def find_viewer() -> str | None:
     """The native `rerun` program: rerun-sdk's own binary (its `rerun` script is a Python wrapper that
     would outlive a SIGTERM), else `rerun` on PATH or beside this Python (a virtualenv not on PATH)."""
     import importlib.util
@@ -275,7 +275,7 @@ def _find_viewer() -> str | None:
     return shutil.which("rerun") or (str(beside) if beside.is_file() else None)
 
 
-def _has_display() -> bool:
+def has_display() -> bool:
     if sys.platform.startswith("linux"):
         return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
     return True
@@ -293,7 +293,7 @@ def _check_bind(value: str) -> str:
     return address
 
 
-def _reserve_ports(bind: str, wanted: list[tuple[str, int | None, int]]) -> list[int]:
+def reserve_ports(bind: str, wanted: list[tuple[str, int | None, int]]) -> list[int]:
     """The ports the viewer will listen on, each checked free on `bind` now.
 
     `wanted` holds (option, port given or None, preferred port): a port given must be free (0 = any
@@ -350,8 +350,8 @@ def _last_error(lines: Any) -> str:
     plain = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in list(lines)]
     for line in reversed(plain):
         if "Error" in line or " WARN " in line or " ERROR " in line:
-            return _one_line(re.sub(r"^\S+Z\s+(WARN|ERROR)\s+\S+:\s*", "", line))
-    return _one_line(plain[-1]) if plain else "no message"
+            return one_line(re.sub(r"^\S+Z\s+(WARN|ERROR)\s+\S+:\s*", "", line))
+    return one_line(plain[-1]) if plain else "no message"
 
 
 @contextlib.contextmanager
@@ -378,7 +378,7 @@ def _one_start_at_a_time() -> Iterator[None]:
 def _serve_web(exe: str, recording: Path, bind: str, ports: list[tuple[str, int | None, int]]) -> None:
     """Runs the web viewer as a child of this process until it ends, or this process is stopped.
 
-    `ports` are the web page's and the data's, as `_reserve_ports` takes them. Ctrl-C and SIGTERM
+    `ports` are the web page's and the data's, as `reserve_ports` takes them. Ctrl-C and SIGTERM
     reach this process as KeyboardInterrupt (cli/app.py); the viewer is ended before they
     propagate, and on Linux it also ends when this process is killed.
 
@@ -398,7 +398,7 @@ def _serve_web(exe: str, recording: Path, bind: str, ports: list[tuple[str, int 
     proc: subprocess.Popen[str] | None = None
     try:
         with _one_start_at_a_time():
-            web_port, grpc_port = _reserve_ports(bind, ports)
+            web_port, grpc_port = reserve_ports(bind, ports)
             args = [exe, "--web-viewer", "--bind", bind, "--port", str(grpc_port), "--web-viewer-port", str(web_port)]
             proc = subprocess.Popen(
                 [*args, str(recording)],
@@ -435,7 +435,7 @@ def _serve_web(exe: str, recording: Path, bind: str, ports: list[tuple[str, int 
             stop_child(proc)
 
 
-@_friendly
+@friendly
 def view(
     recording: Annotated[Path, typer.Argument(help="A .rrd recording written by moseg.")],
     web: Annotated[
@@ -488,13 +488,13 @@ def view(
             raise InputError(f"{recording}: not a Rerun recording (.rrd)")
         f.seek(max(0, recording.stat().st_size - _RRF2_TAIL_BYTES))
         complete = head != b"RRF2" or _RRF2_FOOTER in f.read()
-    exe = _find_viewer()
+    exe = find_viewer()
     if exe is None:
         raise InputError(
             "the Rerun viewer ('rerun') was not found on PATH or beside this Python; install rerun-sdk, "
             f"or open {recording} at https://rerun.io/viewer"
         )
-    if not web and not _has_display():
+    if not web and not has_display():
         raise InputError(f"no display to open a window on (DISPLAY is unset); try 'moseg view --web {recording}'")
     if not web and (bind != "127.0.0.1" or web_port is not None or grpc_port != 0):
         raise InputError("--bind, --web-port and --grpc-port only apply with --web")

@@ -21,7 +21,7 @@ from typing import Any
 # Public names and the module that defines each. Imported on first use, so that `moseg --help` and
 # `import mosegpipe.errors` do not pay for torch, OpenCV and scikit-learn.
 _EXPORTS = {
-    "mosegpipe.cluster": ("ClusterConfig", "cluster_auto_k", "kmeans"),
+    "mosegpipe.group.cluster": ("ClusterConfig", "cluster_auto_k", "kmeans"),
     "mosegpipe.errors": (
         "CheckpointError",
         "ConfigError",
@@ -31,17 +31,17 @@ _EXPORTS = {
         "OutputExistsError",
         "TooFewTracksError",
     ),
-    "mosegpipe.io": ("read_image", "read_video"),
+    "mosegpipe.io.read": ("read_image", "read_video"),
     "mosegpipe.masks": ("MaskConfig", "labels_to_mask", "labels_to_masks"),
-    "mosegpipe.match": ("MatchConfig", "match_sift"),
+    "mosegpipe.points.sift": ("MatchConfig", "match_sift"),
     "mosegpipe.evaluation.metrics": ("misclassification_error", "nmi"),
-    "mosegpipe.model": ("ModelConfig", "SubspaceNet"),
-    "mosegpipe.outputs": ("write_clip_outputs", "write_pair_outputs", "write_video_outputs"),
-    "mosegpipe.rigid": ("RigidCheckConfig", "split_by_rigid_motion"),
-    "mosegpipe.segmenter": ("Segmenter",),
+    "mosegpipe.embed.model": ("ModelConfig", "SubspaceNet"),
+    "mosegpipe.apps.outputs": ("write_clip_outputs", "write_pair_outputs", "write_video_outputs"),
+    "mosegpipe.group.rigid": ("RigidCheckConfig", "split_by_rigid_motion"),
+    "mosegpipe.apps.segmenter": ("Segmenter",),
     "mosegpipe.pipeline": ("PipelineConfig", "segment_clip", "segment_frames", "segment_pair", "segment_video"),
-    "mosegpipe.track": ("KLTTracker", "TrackConfig", "track_klt"),
-    "mosegpipe.trajectories": ("build_trajectories", "resample_frames", "trajectories_from_matches"),
+    "mosegpipe.points.klt": ("KLTTracker", "TrackConfig", "track_klt"),
+    "mosegpipe.points.trajectories": ("build_trajectories", "resample_frames", "trajectories_from_matches"),
     "mosegpipe.types": (
         "Clustering",
         "Frames",

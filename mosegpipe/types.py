@@ -22,18 +22,18 @@ K_METHODS: tuple[KMethodName, ...] = get_args(KMethodName)
 SegmentMethod = Literal["subspacenet", "geometric", "joint"]
 """How tracks become motions (PipelineConfig.method): "subspacenet" (the learned embedding, automatic K by
 K-means, the rigid-motion check) or "geometric" (sequential homography / fundamental-matrix fitting,
-mosegpipe.grouping) or "joint" (the embedding's groups, then per group a model chosen by GRIC over the
-window that merges, splits and moves tracks, mosegpipe.geometry_select)."""
+mosegpipe.group.geometric) or "joint" (the embedding's groups, then per group a model chosen by GRIC over the
+window that merges, splits and moves tracks, mosegpipe.group.joint)."""
 SEGMENT_METHODS: tuple[SegmentMethod, ...] = get_args(SegmentMethod)
 
 PointSource = Literal["klt", "flow", "klt+flow"]
-"""Where a clip's points come from (PipelineConfig.tracker): KLT corners (`mosegpipe.track`), a grid
+"""Where a clip's points come from (PipelineConfig.tracker): KLT corners (`mosegpipe.points.klt`), a grid
 carried along the dense flow (`flow_tracks.track_flow`), or both (`flow_tracks.combine_tracks`)."""
 TRACKERS: tuple[PointSource, ...] = get_args(PointSource)
 
 MaskMethod = Literal["motion", "watershed", "nearest", "vote", "learned"]
 """How sparse labels become dense masks (MaskConfig.method, mosegpipe.masks); "learned" is "motion" with the
-moving pixels found by a small network (mosegpipe.learned) instead of the hand-made chain."""
+moving pixels found by a small network (mosegpipe.masks.learned) instead of the hand-made chain."""
 FLOW_MASK_METHODS: tuple[MaskMethod, ...] = ("motion", "learned")
 """The mask methods that find moving pixels in the dense flow of a clip or window (the rest use tracks only)."""
 MASK_METHODS: tuple[MaskMethod, ...] = get_args(MaskMethod)
@@ -45,11 +45,11 @@ more frames/s at a measured cost in DAVIS J (docs/RESULTS.md, "Speed")."""
 PRESET_NAMES: tuple[PresetName, ...] = get_args(PresetName)
 
 DisPreset = Literal["ultrafast", "fast", "medium"]
-"""OpenCV DIS presets of the dense flow (FlowConfig.preset; mosegpipe.flow maps them to OpenCV's)."""
+"""OpenCV DIS presets of the dense flow (FlowConfig.preset; mosegpipe.points.flow maps them to OpenCV's)."""
 DIS_PRESET_NAMES: tuple[DisPreset, ...] = get_args(DisPreset)
 
 CameraFit = Literal["ransac", "magsac"]
-"""Robust fits of the camera's homography to the flow (FlowConfig.camera_fit; mosegpipe.flow maps them to
+"""Robust fits of the camera's homography to the flow (FlowConfig.camera_fit; mosegpipe.points.flow maps them to
 OpenCV's RANSAC and USAC MAGSAC)."""
 CAMERA_FIT_NAMES: tuple[CameraFit, ...] = get_args(CameraFit)
 
@@ -74,9 +74,13 @@ shipped 5-frame model's."""
 RECIPE_NAMES: tuple[RecipeName, ...] = get_args(RecipeName)
 
 TrainPreset = Literal[RecipeName, "masknet", "whichnet"]
-"""`moseg train --preset`: the recipes, then the mask network's (`mosegpipe.learned.train`, mask method "learned") and
-the per-motion network's (`mosegpipe.learned.which_train`, `MaskConfig.which` "learned")."""
+"""`moseg train --preset`: the recipes, then the mask network's (`mosegpipe.training.masks.masknet`, mask method "learned") and
+the per-motion network's (`mosegpipe.training.masks.whichnet`, `MaskConfig.which` "learned")."""
 TRAIN_PRESETS: tuple[TrainPreset, ...] = get_args(TrainPreset)
+MASKNET_PRESET: TrainPreset = "masknet"
+"""`moseg train --preset` name of the mask network's recipe (`training.masks.masknet.MaskTrainConfig`)."""
+WHICHNET_PRESET: TrainPreset = "whichnet"
+"""`moseg train --preset` name of the per-motion network's recipe (`training.masks.whichnet.WhichTrainConfig`)."""
 
 LossName = Literal["mimi", "l2", "l2-balanced", "ce", "triplet", "lifted", "facility", "mimi-point", "mimi-mean"]
 """Training losses (`mosegpipe.training.losses.LOSSES`, `--loss`)."""
@@ -87,7 +91,7 @@ BaselineName = Literal["kmeans-raw", "spectral-raw", "ssc"]
 BASELINE_NAMES: tuple[BaselineName, ...] = get_args(BaselineName)
 
 BatchEngine = Literal["process", "ray", "inline"]
-"""Where `run_batch` runs its clips (mosegpipe.batch): a local process pool, Ray tasks, or this process."""
+"""Where `run_batch` runs its clips (mosegpipe.apps.batch.run): a local process pool, Ray tasks, or this process."""
 ENGINES: tuple[BatchEngine, ...] = get_args(BatchEngine)
 
 DEVICE_CHOICES = ("cpu", "cuda", "cuda:N", "auto")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import cv2
 
-from mosegpipe.io import iter_video, write_json, write_palette_png, write_video
+from mosegpipe.io.read import iter_video, write_json, write_palette_png, write_video
 from mosegpipe.synth.render import RenderConfig, render_clip
 
 HERE = Path(__file__).resolve().parent

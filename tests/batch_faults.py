@@ -25,7 +25,7 @@ WARNING_TEXT = "only a few tracks on the moving object"
 
 def _hang_after_labels(source: Path) -> None:
     """From now on in this process, writing labels.npz (the first output file) hangs for an hour."""
-    import mosegpipe.outputs as outputs
+    import mosegpipe.apps.outputs as outputs
 
     real = outputs.write_npz
 

@@ -13,8 +13,8 @@ import torch
 from scipy.optimize import linear_sum_assignment
 from typer.testing import CliRunner
 
-from mosegpipe.io import write_video
-from mosegpipe.model import ModelConfig, SubspaceNet
+from mosegpipe.embed.model import ModelConfig, SubspaceNet
+from mosegpipe.io.read import write_video
 from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
 
 # Two planes in front of a static wall, moving right and up at about 3 and 2.4 px per frame.

@@ -23,10 +23,10 @@ import pytest
 import torch
 
 from mosegpipe import viz
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans, single_motion_residual_px
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import CheckpointError, InputError
-from mosegpipe.io import read_image, read_video, video_info
-from mosegpipe.model import SubspaceNet
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k, kmeans, single_motion_residual_px
+from mosegpipe.io.read import read_image, read_video, video_info
 from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_pair, segment_tracks
 from mosegpipe.types import Frames
 
@@ -224,7 +224,7 @@ def test_sigterm_leaves_nothing_behind(tmp_path: Path, clip_avi: Path, model5: P
     proc = run_script(
         f"""
         import os, signal, sys
-        import mosegpipe.outputs as outputs
+        import mosegpipe.apps.outputs as outputs
         from mosegpipe.cli.main import app
 
         real = outputs.write_npz
@@ -448,7 +448,7 @@ def _blobs(n: int, k: int = 3, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 def test_automatic_k_scores_a_sample_of_many_points(monkeypatch: pytest.MonkeyPatch, rule: str) -> None:
     """N x N distances for 100 000 tracks asked for 74.5 GiB: beyond MAX_SCORED_POINTS K is chosen on
     a seeded sample and the others go to the nearest centre; nothing quadratic sees more than the sample."""
-    import mosegpipe.cluster as cluster
+    import mosegpipe.group.cluster as cluster
 
     monkeypatch.setattr(cluster, "MAX_SCORED_POINTS", 300)
     real_distances, real_kmeans = cluster.pairwise_distances, cluster.kmeans
@@ -474,7 +474,7 @@ def test_automatic_k_scores_a_sample_of_many_points(monkeypatch: pytest.MonkeyPa
 
 
 def test_automatic_k_is_unchanged_up_to_the_sample_size() -> None:
-    import mosegpipe.cluster as cluster
+    import mosegpipe.group.cluster as cluster
 
     emb, _ = _blobs(cluster.MAX_SCORED_POINTS)
     cfg = ClusterConfig()
@@ -499,7 +499,7 @@ def _rigid_scene(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 def test_rigid_check_of_many_points_links_a_sample(monkeypatch: pytest.MonkeyPatch) -> None:
     """Linking candidates within a radius was quadratic in the density; beyond MAX_CHECKED_POINTS the
     check runs on a sample and the other points follow the groups split off."""
-    import mosegpipe.rigid as rigid
+    import mosegpipe.group.rigid as rigid
 
     monkeypatch.setattr(rigid, "MAX_CHECKED_POINTS", 400)
     real = rigid._coherent_groups
@@ -517,7 +517,7 @@ def test_rigid_check_of_many_points_links_a_sample(monkeypatch: pytest.MonkeyPat
 
 
 def test_rigid_check_is_unchanged_up_to_the_sample_size(monkeypatch: pytest.MonkeyPatch) -> None:
-    import mosegpipe.rigid as rigid
+    import mosegpipe.group.rigid as rigid
 
     points, inside = _rigid_scene(1000)
     labels, split = rigid.split_by_rigid_motion(points, np.zeros(1000, np.int64), (300, 400))
@@ -557,7 +557,7 @@ def test_damaged_inference_copy_is_rewritten(
 ) -> None:
     """A cut-short copy gave a BadZipFile traceback on every run, one with NaN weights an error blaming
     the input; either is now ignored and written again from the checkpoint."""
-    from mosegpipe.inference import NumpySubspaceNet, load_embedder
+    from mosegpipe.embed.numpy_net import NumpySubspaceNet, load_embedder
 
     cache = tmp_path / "cache"
     monkeypatch.setenv("MOSEG_CACHE", str(cache))
@@ -608,8 +608,8 @@ def test_numeric_options_have_upper_bounds(args: list[str], expected: str) -> No
 def test_the_library_refuses_what_the_option_bounds_refuse() -> None:
     """The options' bounds are mosegpipe.settings' (imported by both); the config classes refuse the same
     values, naming the field."""
+    from mosegpipe.points.klt import TrackConfig
     from mosegpipe.settings import SettingError
-    from mosegpipe.track import TrackConfig
 
     for bad in ({"max_corners": 3_000_000_000}, {"win_size_px": 100_001}, {"min_distance_px": 1e308}):
         with pytest.raises(SettingError, match=f"^{next(iter(bad))}: .* must lie in"):
@@ -643,8 +643,8 @@ def test_top_level_and_table_may_set_one_option(tmp_path: Path) -> None:
 
 
 def test_api_misuse_of_issue_24() -> None:
-    from mosegpipe.track import track_klt
-    from mosegpipe.trajectories import build_trajectories
+    from mosegpipe.points.klt import track_klt
+    from mosegpipe.points.trajectories import build_trajectories
     from mosegpipe.types import Tracks
 
     one = Frames(images=render_scene(2).frames[:1], fps=0.0, source="", start=0)

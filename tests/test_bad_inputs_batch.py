@@ -14,8 +14,9 @@ from typing import Any
 
 import pytest
 
-from mosegpipe import batch, outputs
-from mosegpipe.batch import run_batch
+from mosegpipe.apps import outputs
+from mosegpipe.apps.batch import run as batch
+from mosegpipe.apps.batch.run import run_batch
 from mosegpipe.pipeline import PipelineConfig
 
 from batch_faults import WARNING_TEXT, faulty_segment

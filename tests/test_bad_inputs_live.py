@@ -35,7 +35,7 @@ from helpers import moseg, one_error_line, write_frames
 W, H = 160, 120
 
 
-def _frames(n: int, size_wh: tuple[int, int] = (W, H)) -> list[npt.NDArray[np.uint8]]:
+def frames_text(n: int, size_wh: tuple[int, int] = (W, H)) -> list[npt.NDArray[np.uint8]]:
     """RGB frames: a textured square moving over a textured, static background."""
     w, h = size_wh
     rng = np.random.default_rng(0)
@@ -59,7 +59,7 @@ def _raw(frames: list[npt.NDArray[np.uint8]]) -> bytes:
 def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("live40") / "square.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (W, H))
-    for frame in _frames(20):
+    for frame in frames_text(20):
         writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     writer.release()
     return path
@@ -160,9 +160,9 @@ def test_a_failed_run_leaves_no_reader_thread_behind(
     tmp_path: Path, video: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A reader still inside OpenCV when Python exits aborted the process (rc 134) after the right line."""
-    from mosegpipe import outputs
-    from mosegpipe.inference import load_embedder
-    from mosegpipe.live import parse_source, run_live
+    from mosegpipe.apps import outputs
+    from mosegpipe.apps.live.run import parse_source, run_live
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.pipeline import PipelineConfig
 
     def read_only(self: object) -> None:
@@ -178,7 +178,7 @@ def test_a_failed_run_leaves_no_reader_thread_behind(
 def test_a_read_only_output_folder_is_one_line_and_no_abort(tmp_path: Path, video: Path) -> None:
     code = f"""
 import errno, os, sys
-from mosegpipe import outputs
+from mosegpipe.apps import outputs
 def read_only(self):
     raise OSError(errno.EROFS, os.strerror(errno.EROFS), {str(tmp_path / "o")!r})
 outputs._OutputDir.__enter__ = read_only
@@ -204,7 +204,7 @@ app()
 
 
 def _find_clips_within(root: Path, seconds: float = 30.0) -> list[Path]:
-    from mosegpipe.batch import find_clips
+    from mosegpipe.apps.batch.run import find_clips
 
     found: list[list[Path]] = []
     walker = threading.Thread(target=lambda: found.append(find_clips(root)), daemon=True)
@@ -223,7 +223,7 @@ def test_batch_discovery_searches_each_folder_once(tmp_path: Path, caplog: pytes
     (root / "dangling.avi").symlink_to("nowhere.avi")
     (root / "a").symlink_to("b")  # a loop of two links: neither leads anywhere
     (root / "b").symlink_to("a")
-    with caplog.at_level(logging.WARNING, logger="mosegpipe.batch"):
+    with caplog.at_level(logging.WARNING, logger="mosegpipe.apps.batch.run"):
         assert _find_clips_within(root) == [root / "sub"]
     said = caplog.text
     assert "dangling.avi: a broken symbolic link (to nowhere.avi); skipped" in said
@@ -274,7 +274,7 @@ def test_bad_live_options_are_one_line(
 
 
 def test_a_huge_stdin_size_is_refused_before_a_frame_is_allocated() -> None:
-    from mosegpipe.live import parse_source
+    from mosegpipe.apps.live.run import parse_source
 
     with pytest.raises(InputError, match="too large"):
         parse_source("-", stdin_size=(99_999, 99_999))  # 30 GB a frame
@@ -289,7 +289,7 @@ def test_a_huge_stdin_size_is_refused_before_a_frame_is_allocated() -> None:
 
 def test_a_pipe_loses_no_frame_and_the_counts_are_in_the_summary(tmp_path: Path) -> None:
     """40 frames piped at once: all read, none dropped (a pipe's writer waits), all shown."""
-    code, stdout, stderr = _live_stdin(tmp_path, _raw(_frames(40)))
+    code, stdout, stderr = _live_stdin(tmp_path, _raw(frames_text(40)))
     assert code == 0, stderr
     assert "40 frames segmented of 40 read" in stdout and "0 dropped" in stdout
     live = json.loads((tmp_path / "out" / "summary.json").read_text())["live"]
@@ -320,7 +320,7 @@ def test_replay_of_a_stdin_live_run_says_stdin_cannot_be_replayed(tmp_path: Path
 def test_frames_read_faster_than_real_time_are_not_dropped_before_the_pipeline_started(tmp_path: Path) -> None:
     """--drop with 200 frames piped at once: the first window is whole (it was 4 frames and an error),
     then most frames are dropped, which a warning says."""
-    code, stdout, stderr = _live_stdin(tmp_path, _raw(_frames(200)), "--drop")
+    code, stdout, stderr = _live_stdin(tmp_path, _raw(frames_text(200)), "--drop")
     assert code == 0, stderr
     live = json.loads((tmp_path / "out" / "summary.json").read_text())["live"]
     assert live["frames_read"] == 200 and live["frames_shown"] >= 5
@@ -331,7 +331,7 @@ def test_frames_read_faster_than_real_time_are_not_dropped_before_the_pipeline_s
 
 def test_frames_of_another_size_than_declared_are_named(tmp_path: Path) -> None:
     """200x150 frames declared as 160x120 (25 declared frames = 16 real ones, no partial frame left)."""
-    code, _, stderr = _live_stdin(tmp_path, _raw(_frames(16, (200, 150))))
+    code, _, stderr = _live_stdin(tmp_path, _raw(frames_text(16, (200, 150))))
     assert "the frames do not look 160x120" in stderr and "(frames 200 px wide?); is --stdin-size right?" in stderr
     # a run that ends warns; a failure (too few tracks on the sheared frames) carries the same words in its error line
     said = "moseg: warning: -: the frames do not look" if code == 0 else "moseg: error: -: "
@@ -341,12 +341,12 @@ def test_frames_of_another_size_than_declared_are_named(tmp_path: Path) -> None:
 
 
 def test_the_size_check_passes_frames_of_the_declared_size() -> None:
-    from mosegpipe.io import read_image
-    from mosegpipe.live import stdin_size_suspect
+    from mosegpipe.apps.live.run import stdin_size_suspect
+    from mosegpipe.io.read import read_image
 
     photo = read_image(Path(__file__).resolve().parents[1] / "samples" / "basketball1.png")
     h, w = photo.shape[:2]
-    assert stdin_size_suspect(photo) == "" and stdin_size_suspect(_frames(1)[0]) == ""
+    assert stdin_size_suspect(photo) == "" and stdin_size_suspect(frames_text(1)[0]) == ""
     raw = photo.tobytes()
     narrower = np.frombuffer(raw[: (w - 24) * h * 3], np.uint8).reshape(h, w - 24, 3)
     assert f"(frames {w} px wide?)" in stdin_size_suspect(narrower)
@@ -404,7 +404,7 @@ def _png_claiming(path: Path, width: int, height: int) -> Path:
 @pytest.mark.slow
 def test_failing_runs_print_only_their_error_lines(tmp_path: Path, video: Path) -> None:
     """In one process, live first (it imports OpenCV before the CLI's set-up quiets it)."""
-    frames = write_frames(tmp_path / "frames", np.stack(_frames(6)))
+    frames = write_frames(tmp_path / "frames", np.stack(frames_text(6)))
     (frames / "000003.png").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\x0dIHDX")  # "IHDR chunk shall be first"
     huge = _png_claiming(tmp_path / "huge.png", 20_000, 20_000)
     runs = [
@@ -464,7 +464,7 @@ def test_view_warns_of_a_recording_cut_short(tmp_path: Path, monkeypatch: pytest
 
     served: list[Path] = []
     monkeypatch.setattr(view, "_serve_web", lambda exe, recording, *args: served.append(recording))
-    monkeypatch.setattr(view, "_find_viewer", lambda: "rerun")
+    monkeypatch.setattr(view, "find_viewer", lambda: "rerun")
     path = tmp_path / "rec.rrd"
     rec = rr.RecordingStream("mosegpipe-test")
     rec.save(path)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from mosegpipe.locks import output_lock, output_lock_path
+from mosegpipe.io.locks import output_lock, output_lock_path
 
 from helpers import moseg, one_error_line
 
@@ -67,8 +67,8 @@ def test_output_lock_is_released_and_leaves_no_folders(tmp_path: Path) -> None:
 def bad_masknets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     import torch
 
-    from mosegpipe.learned.features import NUM_CHANNELS
-    from mosegpipe.learned.net import shipped_path
+    from mosegpipe.masks.learned.features import NUM_CHANNELS
+    from mosegpipe.masks.learned.net import shipped_path
 
     root = tmp_path_factory.mktemp("masknets")
     shipped = shipped_path("moving").read_bytes()
@@ -100,7 +100,7 @@ def test_eval_refuses_an_unusable_mask_network_before_any_clip(
 
 
 def test_eval_davis_refuses_a_model_that_is_not_a_subspacenet(tmp_path: Path) -> None:
-    from mosegpipe.learned.net import shipped_path
+    from mosegpipe.masks.learned.net import shipped_path
 
     for model in (shipped_path("moving"), tmp_path / "nonexistent.pt"):
         for protocol in ("davis", "davis-clip5"):
@@ -111,7 +111,7 @@ def test_eval_davis_refuses_a_model_that_is_not_a_subspacenet(tmp_path: Path) ->
 
 def test_mask_checkpoint_without_widths_is_a_checkpoint_error(bad_masknets: dict[str, Path]) -> None:
     from mosegpipe.errors import CheckpointError
-    from mosegpipe.learned.net import MaskNet
+    from mosegpipe.masks.learned.net import MaskNet
 
     for case in ("no_widths", "five_levels"):
         with pytest.raises(CheckpointError, match="widths .*expected 1 to 4 channel counts"):
@@ -146,7 +146,7 @@ def test_a_fifo_as_the_clip_is_refused_without_opening_it(tmp_path: Path) -> Non
     import threading
 
     from mosegpipe.errors import InputError
-    from mosegpipe.io import video_info
+    from mosegpipe.io.read import video_info
 
     fifo = tmp_path / "clip.avi"
     os.mkfifo(fifo)
@@ -272,7 +272,7 @@ def test_mask_network_save_leaves_no_temporary_file_on_a_full_disk(
 
     import torch
 
-    from mosegpipe.learned.net import MaskNet
+    from mosegpipe.masks.learned.net import MaskNet
 
     def full(obj: object, f: object) -> None:
         Path(f).write_bytes(b"half a checkpoint")  # type: ignore[arg-type]
@@ -288,8 +288,8 @@ def test_fit_runs_on_the_device_and_returns_a_cpu_network() -> None:
     import numpy as np
     import torch
 
-    from mosegpipe.learned.net import MaskNet
-    from mosegpipe.learned.train import fit, mask_loss
+    from mosegpipe.masks.learned.net import MaskNet
+    from mosegpipe.training.masks.masknet import fit, mask_loss
 
     seen: list[str] = []
     net = MaskNet(widths=(4,))
@@ -316,16 +316,16 @@ def test_batch_workers_are_born_ignoring_ctrl_c(tmp_path: Path) -> None:
     # A Ctrl-C while the workers started reached them before their initializer set it aside: a traceback each.
     import signal
 
-    from mosegpipe.batch_plan import _Job
-    from mosegpipe.batch_pool import _mp_context, _Pool
+    from mosegpipe.apps.batch.plan import Job
+    from mosegpipe.apps.batch.pool import WorkerPool, mp_context
     from mosegpipe.pipeline import PipelineConfig, segment_clip
 
     from helpers import tiny_model
 
-    pool = _Pool(1, tiny_model(5), _Job(PipelineConfig(), False, "h", segment_clip))
+    pool = WorkerPool(1, tiny_model(5), Job(PipelineConfig(), False, "h", segment_clip))
     pool.kill()
     # A process the forkserver forks, before any code of ours runs in it: Ctrl-C does nothing there.
-    child = _mp_context().Process(target=signal.raise_signal, args=(signal.SIGINT,))
+    child = mp_context().Process(target=signal.raise_signal, args=(signal.SIGINT,))
     child.start()
     child.join(60)
     assert child.exitcode == 0  # 1: a KeyboardInterrupt (and its traceback on stderr)
@@ -338,13 +338,13 @@ def test_ctrl_c_while_the_workers_start_waits_until_they_are_all_recorded() -> N
     import signal
     import threading
 
-    from mosegpipe.batch_pool import _stops_deferred
+    from mosegpipe.apps.batch.pool import stops_deferred
 
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("signal handlers are the main thread's")
     before = signal.getsignal(signal.SIGINT)
     reached = []
-    with pytest.raises(KeyboardInterrupt), _stops_deferred():
+    with pytest.raises(KeyboardInterrupt), stops_deferred():
         signal.raise_signal(signal.SIGINT)
         reached.append("the start went on")
     assert reached == ["the start went on"] and signal.getsignal(signal.SIGINT) is before
@@ -356,9 +356,9 @@ def test_live_serve_server_has_a_session_of_its_own(monkeypatch: pytest.MonkeyPa
     import subprocess
 
     from mosegpipe.cli import live
-    from mosegpipe.cli.view import _find_viewer
+    from mosegpipe.cli.view import find_viewer
 
-    if _find_viewer() is None:
+    if find_viewer() is None:
         pytest.skip("no rerun program here")
     started: list[subprocess.Popen[bytes]] = []
     real = subprocess.Popen
@@ -477,7 +477,7 @@ def test_a_full_disk_names_the_file_being_written(tmp_path: Path) -> None:
     # disk said "moseg: error: No space left on device" alone.
     import errno
 
-    from mosegpipe.io import atomic_write
+    from mosegpipe.io.read import atomic_write
 
     final = tmp_path / ".o.partial" / "overlay" / "000003.jpg"
     with pytest.raises(OSError) as caught, atomic_write(final) as tmp:
@@ -485,6 +485,6 @@ def test_a_full_disk_names_the_file_being_written(tmp_path: Path) -> None:
         raise OSError(errno.ENOSPC, "No space left on device")
     assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(final)
     assert list(final.parent.iterdir()) == []
-    from mosegpipe.cli.app import _shown_path
+    from mosegpipe.cli.app import shown_path
 
-    assert _shown_path(caught.value.filename) == str(tmp_path / "o" / "overlay" / "000003.jpg")
+    assert shown_path(caught.value.filename) == str(tmp_path / "o" / "overlay" / "000003.jpg")

@@ -15,8 +15,8 @@ from typing import Any
 
 import pytest
 
-from mosegpipe.cluster import ClusterConfig
 from mosegpipe.errors import ConfigError
+from mosegpipe.group.cluster import ClusterConfig
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.settings import MAX_THREADS
 
@@ -41,7 +41,7 @@ BAD_SETTINGS = [
 IDS = [s.partition("=")[0] + "=" + s.partition("=")[2] for s, _ in BAD_SETTINGS]
 
 
-def _value(setting: str) -> Any:
+def enum_value(setting: str) -> Any:
     return json.loads(setting.partition("=")[2])
 
 
@@ -49,7 +49,7 @@ def _nested(setting: str) -> dict[str, Any]:
     """`a.b=v` as the dict {"a": {"b": v}}."""
     path, _, _ = setting.partition("=")
     keys = path.split(".")
-    data: dict[str, Any] = {keys[-1]: _value(setting)}
+    data: dict[str, Any] = {keys[-1]: enum_value(setting)}
     for key in reversed(keys[:-1]):
         data = {key: data}
     return data

@@ -56,7 +56,7 @@ def _script(code: str, **popen: object) -> subprocess.Popen[str]:
 def _whole_run(video: Path, model: Path, out: Path, patch: str) -> subprocess.CompletedProcess[str]:
     code = f"""
         import os, signal, sys, threading
-        import mosegpipe.outputs as outputs
+        import mosegpipe.apps.outputs as outputs
         from mosegpipe.cli.main import app
         {textwrap.indent(textwrap.dedent(patch), " " * 8).strip()}
         sys.argv = ["moseg", "run", {str(video)!r}, "--whole", "--frames", "5", "--model", {str(model)!r},
@@ -113,9 +113,9 @@ threading.Thread.join = join
 _BATCH = """
 import sys
 import batch_faults
-import mosegpipe.batch
+import mosegpipe.apps.batch.run
 from mosegpipe.cli.main import app
-mosegpipe.batch.segment_clip = batch_faults.faulty_segment  # "stuck*" clips hang half written
+mosegpipe.apps.batch.run.segment_clip = batch_faults.faulty_segment  # "stuck*" clips hang half written
 sys.argv = ["moseg", "batch", {root!r}, "--out", {out!r}, "--model", {model!r}, "--no-rrd", "-j", "1"]
 app()
 """
@@ -181,7 +181,7 @@ def test_sighup_with_stderr_gone(tmp_path: Path, video: Path, model5: Path) -> N
     # A closed terminal takes stderr with it: the error line cannot be written, and that is no error.
     code = f"""
         import os, signal, sys
-        import mosegpipe.outputs as outputs
+        import mosegpipe.apps.outputs as outputs
         from mosegpipe.cli.main import app
         {textwrap.indent(_FIRST_MASK_THEN.format(name="SIGHUP"), " " * 8).strip()}
         sys.argv = ["moseg", "run", {str(video)!r}, "--whole", "--frames", "5", "--model", {str(model5)!r},

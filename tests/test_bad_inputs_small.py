@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mosegpipe.batch import run_batch
+from mosegpipe.apps.batch.run import run_batch
 from mosegpipe.errors import InputError
 
 from helpers import moseg, motion_checkpoint, one_error_line, render_scene, write_avi
@@ -168,8 +168,8 @@ def test_raw_pickle_checkpoint_only_its_error_line(tmp_path: Path, clips: Path) 
 
 
 def test_raw_pickle_checkpoint_from_the_library(tmp_path: Path) -> None:
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.errors import CheckpointError
-    from mosegpipe.model import SubspaceNet
 
     marker = tmp_path / "payload-ran"
     ckpt = tmp_path / "raw.pt"

@@ -1,4 +1,4 @@
-"""`moseg batch` and mosegpipe.batch: finding clips, fault isolation, resume, the batch summary."""
+"""`moseg batch` and mosegpipe.apps.batch.run: finding clips, fault isolation, resume, the batch summary."""
 
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from mosegpipe import batch as batch_module
-from mosegpipe import outputs
-from mosegpipe.batch import LOCK_FILE, find_clips, output_name, plan, plan_paths, run_batch
+from mosegpipe.apps import outputs
+from mosegpipe.apps.batch import run as batch_module
+from mosegpipe.apps.batch.run import LOCK_FILE, find_clips, output_name, plan, plan_paths, run_batch
 from mosegpipe.cli.main import app
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError
-from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig
 
 from batch_faults import faulty_segment
@@ -325,7 +325,7 @@ _KILLED_BATCH = """
 import sys
 sys.path.insert(0, {tests!r})
 from batch_faults import faulty_segment
-from mosegpipe.batch import run_batch
+from mosegpipe.apps.batch.run import run_batch
 from mosegpipe.pipeline import PipelineConfig
 run_batch({root!r}, {out!r}, PipelineConfig(k=2), checkpoint={model!r}, rrd=False, jobs=2, segment_fn=faulty_segment)
 """

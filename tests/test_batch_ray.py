@@ -26,7 +26,7 @@ else:
     ray = pytest.importorskip("ray", reason="Ray is the optional extra: pip install '.[ray]'")
 
 
-from mosegpipe.batch import run_batch
+from mosegpipe.apps.batch.run import run_batch
 from mosegpipe.cli.main import app
 from mosegpipe.pipeline import PipelineConfig
 
@@ -146,15 +146,17 @@ def test_ray_timeout_and_worker_warnings(
     ]
     assert (root / "stuck.avi.writing").exists()  # it was killed while its folder was being written
     assert sorted(p.name for p in out.iterdir()) == ["batch_summary.csv", "batch_summary.json", "warn.avi"]
-    assert f"warn.avi: {WARNING_TEXT}" in [r.getMessage() for r in caplog.records if r.name == "mosegpipe.batch"]
+    assert f"warn.avi: {WARNING_TEXT}" in [
+        r.getMessage() for r in caplog.records if r.name == "mosegpipe.apps.batch.run"
+    ]
 
 
 _RAY_CLI = """
 import sys
 import batch_faults
-import mosegpipe.batch
+import mosegpipe.apps.batch.run
 from mosegpipe.cli.main import app
-mosegpipe.batch.segment_clip = batch_faults.faulty_segment
+mosegpipe.apps.batch.run.segment_clip = batch_faults.faulty_segment
 sys.argv = ["moseg", "batch", {root!r}, "--out", {out!r}, "--model", {model!r}, "--no-rrd", "-q",
             "--engine", "ray", "-j", "1"]
 app()

@@ -18,8 +18,8 @@ from typer.testing import CliRunner
 from mosegpipe import __version__
 from mosegpipe.cli import view as cli_view
 from mosegpipe.cli.main import app
-from mosegpipe.io import read_palette_png
-from mosegpipe.model import available_default_frames
+from mosegpipe.embed.model import available_default_frames
+from mosegpipe.io.read import read_palette_png
 from mosegpipe.synth.render import RenderedClip
 
 from helpers import motion_checkpoint, read_rrd, render_scene, write_avi, write_frames
@@ -340,11 +340,11 @@ def test_view_reports_missing_recording_viewer_and_display(tmp_path: Path, monke
     code, _, stderr = moseg("view", "--web", rec)
     assert code == 1 and stderr == f"moseg: error: {rec}: not a Rerun recording (.rrd)\n"
     rec.write_bytes(b"RRF2")
-    monkeypatch.setattr(cli_view, "_find_viewer", lambda: None)
+    monkeypatch.setattr(cli_view, "find_viewer", lambda: None)
     code, _, stderr = moseg("view", rec)
     assert code == 1 and "the Rerun viewer ('rerun') was not found" in stderr and stderr.count("\n") == 1
-    monkeypatch.setattr(cli_view, "_find_viewer", lambda: "/opt/rerun")
-    monkeypatch.setattr(cli_view, "_has_display", lambda: False)
+    monkeypatch.setattr(cli_view, "find_viewer", lambda: "/opt/rerun")
+    monkeypatch.setattr(cli_view, "has_display", lambda: False)
     code, _, stderr = moseg("view", rec)
     assert code == 1 and f"try 'moseg view --web {rec}'" in stderr
 
@@ -360,8 +360,8 @@ def test_view_opens_a_window_as_the_viewer_itself(tmp_path: Path, monkeypatch: p
         calls.append([exe, *args])
         raise SystemExit(0)
 
-    monkeypatch.setattr(cli_view, "_find_viewer", lambda: "/opt/rerun")
-    monkeypatch.setattr(cli_view, "_has_display", lambda: True)
+    monkeypatch.setattr(cli_view, "find_viewer", lambda: "/opt/rerun")
+    monkeypatch.setattr(cli_view, "has_display", lambda: True)
     monkeypatch.setattr(cli_view.os, "execv", fake_execv)
     assert moseg("view", rec)[0] == 0
     assert calls == [["/opt/rerun", "/opt/rerun", str(rec)]]
@@ -373,7 +373,7 @@ def test_view_opens_a_window_as_the_viewer_itself(tmp_path: Path, monkeypatch: p
 def test_view_runs_the_native_viewer() -> None:
     """rerun-sdk's `rerun` script is a Python wrapper that leaves the viewer running when it gets SIGTERM:
     the binary itself is run."""
-    exe = cli_view._find_viewer()
+    exe = cli_view.find_viewer()
     assert exe is not None
     with open(exe, "rb") as f:
         assert f.read(2) != b"#!"
@@ -427,7 +427,7 @@ def test_a_closed_stdout_ends_quietly(tmp_path: Path, clip_avi: Path, models: di
 
 def test_ctrl_c_exits_130_with_one_line(tmp_path: Path, clip_avi: Path, models: dict[int, Path]) -> None:
     patch = (
-        "import os, signal\nimport mosegpipe.outputs as outputs\n"
+        "import os, signal\nimport mosegpipe.apps.outputs as outputs\n"
         "def interrupted(*args, **kwargs):\n    os.kill(os.getpid(), signal.SIGINT)\n"
         "outputs.write_npz = interrupted"
     )

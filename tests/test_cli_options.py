@@ -19,19 +19,19 @@ import numpy as np
 import pytest
 import typer.main
 
+from mosegpipe.apps.outputs import write_video_outputs
 from mosegpipe.cli import batch as cli_batch
 from mosegpipe.cli import config as cli_config
 from mosegpipe.cli import evaluate as cli_evaluate
 from mosegpipe.cli import options as cli_options
 from mosegpipe.cli.main import app
-from mosegpipe.cluster import ClusterConfig
-from mosegpipe.io import read_palette_png
+from mosegpipe.embed.model import SubspaceNet
+from mosegpipe.group.cluster import ClusterConfig
+from mosegpipe.group.rigid import RigidCheckConfig
+from mosegpipe.io.provenance import source_identity
+from mosegpipe.io.read import read_palette_png
 from mosegpipe.masks import MaskConfig
-from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_video
-from mosegpipe.provenance import source_identity
-from mosegpipe.rigid import RigidCheckConfig
 from mosegpipe.types import MASK_METHODS
 
 from helpers import moseg, motion_checkpoint, one_error_line, render_scene, write_avi, write_frames
@@ -422,7 +422,7 @@ def test_every_option_default_is_its_config_fields_default() -> None:
             value: object = defaults
             for key in path.split("."):
                 value = getattr(value, key)
-            assert cli_options._value(options[option].default) == value, (command, option, path)
+            assert cli_options.enum_value(options[option].default) == value, (command, option, path)
             checked += 1
     assert checked > 40
     rigid = {p.name: p.default for p in group.commands["run"].params}["rigid_check"]
@@ -465,10 +465,9 @@ def test_every_option_has_help_and_every_choice_is_an_enum() -> None:
 def test_choices_come_from_the_library() -> None:
     """Each choice is the library's vocabulary or registry itself, its default the library's default (the
     first of the vocabulary); the registries of recipes, losses and baselines hold their vocabularies."""
-    from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.protocols import PROTOCOLS, Variant
-    from mosegpipe.learned import MASKNET_PRESET, WHICHNET_PRESET
+    from mosegpipe.group.cluster import ClusterConfig
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.studies import STUDIES, Budget
     from mosegpipe.training.losses import LOSSES
@@ -478,10 +477,12 @@ def test_choices_come_from_the_library() -> None:
         ENGINES,
         K_METHODS,
         LOSS_NAMES,
+        MASKNET_PRESET,
         RECIPE_NAMES,
         SEGMENT_METHODS,
         TRACKERS,
         TRAIN_PRESETS,
+        WHICHNET_PRESET,
     )
 
     vocabularies = {
@@ -506,7 +507,7 @@ def test_choices_come_from_the_library() -> None:
     assert defaults == (K_METHODS[0], MASK_METHODS[0], SEGMENT_METHODS[0], TRACKERS[0])
     group = typer.main.get_command(app)
     for command in ("run", "batch"):
-        given = {p.name: cli_options._value(p.default) for p in group.commands[command].params}
+        given = {p.name: cli_options.enum_value(p.default) for p in group.commands[command].params}
         assert (given["k_method"], given["mask_method"], given["method"], given["points"]) == defaults, command
 
 

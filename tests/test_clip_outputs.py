@@ -12,10 +12,10 @@ import pytest
 
 from mosegpipe import Segmenter
 from mosegpipe.errors import InputError, OutputExistsError
-from mosegpipe.io import read_palette_png, read_video
+from mosegpipe.io.read import read_palette_png, read_video
 from mosegpipe.pipeline import ClipResult, PipelineConfig, TracksResult
+from mosegpipe.points.klt import track_klt
 from mosegpipe.synth.render import RenderedClip
-from mosegpipe.track import track_klt
 from mosegpipe.types import Frames
 
 from helpers import moseg, motion_checkpoint, one_error_line, read_rrd, render_scene, write_avi

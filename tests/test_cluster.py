@@ -4,7 +4,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from mosegpipe.cluster import (
+from mosegpipe.errors import InputError
+from mosegpipe.evaluation.metrics import misclassification_error
+from mosegpipe.group.cluster import (
     ClusterConfig,
     cluster_auto_k,
     kmeans,
@@ -12,8 +14,6 @@ from mosegpipe.cluster import (
     pairwise_distances,
     relabel_by_size,
 )
-from mosegpipe.errors import InputError
-from mosegpipe.evaluation.metrics import misclassification_error
 
 RESIDUAL = ClusterConfig(method="residual")
 

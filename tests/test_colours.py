@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from mosegpipe import colours, masks
-from mosegpipe.outputs import write_clip_outputs, write_mask_png, write_pair_outputs
+from mosegpipe.apps.outputs import write_clip_outputs, write_mask_png, write_pair_outputs
 from mosegpipe.pipeline import ClipResult, PairResult, PipelineConfig
 from mosegpipe.types import Clustering, Frames, Matches, Tracks, Trajectories
 
@@ -224,7 +224,7 @@ def test_k_statement(k: int, scores: dict[int, float], note: str, method: str, e
 
 
 def test_the_statement_reads_the_note_check_rigid_writes(monkeypatch: pytest.MonkeyPatch) -> None:
-    from mosegpipe.pipeline import common
+    from mosegpipe.group import refine as common
     from mosegpipe.viz import k_statement
 
     def split_one(points, labels, size_hw, cfg, max_k):  # the check finds one group that its motion does not explain

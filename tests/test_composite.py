@@ -11,11 +11,11 @@ import pytest
 
 from mosegpipe.errors import ConfigError
 from mosegpipe.evaluation.composite import (
-    _pick,
     composite_rows,
     j_per_object,
     labels_per_object,
     match_objects,
+    pick_folds,
     track_error,
     window_k,
 )
@@ -153,11 +153,11 @@ def test_labels_per_object_windows_k_and_track_error() -> None:
 
 def test_registry_and_fold_choice() -> None:
     assert {"composite", "composite-clip5"} <= set(PROTOCOLS)
-    assert _pick(None) == [("dev", None)]
-    assert _pick(["val", "dev-03"]) == [("val", None), ("dev", ["dev-03"])]
-    assert _pick(["all"]) == [("dev", None), ("val", None)]
+    assert pick_folds(None) == [("dev", None)]
+    assert pick_folds(["val", "dev-03"]) == [("val", None), ("dev", ["dev-03"])]
+    assert pick_folds(["all"]) == [("dev", None), ("val", None)]
     with pytest.raises(ConfigError, match="bear"):
-        _pick(["bear"])
+        pick_folds(["bear"])
 
 
 @pytest.mark.parametrize("mode", ["clip5", "whole"])

@@ -26,7 +26,7 @@ from mosegpipe.data.kt3dmoseg import (
 )
 from mosegpipe.data.labels import remap_labels
 from mosegpipe.errors import DatasetError, InputError
-from mosegpipe.trajectories import window_starts
+from mosegpipe.points.trajectories import window_starts
 from mosegpipe.types import LabeledClip
 
 

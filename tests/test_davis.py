@@ -185,6 +185,19 @@ def test_best_single_label_oracle() -> None:
     assert scores["k"] == 3 and scores["best_label_j"] == pytest.approx((1 + 4 / 7) / 2)
 
 
+def test_labels_and_switches_on_the_object() -> None:
+    gt = np.zeros((4, 4, 4), bool)
+    gt[:, :2, :2] = True
+    labels = np.zeros((4, 4, 4), np.uint8)
+    labels[0, :2, :2] = 3
+    labels[1, :2, :2] = 0  # taken for the world: no identity, no switch
+    labels[2, :2, :2] = 5
+    labels[3, :2, :2] = 3
+    labels[3, 0, 0] = 7  # a quarter of the object: not its identity
+    scores = score_clip(labels, gt)
+    assert scores["labels"] == 2 and scores["switches"] == 2
+
+
 # ---------------------------------------------------------------------------------------------
 # Baseline and protocol
 

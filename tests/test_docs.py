@@ -20,7 +20,7 @@ from typing import Any
 import pytest
 import typer
 
-from mosegpipe.cli.app import _click as click  # typer's own click where it ships one
+from mosegpipe.cli.app import click_api as click  # typer's own click where it ships one
 from mosegpipe.cli.main import app
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -171,8 +171,8 @@ def test_the_parser_rejects_what_moseg_rejects() -> None:
             parse(bad)
 
 
-def _default_out(name: str, ctx: Any) -> str | None:
-    """The folder a documented run/pair/tracks/replay writes (cli.common._default_out_here, _default_out), or None."""
+def default_out(name: str, ctx: Any) -> str | None:
+    """The folder a documented run/pair/tracks/replay writes (cli.common.default_out_here, default_out), or None."""
     p = ctx.params
     if p.get("out") is not None:
         return str(p["out"])
@@ -195,7 +195,7 @@ def test_examples_run_in_order(page: str, tmp_path: Path, monkeypatch: pytest.Mo
         name, ctx = parse(command)
         if name not in ("run", "pair", "tracks", "replay"):
             continue
-        out = _default_out(name, ctx)
+        out = default_out(name, ctx)
         if out is None or ctx.params.get("overwrite"):
             continue
         assert out not in written, f"{page}: {command!r} writes {out}, which {written.get(out)!r} wrote"

@@ -14,12 +14,12 @@ from typer.testing import CliRunner
 
 import mosegpipe.training.run as training_run
 from mosegpipe.cli.main import app
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.evaluation.benchmark import EvalConfig, embed_clip, evaluate_clips, run_protocol
 from mosegpipe.evaluation.metrics import misclassification_error
 from mosegpipe.evaluation.protocols import PROTOCOLS, get_protocol
 from mosegpipe.evaluation.report import format_table, summarize, write_results
-from mosegpipe.model import SubspaceNet
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.training.loop import TrainConfig
 from mosegpipe.types import LabeledClip
 

@@ -1,4 +1,4 @@
-"""Point trajectories from dense flow (mosegpipe.flow_tracks): following a motion, the forward-backward
+"""Point trajectories from dense flow (mosegpipe.points.flow_grid): following a motion, the forward-backward
 and border checks, the grid's budget and texture rule, joining KLT tracks, and the pipeline / CLI option."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ import numpy.typing as npt
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.flow_tracks import FlowTrackConfig, combine_tracks, grid_seeds, track_flow
 from mosegpipe.pipeline import PipelineConfig
+from mosegpipe.points.flow_grid import FlowTrackConfig, combine_tracks, grid_seeds, track_flow
 from mosegpipe.types import Tracks
 
 from helpers import TEXTURE_H as H
@@ -128,13 +128,13 @@ def test_flow_points_are_refused_for_whole_videos(tmp_path: Path) -> None:
 
 
 def test_eval_requests_take_the_points() -> None:
-    from mosegpipe.evaluation.protocols import EvalRequest, _pipeline_config
+    from mosegpipe.evaluation.protocols import EvalRequest, pipeline_config
 
-    assert _pipeline_config(EvalRequest(out_dir=Path("x")), 5).tracker == "klt"
-    assert _pipeline_config(EvalRequest(out_dir=Path("x"), points="klt+flow"), 5).tracker == "klt+flow"
+    assert pipeline_config(EvalRequest(out_dir=Path("x")), 5).tracker == "klt"
+    assert pipeline_config(EvalRequest(out_dir=Path("x"), points="klt+flow"), 5).tracker == "klt+flow"
     with pytest.raises(InputError, match="^tracker: 'sift' must be one of klt, flow, klt\\+flow$"):
-        _pipeline_config(EvalRequest(out_dir=Path("x"), points="sift"), 5)
-    changed = _pipeline_config(EvalRequest(out_dir=Path("x"), settings=("mask.motion.fb_weight=0.5",)), 5)
+        pipeline_config(EvalRequest(out_dir=Path("x"), points="sift"), 5)
+    changed = pipeline_config(EvalRequest(out_dir=Path("x"), settings=("mask.motion.fb_weight=0.5",)), 5)
     assert changed.mask.motion.fb_weight == 0.5 and changed.frames == 5
 
 
@@ -146,7 +146,7 @@ def test_a_bad_eval_setting_is_one_error_line(tmp_path: Path) -> None:
 
 
 def test_klt_plus_flow_holds_the_corners_and_more() -> None:
-    from mosegpipe.io import read_video
+    from mosegpipe.io.read import read_video
     from mosegpipe.pipeline import segment_frames
     from mosegpipe.pipeline.clip import clip_tracks
 
@@ -160,9 +160,9 @@ def test_klt_plus_flow_holds_the_corners_and_more() -> None:
 
 
 def test_flow_points_and_motion_masks_share_one_computation_of_the_flows(monkeypatch: pytest.MonkeyPatch) -> None:
-    import mosegpipe.flow_tracks as flow_tracks_module
-    import mosegpipe.motion as motion_module
-    from mosegpipe.io import read_video
+    import mosegpipe.masks.moving_pixels as motion_module
+    import mosegpipe.points.flow_grid as flow_tracks_module
+    from mosegpipe.io.read import read_video
     from mosegpipe.pipeline import segment_frames
 
     calls: list[int] = []

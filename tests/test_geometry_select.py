@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import ConfigError
-from mosegpipe.geometry_select import (
+from mosegpipe.group.joint import (
     JointConfig,
     best_model,
     choose_partition,
     geometry_supported,
-    gric,
     select_models,
 )
+from mosegpipe.group.twoview import gric
 
 FRAMES = 5
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,8 +123,8 @@ def test_config_is_checked() -> None:
 
 
 def test_joint_method_on_a_clip_and_a_whole_video(tmp_path: Path) -> None:
-    from mosegpipe.io import read_video
-    from mosegpipe.outputs import write_clip_outputs
+    from mosegpipe.apps.outputs import write_clip_outputs
+    from mosegpipe.io.read import read_video
     from mosegpipe.pipeline import PipelineConfig, segment_frames, segment_video
 
     clip = ROOT / "samples" / "rendered" / "frames"
@@ -158,8 +158,8 @@ def _movers_case(rng: np.random.Generator, second_step: tuple[float, float]) -> 
 
 
 def test_split_movers_separates_movers_the_clustering_joined() -> None:
+    from mosegpipe.group.refine import split_movers
     from mosegpipe.pipeline import PipelineConfig
-    from mosegpipe.pipeline.common import split_movers
     from mosegpipe.types import Clustering
 
     rng = np.random.default_rng(3)
@@ -194,7 +194,7 @@ def _three_motions(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_k_by_gric_finds_the_three_motions_kmeans_joins_in_two() -> None:
-    from mosegpipe.cluster import cluster_auto_k
+    from mosegpipe.group.cluster import cluster_auto_k
     from mosegpipe.pipeline import PipelineConfig, check_rigid
 
     points, emb = _three_motions(np.random.default_rng(7))
@@ -241,7 +241,7 @@ def test_a_small_rigid_group_is_supported_and_a_loose_or_explained_one_is_not() 
 
 def test_a_new_small_rigid_cluster_is_labelled_under_joint_only() -> None:
     from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
-    from mosegpipe.pipeline.video import _small_rigid
+    from mosegpipe.pipeline.video import small_rigid
 
     rng = np.random.default_rng(10)
     world = _moving(rng, 600, (0, 0, 640, 480), (1.0, 0.0))
@@ -250,13 +250,11 @@ def test_a_new_small_rigid_cluster_is_labelled_under_joint_only() -> None:
     clusters = np.repeat([0, 1], [600, 12]).astype(np.int64)
     ids = np.arange(612, dtype=np.int64)
     joint = PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=8))
-    assert _small_rigid(clusters, points, PipelineConfig()) == []  # the default: the size guard alone
-    assert (
-        _small_rigid(clusters, points, PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=None))) == []
-    )
-    assert _small_rigid(clusters, points, PipelineConfig(method="joint")) == [1]  # joint's default: 8 tracks
-    assert _small_rigid(clusters, points, joint) == [1]
-    assert _small_rigid(clusters, points, replace(joint, joint=JointConfig(new_rigid_tracks=13))) == []
+    assert small_rigid(clusters, points, PipelineConfig()) == []  # the default: the size guard alone
+    assert small_rigid(clusters, points, PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=None))) == []
+    assert small_rigid(clusters, points, PipelineConfig(method="joint")) == [1]  # joint's default: 8 tracks
+    assert small_rigid(clusters, points, joint) == [1]
+    assert small_rigid(clusters, points, replace(joint, joint=JointConfig(new_rigid_tracks=13))) == []
     # 12 new tracks beside 600: under the guard (15 tracks, 5 %) unlabelled, labelled when supported
     xy = points.reshape(612, FRAMES, 2)
     plain = match_labels({}, ids, clusters, 2, LabelBook(), world=True, xy=xy)

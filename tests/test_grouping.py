@@ -1,4 +1,4 @@
-"""Geometric grouping (mosegpipe.grouping): planar motions, one motion, outliers, parallax, the config,
+"""Geometric grouping (mosegpipe.group.geometric): planar motions, one motion, outliers, parallax, the config,
 the pipeline option and its record in summary.json."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 
 from mosegpipe.errors import InputError
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.grouping import GeometricConfig, group_geometric
+from mosegpipe.group.geometric import GeometricConfig, group_geometric
 from mosegpipe.pipeline import PipelineConfig
 
 from helpers import moseg
@@ -155,7 +155,7 @@ def test_run_records_the_method_in_summary(tmp_path: Path) -> None:
 
 
 def test_geometric_segment_frames_gives_displacements_for_embeddings() -> None:
-    from mosegpipe.io import read_video
+    from mosegpipe.io.read import read_video
     from mosegpipe.pipeline import segment_frames
 
     frames = read_video(ROOT / "samples" / "rendered" / "frames", max_frames=3)

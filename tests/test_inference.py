@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+from mosegpipe.embed.model import ModelConfig, SubspaceNet
+from mosegpipe.embed.numpy_net import NumpySubspaceNet, load_embedder, shipped_path
 from mosegpipe.errors import CheckpointError, InputError
-from mosegpipe.inference import NumpySubspaceNet, load_embedder, shipped_path
-from mosegpipe.model import ModelConfig, SubspaceNet
 from mosegpipe.types import Trajectories
 
 SAMPLE_FRAMES = Path(__file__).resolve().parents[1] / "samples" / "rendered" / "frames"

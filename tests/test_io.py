@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import (
+from mosegpipe.io.read import (
     atomic_write,
     default_palette,
     iter_video,

@@ -1,4 +1,4 @@
-"""The learned masks (mosegpipe.learned): the network's size, its shipped weights, what its masks find on
+"""The learned masks (mosegpipe.masks.learned): the network's size, its shipped weights, what its masks find on
 rendered clips, the CLI end to end, and the training recipe (its data never a validation clip; seeded)."""
 
 from __future__ import annotations
@@ -14,17 +14,22 @@ import torch
 
 from mosegpipe.data.davis import DAVIS_DEV, DAVIS_VAL
 from mosegpipe.errors import CheckpointError, ConfigError
-from mosegpipe.flow import FrameMotion
-from mosegpipe.learned import data as learned_data
-from mosegpipe.learned.data import HELD_OUT, TRAIN_DAVIS, Frames4Net, source_clips, stacks
-from mosegpipe.learned.features import NUM_CHANNELS, LearnedMaskConfig, clip_features, net_flows, net_size
-from mosegpipe.learned.moving import _carried, _refined, learned_moving, learned_probability
-from mosegpipe.learned.net import WIDTHS, MaskNet, load_masknet, shipped_path
-from mosegpipe.learned.train import MaskTrainConfig, train_masknet
 from mosegpipe.masks import MaskConfig
-from mosegpipe.motion import MotionMaskConfig, stack_motion
+from mosegpipe.masks.learned.features import NUM_CHANNELS, LearnedMaskConfig, clip_features, net_flows, net_size
+from mosegpipe.masks.learned.net import WIDTHS, MaskNet, load_masknet, shipped_path
+from mosegpipe.masks.learned.probability import (
+    carried_probability,
+    learned_moving,
+    learned_probability,
+    refined_probability,
+)
+from mosegpipe.masks.moving_pixels import MotionMaskConfig, stack_motion
 from mosegpipe.pipeline import PipelineConfig
+from mosegpipe.points.flow import FrameMotion
 from mosegpipe.synth.render import ObjectSpec, RenderConfig, render_clip
+from mosegpipe.training.masks import data as learned_data
+from mosegpipe.training.masks.data import HELD_OUT, TRAIN_DAVIS, Frames4Net, source_clips, stacks
+from mosegpipe.training.masks.masknet import MaskTrainConfig, train_masknet
 
 from helpers import moseg, write_avi
 
@@ -130,7 +135,7 @@ def _tiny_source(seed: int, frames: int = 6) -> Frames4Net:
 
 
 def test_training_is_seeded_and_learns(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr("mosegpipe.learned.train.load_source", lambda name, *a, **k: _tiny_source(len(name)))
+    monkeypatch.setattr("mosegpipe.training.masks.masknet.load_source", lambda name, *a, **k: _tiny_source(len(name)))
     cfg = replace(
         MaskTrainConfig(),
         steps=40,
@@ -158,10 +163,10 @@ def test_temporal_carry_follows_the_flow() -> None:
     step = np.zeros((2, 16, 24, 2), np.float32)
     step[..., 0] = 3.0
     motion = FrameMotion(np.zeros((3, 16, 24), np.float32), np.zeros((3, 16, 24), np.float32), 1.0, step, -step)
-    out = _carried(prob, net_flows(motion, (16, 24)), 0.5)
+    out = carried_probability(prob, net_flows(motion, (16, 24)), 0.5)
     assert np.allclose(out[1, 6:10, 9:13], 1.0) and np.allclose(out[1].sum(), 16 + 0.5)
     backwards = FrameMotion(motion.residual, motion.fb_error, 1.0, -step, step)  # the wrong way: the blob smears
-    assert _carried(prob, net_flows(backwards, (16, 24)), 0.5)[1, 6:10, 9:13].min() < 0.75
+    assert carried_probability(prob, net_flows(backwards, (16, 24)), 0.5)[1, 6:10, 9:13].min() < 0.75
 
 
 def test_refined_edges_follow_the_image() -> None:
@@ -172,7 +177,7 @@ def test_refined_edges_follow_the_image() -> None:
     truth = np.zeros((64, 96), bool)
     truth[:, 50:] = True
     cfg = LearnedMaskConfig(threshold=0.5, refine_scale=1.0)
-    refined = _refined(coarse, image, cfg)
+    refined = refined_probability(coarse, image, cfg)
     plain = cv2.resize(coarse, (96, 64), interpolation=cv2.INTER_LINEAR) > 0.5
     assert (refined != truth).sum() < (plain != truth).sum()
     assert (refined != truth).mean() < 0.01
@@ -198,7 +203,7 @@ def test_weak_regions_are_dropped(monkeypatch: pytest.MonkeyPatch) -> None:
     residual[0, 8:24, 8:24] = 6.0  # the first region's pixels, at the flow's (full) size
     residual[0, 40:56, 56:72] = 1.0
     motion = FrameMotion(residual, np.zeros_like(residual), 1.0)
-    monkeypatch.setattr("mosegpipe.learned.moving.learned_probability", lambda *a, **k: prob)
+    monkeypatch.setattr("mosegpipe.masks.learned.probability.learned_probability", lambda *a, **k: prob)
     images = np.zeros((1, 64, 96, 3), np.uint8)
     both = learned_moving(images, motion, LearnedMaskConfig(threshold=0.5, refine_scale=0.0, min_component=0.0))[0]
     strong = learned_moving(images, motion, LearnedMaskConfig(threshold=0.5, refine_scale=0.0, min_component=0.1))[0]
@@ -208,8 +213,8 @@ def test_weak_regions_are_dropped(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_masknet_composites_never_use_the_scored_seed(tmp_path: Path) -> None:
     # the scored development composites' seed is refused before any clip is read; the default is another seed
     from mosegpipe.errors import ConfigError
-    from mosegpipe.learned.data import DataConfig, composite_frames
     from mosegpipe.synth.composite import SEED
+    from mosegpipe.training.masks.data import DataConfig, composite_frames
 
     assert DataConfig().composite_seed != SEED
     with pytest.raises(ConfigError, match="scored development composites"):
@@ -217,8 +222,8 @@ def test_masknet_composites_never_use_the_scored_seed(tmp_path: Path) -> None:
 
 
 def test_masknet_water_clips_never_use_the_scored_seeds() -> None:
-    from mosegpipe.learned.data import DataConfig, water_frames
     from mosegpipe.synth.water import SCORED_SEEDS
+    from mosegpipe.training.masks.data import DataConfig, water_frames
 
     assert DataConfig().water_seed >= SCORED_SEEDS.stop
     with pytest.raises(ConfigError, match="the benchmark's"):
@@ -226,7 +231,7 @@ def test_masknet_water_clips_never_use_the_scored_seeds() -> None:
 
 
 def test_rendered_clips_are_blurred_by_share_and_seed() -> None:
-    from mosegpipe.learned.data import DataConfig, rendered_images
+    from mosegpipe.training.masks.data import DataConfig, rendered_images
 
     frames = np.random.default_rng(0).integers(0, 256, (3, 40, 60, 3)).astype(np.uint8)
     blurred = [i for i in range(40) if rendered_images(DataConfig(motion_blur_share=0.3), i, frames) is not frames]

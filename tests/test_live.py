@@ -18,15 +18,15 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from mosegpipe.apps.live.run import Capture, FrameBuffer, LiveFrames, RawCapture, SourceReader, parse_source
 from mosegpipe.errors import InputError
-from mosegpipe.live import Capture, FrameBuffer, LiveFrames, RawCapture, SourceReader, parse_source
 
 from helpers import moseg, one_error_line
 
 W, H, T = 160, 120, 40
 
 
-def _frames(n: int = T) -> list[npt.NDArray[np.uint8]]:
+def frames_text(n: int = T) -> list[npt.NDArray[np.uint8]]:
     """RGB frames: a textured square moving over a textured, static background."""
     rng = np.random.default_rng(0)
     background = cv2.GaussianBlur(rng.integers(0, 256, (H, W, 3), dtype=np.uint8), (3, 3), 0)
@@ -45,7 +45,7 @@ def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """40 frames of 160x120 at 25 frames/s (1.6 s when played in real time)."""
     path = tmp_path_factory.mktemp("live") / "square.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (W, H))
-    for frame in _frames():
+    for frame in frames_text():
         writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
     writer.release()
     return path
@@ -117,7 +117,7 @@ def test_a_file_read_as_fast_as_possible_loses_no_frame() -> None:
 def test_raw_frames_on_stdin_are_bgr24_and_a_partial_last_frame_is_dropped() -> None:
     import io
 
-    frames = _frames(3)
+    frames = frames_text(3)
     capture = RawCapture(io.BytesIO(_raw(frames) + b"\x00" * 100), (W, H))
     got = [capture.read() for _ in range(4)]
     assert all(np.array_equal(g, f) for g, f in zip(got, frames)) and got[3] is None
@@ -142,7 +142,7 @@ def test_sources_are_told_apart(tmp_path: Path, video: Path) -> None:
 
 def test_segment_video_takes_the_frames_themselves(video: Path) -> None:
     """A live source is an iterator of frames in place of a path: the same windows and labels."""
-    from mosegpipe.io import iter_video
+    from mosegpipe.io.read import iter_video
     from mosegpipe.pipeline import segment_video
 
     from_file = list(segment_video(video))
@@ -193,9 +193,9 @@ def _free_port() -> int:
 
 
 def _rerun_exe() -> str:
-    from mosegpipe.cli.view import _find_viewer
+    from mosegpipe.cli.view import find_viewer
 
-    exe = _find_viewer()
+    exe = find_viewer()
     assert exe, "the rerun program of rerun-sdk is not installed"
     return exe
 
@@ -283,7 +283,7 @@ def test_a_stalled_source_gives_one_line_and_a_complete_output_folder(tmp_path: 
     # K forced: the one line asked for is the stall's, not automatic K's note on this tiny scene
     proc = _live_process(tmp_path, "--stall-timeout", "1", "--k", "2")
     assert proc.stdin is not None
-    proc.stdin.write(_raw(_frames(20)))  # then nothing more, the pipe left open: a stall
+    proc.stdin.write(_raw(frames_text(20)))  # then nothing more, the pipe left open: a stall
     proc.stdin.flush()
     try:
         proc.wait(timeout=120)  # stdin still open (communicate() would close it: an end, not a stall)
@@ -304,7 +304,7 @@ def test_a_stream_ending_inside_a_frame_gives_one_line_and_a_complete_output_fol
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)
-    data = _raw(_frames(15)) + b"\x07" * 1000
+    data = _raw(frames_text(15)) + b"\x07" * 1000
     from typer.testing import CliRunner
 
     from mosegpipe.cli.main import app
@@ -324,7 +324,7 @@ def test_ctrl_c_ends_the_run_with_its_outputs_complete(tmp_path: Path) -> None:
     signum, code, line = signal.SIGINT, 130, "moseg: error: interrupted"
     proc = _live_process(tmp_path, "--stall-timeout", "60")
     assert proc.stdin is not None
-    proc.stdin.write(_raw(_frames(12)))
+    proc.stdin.write(_raw(frames_text(12)))
     proc.stdin.flush()
     deadline = time.monotonic() + 120
     while not list((tmp_path / ".out.partial" / "masks").glob("*.png")):  # segmenting: the frames arrived

@@ -12,8 +12,8 @@ from mosegpipe.cli.main import app
 from mosegpipe.evaluation.metrics import mask_scores
 from mosegpipe.masks import UNKNOWN, MaskConfig, labels_to_masks
 from mosegpipe.pipeline import PipelineConfig, clip_masks
-from mosegpipe.track import track_klt
-from mosegpipe.trajectories import build_trajectories
+from mosegpipe.points.klt import track_klt
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.types import Tracks
 
 from helpers import render_scene, write_frames

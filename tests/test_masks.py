@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import default_palette
+from mosegpipe.io.read import default_palette
 from mosegpipe.masks import UNKNOWN, MaskConfig, labels_to_mask, labels_to_masks, overlay_mask
 from mosegpipe.types import Tracks
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.match import MatchConfig, match_sift
+from mosegpipe.points.sift import MatchConfig, match_sift
 
 
 def _scene(h: int = 240, w: int = 320) -> np.ndarray:

@@ -11,9 +11,8 @@ from scipy.optimize import linear_sum_assignment
 from sklearn.cluster import KMeans
 
 import mosegpipe
-from mosegpipe import architecture
-from mosegpipe.errors import CheckpointError, InputError
-from mosegpipe.model import (
+from mosegpipe.embed import architecture
+from mosegpipe.embed.model import (
     CHECKPOINT_FORMAT,
     ModelConfig,
     SubspaceNet,
@@ -22,6 +21,7 @@ from mosegpipe.model import (
     num_parameters,
     pad_batch,
 )
+from mosegpipe.errors import CheckpointError, InputError
 from mosegpipe.runtime import limited_threads
 from mosegpipe.training.losses import mimi_loss
 

@@ -1,4 +1,4 @@
-"""Dense flow, camera residuals and motion masks (mosegpipe.flow, mosegpipe.motion) on scenes the tests draw."""
+"""Dense flow, camera residuals and motion masks (mosegpipe.points.flow, mosegpipe.masks.moving_pixels) on scenes the tests draw."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from mosegpipe.flow import FlowConfig, camera_residual, fit_camera, frame_motion
 from mosegpipe.masks import WORLD, label_moving_pixels
-from mosegpipe.motion import MotionMaskConfig, moving_masks
+from mosegpipe.masks.moving_pixels import MotionMaskConfig, moving_masks
+from mosegpipe.points.flow import FlowConfig, camera_residual, fit_camera, frame_motion
 
 
 def _texture(h: int, w: int, seed: int) -> np.ndarray:
@@ -125,8 +125,8 @@ def test_both_directions_take_the_smaller_evidence_and_shrink_the_band_beside_th
 def test_frames_next_to_the_stack_give_its_end_frames_both_directions() -> None:
     from dataclasses import replace
 
-    from mosegpipe.flow import FrameMotion
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
+    from mosegpipe.points.flow import FrameMotion
 
     images, _ = _scene(frames=6)
     cfg = MotionMaskConfig()
@@ -221,8 +221,8 @@ def test_video_frame_mask_uses_the_moving_pixels() -> None:
 
 
 def test_scores_carried_along_the_flow_fill_a_frame_whose_flow_missed_the_mover() -> None:
-    from mosegpipe.flow import FrameMotion
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
+    from mosegpipe.points.flow import FrameMotion
 
     num, h, w = 3, 40, 60
     images = np.stack([_texture(h, w, 5)] * num)
@@ -243,8 +243,8 @@ def test_scores_carried_along_the_flow_fill_a_frame_whose_flow_missed_the_mover(
 
 
 def test_a_small_fast_mover_outweighs_a_large_slow_drift() -> None:
-    from mosegpipe.flow import FrameMotion
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
+    from mosegpipe.points.flow import FrameMotion
 
     num, h, w = 2, 60, 80
     images = np.stack([_texture(h, w, 9)] * num)
@@ -262,8 +262,8 @@ def test_a_small_fast_mover_outweighs_a_large_slow_drift() -> None:
 
 
 def test_a_weak_region_survives_when_the_tracks_say_it_is_a_motion_of_its_own() -> None:
-    from mosegpipe.flow import FrameMotion
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
+    from mosegpipe.points.flow import FrameMotion
 
     num, h, w = 2, 60, 80
     images = np.stack([_texture(h, w, 9)] * num)
@@ -299,8 +299,8 @@ def test_a_weak_region_survives_when_the_tracks_say_it_is_a_motion_of_its_own() 
 
 
 def test_flow_that_varies_from_pixel_to_pixel_is_weak_evidence_of_motion() -> None:
-    from mosegpipe.flow import FrameMotion
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
+    from mosegpipe.points.flow import FrameMotion
 
     num, h, w = 2, 60, 90
     rng = np.random.default_rng(3)
@@ -324,7 +324,7 @@ def test_flow_that_varies_from_pixel_to_pixel_is_weak_evidence_of_motion() -> No
 def _object_with_spill(colour: tuple[int, int, int]) -> Iterator[tuple[np.ndarray, np.ndarray, Any]]:
     """An object of one colour on a plain dark background (2 frames, 60x80), its true mask, and per case the
     frames' evidence: the flow's edge blurred across the object's border, and 3 px beyond two of them."""
-    from mosegpipe.flow import FrameMotion
+    from mosegpipe.points.flow import FrameMotion
 
     num, h, w = 2, 60, 80
     images = np.full((num, h, w, 3), 40, np.uint8)
@@ -339,7 +339,7 @@ def _object_with_spill(colour: tuple[int, int, int]) -> Iterator[tuple[np.ndarra
 
 
 def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
 
     for images, truth, motion in _object_with_spill((200, 200, 200)):
         plain = moving_from_motion(images, motion, _bare())
@@ -350,7 +350,7 @@ def test_the_guided_filter_moves_the_masks_edge_onto_the_images() -> None:
 
 
 def test_the_global_smoother_spreads_the_score_within_the_objects_colour() -> None:
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
 
     for images, truth, motion in _object_with_spill((200, 120, 60)):
         plain = moving_from_motion(images, motion, _bare())
@@ -361,7 +361,7 @@ def test_the_global_smoother_spreads_the_score_within_the_objects_colour() -> No
 
 
 def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
-    from mosegpipe.motion import ColourMemory, _colour_log_ratio
+    from mosegpipe.masks.moving_pixels import ColourMemory, colour_log_ratio
 
     image = np.full((200, 200, 3), 128, np.uint8)  # (a frame's counts outweigh the histograms' prior)
     image[60:140, 60:140] = (220, 30, 30)  # a red object on grey
@@ -371,11 +371,11 @@ def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
     still = np.full((200, 200), -2.0, np.float32)  # window 2: nothing moved
     cfg = MotionMaskConfig()
     memory = ColourMemory(0.9)
-    assert _colour_log_ratio([image], [moved], cfg, memory)[0][red].min() > 0
-    assert _colour_log_ratio([image], [still], cfg)[0][red].max() < 0  # window 2 alone: red is static
-    assert _colour_log_ratio([image], [still], cfg, memory)[0][red].min() > 0  # remembered
+    assert colour_log_ratio([image], [moved], cfg, memory)[0][red].min() > 0
+    assert colour_log_ratio([image], [still], cfg)[0][red].max() < 0  # window 2 alone: red is static
+    assert colour_log_ratio([image], [still], cfg, memory)[0][red].min() > 0  # remembered
     memory.reset()
-    assert _colour_log_ratio([image], [still], cfg, memory)[0][red].max() < 0
+    assert colour_log_ratio([image], [still], cfg, memory)[0][red].max() < 0
     with pytest.raises(ValueError, match="decay"):
         ColourMemory(1.0)
     with pytest.raises(ValueError, match="colour_memory"):
@@ -383,8 +383,8 @@ def test_the_colour_memory_keeps_what_moved_in_the_windows_before() -> None:
 
 
 def test_the_local_colour_contrast_cuts_a_spill_that_the_clips_colour_model_cannot() -> None:
-    from mosegpipe.flow import FrameMotion
-    from mosegpipe.motion import _local_colour_contrast, moving_from_motion
+    from mosegpipe.masks.moving_pixels import local_colour_contrast, moving_from_motion
+    from mosegpipe.points.flow import FrameMotion
 
     num, h, w = 2, 120, 240
     images = np.empty((num, h, w, 3), np.uint8)
@@ -405,12 +405,12 @@ def test_the_local_colour_contrast_cuts_a_spill_that_the_clips_colour_model_cann
     assert _iou(alone[0], truth) < 0.85
     assert _iou(local[0], truth) > 0.95
     score = np.where(moving > 0, 1.0, -1.0).astype(np.float32)
-    contrast = _local_colour_contrast(images[0], score, 0.5, 61)
+    contrast = local_colour_contrast(images[0], score, 0.5, 61)
     assert contrast[84, 50] < -0.5 and contrast[84, 170] < -0.5  # the spills
     assert contrast[70, 50] > 0.5 and contrast[70, 170] > 0.5  # the objects
     assert contrast[10, 10] == 0  # a box that holds one class only
-    assert _local_colour_contrast(images[0], score, 0.5, 31)[60, 50] == 0
-    assert (_local_colour_contrast(images[0], np.full((h, w), -1.0, np.float32), 0.5, 31) == 0).all()  # no movers
+    assert local_colour_contrast(images[0], score, 0.5, 31)[60, 50] == 0
+    assert (local_colour_contrast(images[0], np.full((h, w), -1.0, np.float32), 0.5, 31) == 0).all()  # no movers
     with pytest.raises(ValueError, match="local_colour_box_px"):
         MotionMaskConfig(local_colour_box_px=1)
 
@@ -418,10 +418,10 @@ def test_the_local_colour_contrast_cuts_a_spill_that_the_clips_colour_model_cann
 def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
     from dataclasses import replace
 
-    from mosegpipe.flow import flow_fits
     from mosegpipe.masks import labels_to_masks
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.pipeline.clip import clip_masks
+    from mosegpipe.points.flow import flow_fits
     from mosegpipe.types import Tracks
 
     images = np.stack([_texture(10, 40, 7)] * 3)  # 10 px high: OpenCV's DIS refuses it
@@ -436,7 +436,7 @@ def test_frames_too_small_for_dense_flow_fall_back_to_the_watershed() -> None:
 
 
 def test_flow_stream_gives_what_frame_motion_gives_and_keeps_to_its_pairs() -> None:
-    from mosegpipe.flow import FlowStream
+    from mosegpipe.points.flow import FlowStream
 
     images, _ = _scene(frames=6, h=96, w=160)
     whole = frame_motion(images[1:5], FlowConfig())
@@ -481,7 +481,7 @@ def test_flow_stream_gives_what_frame_motion_gives_and_keeps_to_its_pairs() -> N
 
 
 def test_masks_of_the_later_frames_only_are_those_of_the_whole_stack() -> None:
-    from mosegpipe.motion import moving_from_motion
+    from mosegpipe.masks.moving_pixels import moving_from_motion
 
     images, _ = _scene()
     motion = frame_motion(images, FlowConfig())
@@ -514,7 +514,7 @@ def test_moving_pixels_of_one_moving_motion_all_take_its_label_and_two_split_alo
 
 
 def test_dense_flow_takes_the_patch_stride_and_refinement_given() -> None:
-    from mosegpipe.flow import DenseFlow
+    from mosegpipe.points.flow import DenseFlow
 
     dis = DenseFlow(FlowConfig(patch_stride=4, refinement_iterations=3))._dis
     assert (dis.getPatchStride(), dis.getVariationalRefinementIterations()) == (4, 3)

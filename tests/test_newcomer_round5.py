@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mosegpipe.batch import find_clips, run_batch
+from mosegpipe.apps.batch.run import find_clips, run_batch
+from mosegpipe.apps.outputs import SUMMARY_SCHEMA, check_output_dir
 from mosegpipe.errors import InputError, OutputExistsError, TooFewTracksError
-from mosegpipe.outputs import SUMMARY_SCHEMA, check_output_dir
 from mosegpipe.pipeline import PipelineConfig
 
 from helpers import tiny_model, write_avi

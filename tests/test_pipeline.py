@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from mosegpipe import pipeline
+from mosegpipe.apps.outputs import check_output_dir, write_clip_outputs, write_pair_outputs
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError, OutputExistsError, TooFewTracksError
-from mosegpipe.io import read_palette_png, read_video
+from mosegpipe.io.read import read_palette_png, read_video
 from mosegpipe.masks import MaskConfig, overlay_image, overlay_mask
-from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import check_output_dir, write_clip_outputs, write_pair_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip, segment_frames, segment_pair
 from mosegpipe.synth.render import RenderedClip, render_clip
 
@@ -152,7 +152,7 @@ def test_blank_pair_is_too_few_matches(tmp_path: Path, model2: SubspaceNet) -> N
 
 
 def test_overlay_image_blends_with_masks_overlay_mask(scene: RenderedClip) -> None:
-    from mosegpipe.io import default_palette
+    from mosegpipe.io.read import default_palette
 
     image, mask = scene.frames[0], scene.masks[0]
     empty = np.zeros((0, 2), np.float32), np.zeros(0, np.int64)

@@ -7,14 +7,14 @@ import numpy.typing as npt
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.pipeline import PipelineConfig, check_rigid
-from mosegpipe.rigid import (
+from mosegpipe.group.rigid import (
     MAX_CHECKED_POINTS,
     RigidCheckConfig,
     fit_rigid_motion,
     label_by_rigid_motion,
     split_by_rigid_motion,
 )
+from mosegpipe.pipeline import PipelineConfig, check_rigid
 from mosegpipe.types import Clustering
 
 SIZE_HW = (480, 640)

@@ -56,8 +56,8 @@ def test_setup_imports_with_the_collector_paused_and_freezes_them(tmp_path: Path
     code = _PROBE + (
         "import gc, sys\n"
         "import mosegpipe.cli.main\n"
-        "from mosegpipe.cli.app import _setup\n"
-        "_setup(1, False, 'mosegpipe.outputs')\n"
+        "from mosegpipe.cli.app import setup_run\n"
+        "setup_run(1, False, 'mosegpipe.apps.outputs')\n"
         "from mosegpipe.cli.clip import _import_ahead\n"  # what `run` imports on a thread of its own
         "from mosegpipe.pipeline import PipelineConfig\n"
         "import threading\n"

@@ -9,9 +9,9 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.evaluation.metrics import misclassification_error
-from mosegpipe.model import SubspaceNet
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
 from mosegpipe.studies import STUDIES, StudyRequest, get_study
 from mosegpipe.studies import imbalance as study_imbalance
 from mosegpipe.studies.imbalance import IMBALANCE_BUDGETS, ImbalanceBudget, summarize_imbalance

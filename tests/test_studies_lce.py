@@ -9,8 +9,8 @@ import pytest
 import torch
 from PIL import Image
 
+from mosegpipe.embed.model import ModelConfig
 from mosegpipe.errors import ConfigError
-from mosegpipe.model import ModelConfig
 from mosegpipe.studies import StudyRequest, get_study
 from mosegpipe.studies import lce as study_lce
 from mosegpipe.studies.lce import CurveBudget, CurveConfig, checkpoint_steps, run_lce_curve

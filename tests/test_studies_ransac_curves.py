@@ -10,12 +10,12 @@ from mosegpipe.evaluation.metrics import misclassification_error
 from mosegpipe.studies.ransac_curves import (
     CurveModel,
     RansacConfig,
-    _circles_from_triples,
-    _conics_from_quintuples,
-    _lines_from_pairs,
+    circles_from_triples,
     conic_to_ellipse,
+    conics_from_quintuples,
     ellipse_points,
     fit_curve,
+    lines_from_pairs,
     sequential_ransac,
 )
 from mosegpipe.synth.lce import LCEConfig, SingleKindDataset
@@ -34,19 +34,19 @@ def _angle_diff(a: float, b: float) -> float:
 
 def test_minimal_fits_are_exact() -> None:
     # Line through (0, 1) and (2, 1): y = 1, normal (0, +-1), offset -+1.
-    params, valid = _lines_from_pairs(np.array([[[0.0, 1.0], [2.0, 1.0]], [[3.0, 3.0], [3.0, 3.0]]]))
+    params, valid = lines_from_pairs(np.array([[[0.0, 1.0], [2.0, 1.0]], [[3.0, 3.0], [3.0, 3.0]]]))
     assert valid.tolist() == [True, False]
     assert abs(params[0, 0]) < 1e-12 and abs(params[0, 1]) == pytest.approx(1.0)
     assert params[0, 2] * params[0, 1] == pytest.approx(-1.0)
     # Circle through three points of the circle centred (1, -2) with radius 3; collinear points have none.
     pts = np.array([[4.0, -2.0], [1.0, 1.0], [-2.0, -2.0]])
-    circles, ok = _circles_from_triples(np.stack([pts, np.array([[0.0, 0], [1, 1], [2, 2]])]))
+    circles, ok = circles_from_triples(np.stack([pts, np.array([[0.0, 0], [1, 1], [2, 2]])]))
     assert ok.tolist() == [True, False]
     np.testing.assert_allclose(circles[0], [1.0, -2.0, 3.0], atol=1e-12)
     # Ellipse through five points of a known ellipse: the conic gives back its parameters.
     truth = np.array([0.3, -0.2, 0.9, 0.4, 0.7])
     five = ellipse_points(truth, 5)
-    conics, good = _conics_from_quintuples(five[None])
+    conics, good = conics_from_quintuples(five[None])
     assert good.tolist() == [True]
     got = conic_to_ellipse(conics[0])
     assert got is not None
@@ -55,7 +55,7 @@ def test_minimal_fits_are_exact() -> None:
     # Five points of a hyperbola x y = 1 are no ellipse; five points on a line are no hypothesis.
     hyper = np.array([[t, 1.0 / t] for t in (0.5, 1.0, 2.0, -1.0, -3.0)])
     line5 = np.stack([np.linspace(0, 1, 5), np.linspace(0, 2, 5)], 1)
-    assert _conics_from_quintuples(np.stack([hyper, line5]))[1].tolist() == [False, False]
+    assert conics_from_quintuples(np.stack([hyper, line5]))[1].tolist() == [False, False]
 
 
 def test_least_squares_fits_recover_known_curves() -> None:

@@ -87,8 +87,8 @@ def fake_data(monkeypatch: pytest.MonkeyPatch) -> dict[str, list[LabeledClip]]:
         "kt3dmoseg": [_clip("Seq001_Clip01/f1-5", [(0, 0, 0, 0), (10, 0, 10, 0)], seed=2)],
         "adelaidermf": [_clip("pairA", [(0, 0, 0, 0), (0, 9, 0, 9), (9, 9, 9, 9)], seed=3)],
     }
-    monkeypatch.setattr(registry, "_datasets", lambda root: data)
-    monkeypatch.setattr(registry, "_models", lambda req: (tiny_model(2, seed=0), tiny_model(2, seed=1)))
+    monkeypatch.setattr(registry, "load_datasets", lambda root: data)
+    monkeypatch.setattr(registry, "study_models", lambda req: (tiny_model(2, seed=0), tiny_model(2, seed=1)))
     return data
 
 

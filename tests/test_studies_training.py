@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from mosegpipe.embed.model import ModelConfig
 from mosegpipe.errors import ConfigError
-from mosegpipe.model import ModelConfig
 from mosegpipe.studies import STUDIES, StudyRequest, get_study
 from mosegpipe.studies import training as st
 from mosegpipe.training import recipes
@@ -80,7 +80,7 @@ def test_summarize_variants_hand_computed() -> None:
 
 
 def test_every_registered_variant_builds_on_its_datasets() -> None:
-    datasets = st._datasets()
+    datasets = st.load_datasets()
     for name, (_paper, _desc, spec) in st.TRAINING_STUDIES.items():
         assert name in STUDIES and set(spec.budgets) == {"cpu", "full"}
         for variant in spec.variants:
@@ -107,7 +107,7 @@ def test_training_study_trains_per_fold_without_its_test_clips_and_resumes(
 
     data = st.StudyData("adelaidermf", 2, (("adelaide", 1.0),), ModelConfig(in_dim=4, width=8, num_blocks=1))
     monkeypatch.setattr(recipes, "source_clips", fake_source_clips)
-    monkeypatch.setattr(st, "_datasets", lambda: {"adelaidermf": data})
+    monkeypatch.setattr(st, "load_datasets", lambda: {"adelaidermf": data})
     monkeypatch.setattr(st, "scored_clips", lambda data, root, budget: test)
     spec = st.TrainingStudy(
         "tiny",
@@ -151,7 +151,7 @@ def test_a_redefined_loss_retrains_only_its_own_parts(tmp_path: Path, monkeypatc
     test = [_clip(n, i) for i, n in enumerate(["pairA", "pairB"])]
     data = st.StudyData("adelaidermf", 2, (("adelaide", 1.0),), ModelConfig(in_dim=4, width=8, num_blocks=1))
     monkeypatch.setattr(recipes, "source_clips", lambda source, root, frames, exclude=(): test)
-    monkeypatch.setattr(st, "_datasets", lambda: {"adelaidermf": data})
+    monkeypatch.setattr(st, "load_datasets", lambda: {"adelaidermf": data})
     monkeypatch.setattr(st, "scored_clips", lambda data, root, budget: test)
     spec = st.TrainingStudy(
         "tiny",

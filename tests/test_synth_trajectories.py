@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
+from mosegpipe.group.twoview import sampson_px as _sampson_px
 from mosegpipe.synth.trajectories import (
     PAIR_CONFIG,
     SyntheticConfig,
@@ -21,17 +22,6 @@ NOISE_FREE = SyntheticConfig(noise_px=(0.0, 0.0), drift_px=(0.0, 0.0))
 def _xy(traj: np.ndarray) -> np.ndarray:
     """(N, 2F) -> (N, F, 2)."""
     return traj.reshape(len(traj), -1, 2)
-
-
-def _sampson_px(fmat: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
-    """Sampson distance (pixels) of correspondences to a fundamental matrix."""
-    x1 = np.c_[p1, np.ones(len(p1))]
-    x2 = np.c_[p2, np.ones(len(p2))]
-    fx1 = x1 @ fmat.T
-    ftx2 = x2 @ fmat
-    num = np.einsum("ni,ni->n", x2, fx1)
-    den = fx1[:, 0] ** 2 + fx1[:, 1] ** 2 + ftx2[:, 0] ** 2 + ftx2[:, 1] ** 2
-    return np.abs(num) / np.sqrt(den)
 
 
 def test_shapes_dtypes_and_contiguous_labels() -> None:

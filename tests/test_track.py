@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.track import KLTTracker, TrackConfig, spread_corners, track_klt, track_points
+from mosegpipe.points.klt import KLTTracker, TrackConfig, spread_corners, track_klt, track_points
 from mosegpipe.types import Frames
 
 from helpers import TEXTURE_H, TEXTURE_PAD, TEXTURE_W, gray_to_rgb, shifted_view, smooth_texture
@@ -165,7 +165,7 @@ def test_tracker_rejects_bad_frames_and_config() -> None:
 
 
 def test_real_kitti_clip(data_root) -> None:
-    from mosegpipe.io import read_video
+    from mosegpipe.io.read import read_video
 
     frames = read_video(data_root / "kt3dmoseg" / "frames" / "Seq005_Clip01", max_frames=5)
     tracks = track_klt(frames)
@@ -177,7 +177,7 @@ def test_real_kitti_clip(data_root) -> None:
 
 
 def test_tracks_from_steps_maps_ids_to_rows() -> None:
-    from mosegpipe.track import tracks_from_steps
+    from mosegpipe.points.klt import tracks_from_steps
 
     steps = [
         (np.array([5, 7]), np.array([[1, 1], [2, 2]], np.float32)),
@@ -222,7 +222,7 @@ def test_track_points_follows_given_points_in_order() -> None:
 
 
 def test_tracker_gray_is_the_last_frame_as_the_flow_converts_it() -> None:
-    from mosegpipe.flow import to_gray
+    from mosegpipe.points.flow import to_gray
 
     rng = np.random.default_rng(3)
     frames = rng.integers(0, 256, size=(2, 40, 56, 3), dtype=np.uint8)

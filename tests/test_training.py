@@ -12,8 +12,8 @@ import torch
 from typer.testing import CliRunner
 
 from mosegpipe.cli.main import app
+from mosegpipe.embed.model import ModelConfig, SubspaceNet
 from mosegpipe.errors import ConfigError
-from mosegpipe.model import ModelConfig, SubspaceNet
 from mosegpipe.training.loop import (
     TrainConfig,
     augment,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mosegpipe.errors import InputError
-from mosegpipe.trajectories import build_trajectories, iter_windows, resample_frames, trajectories_from_matches
+from mosegpipe.points.trajectories import build_trajectories, iter_windows, resample_frames, trajectories_from_matches
 from mosegpipe.types import Matches, Tracks, Trajectories
 
 

@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from mosegpipe.apps.outputs import WINDOWS_AHEAD, write_video_outputs
+from mosegpipe.apps.window_log import WindowLog
 from mosegpipe.cli.main import app
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.io import iter_video, read_palette_png
-from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import _WINDOWS_AHEAD, write_video_outputs
+from mosegpipe.io.read import iter_video, read_palette_png
 from mosegpipe.pipeline import LabelBook, PipelineConfig, WindowResult, match_labels
 from mosegpipe.pipeline import video as video_module
 from mosegpipe.synth.render import RenderedClip
-from mosegpipe.window_log import WindowLog
 
 from helpers import best_permutation_accuracy, motion_checkpoint, read_rrd, render_scene, write_frames
 
@@ -214,7 +214,7 @@ def test_memory_holds_one_window_of_frames(
     # both directions (the motion masks), the windows queued for the writer, the one being written and
     # the frame being read: a bound set by the window length, never the video (T frames). (Without the
     # held window the bound is one window lower; a slow writer fills the queue and reaches it.)
-    assert most <= (3 - 1) * (_WINDOWS_AHEAD + 3) + 2 < T
+    assert most <= (3 - 1) * (WINDOWS_AHEAD + 3) + 2 < T
 
 
 def test_failures_leave_nothing(tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path) -> None:
@@ -315,18 +315,19 @@ def _mask_calls(
 ) -> tuple[list[Any], list[Any]]:
     """segment_video's windows of `folder` and, per call of moving_from_motion, `capture(its arguments by name)`
     (taken when called: the colour memory changes afterwards)."""
+    from mosegpipe.masks import compose
     from mosegpipe.pipeline import segment_video
 
     calls: list[Any] = []
-    original = video_module.moving_from_motion
+    original = compose.moving_from_motion
 
     def recorded(*args: object, **kwargs: object) -> np.ndarray:
         calls.append(capture(dict(zip(("images", "motion"), args)) | kwargs))
         return original(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(video_module, "moving_from_motion", recorded)
+    monkeypatch.setattr(compose, "moving_from_motion", recorded)
     windows = list(segment_video(folder, cfg, model))
-    monkeypatch.setattr(video_module, "moving_from_motion", original)
+    monkeypatch.setattr(compose, "moving_from_motion", original)
     return windows, calls
 
 
@@ -359,7 +360,7 @@ def test_the_colour_model_is_carried_from_window_to_window_and_starts_afresh_at_
 def test_a_windows_first_frame_takes_the_flow_back_to_the_frame_before_it_inside_a_shot(
     tmp_path: Path, model_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from mosegpipe.flow import frame_motion
+    from mosegpipe.points.flow import frame_motion
 
     folder, model = _two_shots(tmp_path), SubspaceNet.from_checkpoint(model_path)
     frames = np.stack([image for _, image in iter_video(folder)])

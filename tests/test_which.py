@@ -1,4 +1,4 @@
-"""The per-motion network (mosegpipe.learned.which): its query channels, the choice it makes among a frame's moving
+"""The per-motion network (mosegpipe.masks.learned.which): its query channels, the choice it makes among a frame's moving
 motions, its shipped weights, its recipe (seeded, learns) and the pipeline's use of it (`MaskConfig.which`)."""
 
 from __future__ import annotations
@@ -11,16 +11,16 @@ import pytest
 import torch
 
 from mosegpipe.errors import CheckpointError, ConfigError
-from mosegpipe.learned import which as which_mod
-from mosegpipe.learned import which_train
-from mosegpipe.learned.features import NUM_CHANNELS
-from mosegpipe.learned.net import MaskNet, load_masknet, shipped_path
-from mosegpipe.learned.which import QUERY_CHANNELS, frame_queries, needs_choice, query_channels, which_motion
-from mosegpipe.learned.which_train import SPLIT_LABEL, WhichFrames, WhichTrainConfig, spoiled, train_whichnet
 from mosegpipe.masks import UNKNOWN, WORLD, MaskConfig, motion_masks
+from mosegpipe.masks.learned import which as which_mod
+from mosegpipe.masks.learned.features import NUM_CHANNELS
+from mosegpipe.masks.learned.net import MaskNet, load_masknet, shipped_path
+from mosegpipe.masks.learned.which import QUERY_CHANNELS, frame_queries, needs_choice, query_channels, which_motion
 from mosegpipe.pipeline import PipelineConfig
+from mosegpipe.points.klt import track_klt
 from mosegpipe.synth.render import ObjectSpec, RenderConfig, RenderedClip, render_clip
-from mosegpipe.track import track_klt
+from mosegpipe.training.masks import whichnet as which_train
+from mosegpipe.training.masks.whichnet import SPLIT_LABEL, WhichFrames, WhichTrainConfig, spoiled, train_whichnet
 
 
 def test_query_channels_mark_the_query_and_its_nearest_pixels() -> None:
@@ -63,7 +63,7 @@ def test_which_motion_relabels_only_the_motions_that_take_part(monkeypatch: pyte
         prob[1, :, 5:] = 0.9
         return prob
 
-    monkeypatch.setattr("mosegpipe.learned.net.predict", predict)
+    monkeypatch.setattr("mosegpipe.masks.learned.net.predict", predict)
     out = which_motion(mask, np.zeros((NUM_CHANNELS, 10, 20), np.float32), xy, labels)
     assert seen["channels"] == NUM_CHANNELS + QUERY_CHANNELS
     assert (out[:, :40] == WORLD).all() and (out[:4, 76:] == UNKNOWN).all()  # the world, unknown kept
@@ -154,7 +154,7 @@ def test_the_pipeline_asks_the_network_and_keeps_the_moving_pixels(monkeypatch: 
     labels = np.array([truth[0][min(int(y), 239), min(int(x), 319)] for x, y in np.round(tracks.xy[:, 0])], np.int64)
     calls = []
     real = which_mod.which_motion
-    monkeypatch.setattr("mosegpipe.masks.moving.which_motion", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr("mosegpipe.masks.compose.which_motion", lambda *a: calls.append(1) or real(*a))
     by_tracks = motion_masks(frames, tracks, ids, labels, MaskConfig())
     learned = motion_masks(frames, tracks, ids, labels, MaskConfig(which="learned"))
     assert len(calls) == len(frames)  # every frame has both motions' tracks

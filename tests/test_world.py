@@ -1,4 +1,4 @@
-"""The world's motion is label 0: told by where its tracks lie, kept across windows (mosegpipe.world)."""
+"""The world's motion is label 0: told by where its tracks lie, kept across windows (mosegpipe.group.world)."""
 
 from __future__ import annotations
 
@@ -8,13 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
+from mosegpipe.apps.outputs import write_video_outputs
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import ConfigError
-from mosegpipe.flow import FrameMotion
-from mosegpipe.io import read_palette_png
-from mosegpipe.model import SubspaceNet
-from mosegpipe.outputs import write_video_outputs
-from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
-from mosegpipe.world import (
+from mosegpipe.group.world import (
     WorldConfig,
     epipolar_residual,
     explain_parallax,
@@ -24,6 +21,9 @@ from mosegpipe.world import (
     world_first,
     world_scores,
 )
+from mosegpipe.io.read import read_palette_png
+from mosegpipe.pipeline import LabelBook, PipelineConfig, match_labels
+from mosegpipe.points.flow import FrameMotion
 
 from helpers import motion_checkpoint, write_frames
 

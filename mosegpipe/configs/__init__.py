@@ -1,7 +1,7 @@
 """The settings of the pipeline's stages, in modules that import no OpenCV, PyTorch or scikit-learn (the CLI
 reads its options' defaults from them for --help): tracking (TrackConfig, FlowConfig, FlowTrackConfig,
 MatchConfig), grouping (ClusterConfig, RigidCheckConfig, GeometricConfig, JointConfig, WorldConfig,
-LabelConfig) and masks (MotionMaskConfig, MaskConfig, LearnedMaskConfig). Each stage's module re-exports its own (`mosegpipe.track.TrackConfig`).
+LabelConfig) and masks (MotionMaskConfig, MaskConfig, LearnedMaskConfig). Each stage's module re-exports its own (`mosegpipe.points.klt.TrackConfig`).
 """
 
 from __future__ import annotations

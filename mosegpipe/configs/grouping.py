@@ -3,7 +3,7 @@ geometric and joint model fits, the world's motion, and whole videos' labels acr
 
 Light on purpose (standard library and mosegpipe.settings / types only): the CLI takes its defaults from
 these classes without importing OpenCV or SciPy. Re-exported by the modules that use them
-(mosegpipe.cluster, rigid, grouping, geometry_select, world).
+(mosegpipe.group.cluster, rigid, grouping, geometry_select, world).
 """
 
 from __future__ import annotations
@@ -190,7 +190,7 @@ class JointConfig:
         leave_out: a track that no model explains is left out (-1); else it keeps its group.
         merge_3d: two groups that both need a fundamental matrix may merge under one.
         split_largest: the largest group (usually the world) may be split too.
-        rigid_first: the rigid-motion check (mosegpipe.rigid) splits the groups first.
+        rigid_first: the rigid-motion check (mosegpipe.group.rigid) splits the groups first.
         min_group: the smallest group a split makes, in tracks ...
         min_share: ... and as a share of all tracks; the larger applies.
         max_pairs: at most this many frame pairs (0, t), spread evenly over the window, are fitted.
@@ -281,10 +281,11 @@ _WORLD_CHECKS: tuple[Check, ...] = (
 @dataclass(frozen=True)
 class LabelConfig:
     """How a whole video's motions keep their labels through the windows they are missing from
-    (`mosegpipe.pipeline.labels.match_labels`), one line each: a moving label no cluster continues is remembered
+    (`mosegpipe.group.labels.match_labels`), one line each: a moving label no cluster continues is remembered
     (its tracks, where it was, how it moved) and taken back by the cluster that holds most of its tracks or, for
     new tracks, lies where its motion carried it; never the world (0). How it was chosen and measured is in
-    docs/HISTORY.md ("An object keeps its label: a memory of the labels missing from a window").
+    docs/HISTORY.md ("An object keeps its label: a memory of the labels missing from a window"); the mask carry's in
+    docs/RESULTS.md ("One label per object").
 
     Attributes:
         memory_windows: a label missing from more windows than this is forgotten (0 = no memory, a new label).
@@ -293,6 +294,8 @@ class LabelConfig:
         min_radius_px: the smallest radius of a remembered label (twice its tracks' RMS spread), pixels.
         new_tracks: a cluster of new tracks with fewer (and under a quarter of the window's) stays unlabelled.
         new_share: ... and one under this share of the window's tracks too (RESULTS.md "Several movers").
+        carry_masks: new tracks take the label under them in the last mask; a lost label returns on its moved mask.
+        mask_share: ... where at least this share of a cluster's tracks start on that predicted mask.
     """
 
     memory_windows: int = 4
@@ -301,6 +304,8 @@ class LabelConfig:
     min_radius_px: float = 16.0
     new_tracks: int = 15
     new_share: float = 0.05
+    carry_masks: bool = False
+    mask_share: float = 0.5
 
     def __post_init__(self) -> None:
         check_fields(self, _LABEL_CHECKS)
@@ -313,5 +318,6 @@ _LABEL_CHECKS: tuple[Check, ...] = (
     ("min_radius_px", lambda v: 0 <= v <= 100_000, "lie in 0..100000"),
     ("new_tracks", lambda v: 0 <= v <= 100_000, "lie in 0..100000"),
     ("new_share", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("mask_share", lambda v: 0 < v <= 1, "lie in (0, 1]"),
 )
 """LabelConfig's checks: (field, test, what it must be)."""

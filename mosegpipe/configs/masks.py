@@ -1,7 +1,7 @@
 """Settings of the dense masks: the motion masks (flow residuals) and the methods that densify track labels.
 
 Light on purpose (standard library and mosegpipe.settings / types only): the CLI takes its defaults from
-these classes without importing OpenCV. Re-exported by mosegpipe.motion and mosegpipe.masks.
+these classes without importing OpenCV. Re-exported by mosegpipe.masks.moving_pixels and mosegpipe.masks.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ class MotionMaskConfig:
         colour_bins: histogram bins per RGB channel of the colour model.
         colour_margin: pixels this far (log units) above / below the threshold train the colour model.
         colour_memory: whole videos: decay of the colour counts of the windows before (0 = each window alone).
-        local_colour_weight: weight of the local colour contrast (`_local_colour_contrast`; 0 = off).
+        local_colour_weight: weight of the local colour contrast (`local_colour_contrast`; 0 = off).
         local_colour_box_px: side of the box (work-scale pixels) of the local colour means.
         superpixels: approximate number of SLIC superpixels the score is averaged over (0 = off).
         compactness: SLIC compactness (colour vs distance).
@@ -109,10 +109,8 @@ _MOTION_CHECKS: tuple[Check, ...] = (
 
 @dataclass(frozen=True)
 class LearnedMaskConfig:
-    """Settings of the "learned" masks (`MaskConfig.learned`, mosegpipe.learned); each default chosen end to end on
-    the 4 held-out development clips and the 20 development clips (docs/RESULTS.md and docs/HISTORY.md, "Learned
-    masks"; the threshold is the recipe's own, 0.3: end to end 0.790 held-out / 0.719 dev against 0.793 / 0.717 at
-    0.25 and 0.751 at 0.4).
+    """Settings of the "learned" masks (`MaskConfig.learned`, mosegpipe.masks.learned); each default chosen end to end
+    on development clips (docs/RESULTS.md, "Learned masks"; the threshold is the training recipe's own).
 
     Attributes:
         threshold: a pixel is moving where the network's probability of "not the world" is above this.
@@ -171,8 +169,8 @@ class MaskConfig:
         unexplained_rigid: ... and the share of its pixels its own homography must explain (0 = no such test).
         reassign_ratio: a moving pixel takes the moving motion whose affine step misses its flow by < this x its own's (`reassign_by_flow`; 0 = off).
         which: "motion"/"learned" masks, frames with 2+ moving motions: "tracks" (nearest track, watershed) or "learned" (the per-motion network).
-        motion: "motion": the flow and mask settings (mosegpipe.motion); "learned": its flow settings.
-        learned: "learned": the mask network's settings (mosegpipe.learned).
+        motion: "motion": the flow and mask settings (mosegpipe.masks.moving_pixels); "learned": its flow settings.
+        learned: "learned": the mask network's settings (mosegpipe.masks.learned).
     """
 
     max_distance_px: float = 40.0

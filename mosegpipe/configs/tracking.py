@@ -1,7 +1,7 @@
 """Settings of the stages that make points: the KLT tracker, the dense flow, the flow tracker and SIFT matching.
 
 Light on purpose (standard library and mosegpipe.settings / types only): the CLI takes its defaults from
-these classes without importing OpenCV. Re-exported by the modules that use them (mosegpipe.track, flow,
+these classes without importing OpenCV. Re-exported by the modules that use them (mosegpipe.points.klt, flow,
 flow_tracks, match).
 """
 

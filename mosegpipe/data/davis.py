@@ -27,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import DatasetError, InputError, check_choice
-from mosegpipe.io import read_video
+from mosegpipe.io.read import read_video
 
 logger = logging.getLogger(__name__)
 

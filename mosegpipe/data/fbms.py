@@ -47,7 +47,7 @@ import numpy.typing as npt
 
 from mosegpipe.data.labels import drop_small_groups, remap_labels
 from mosegpipe.errors import DatasetError
-from mosegpipe.trajectories import complete_in_window, window_starts, xy_to_traj
+from mosegpipe.points.trajectories import complete_in_window, window_starts, xy_to_traj
 from mosegpipe.types import LabeledClip
 
 logger = logging.getLogger(__name__)

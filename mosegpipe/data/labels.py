@@ -1,6 +1,6 @@
 """Label helpers of the benchmark readers: contiguous label ids, dropping groups too small to score.
 
-Cutting F-frame windows of complete trajectories is `mosegpipe.trajectories` (one window cutter for
+Cutting F-frame windows of complete trajectories is `mosegpipe.points.trajectories` (one window cutter for
 the pipeline, the readers and the training sources).
 """
 

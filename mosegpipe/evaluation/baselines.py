@@ -8,7 +8,7 @@ All baselines first z-score every column over the points (:func:`zscore_columns`
 affine map of R^D, so points on a common affine motion subspace stay on one, and it puts
 trajectories of any image size on one scale.
 
-- ``kmeans-raw``: K-means on the z-scored matrix; K by :func:`mosegpipe.cluster.cluster_auto_k`
+- ``kmeans-raw``: K-means on the z-scored matrix; K by :func:`mosegpipe.group.cluster.cluster_auto_k`
   with its default rule (``ClusterConfig().method``: the silhouette).
 - ``spectral-raw``: spectral clustering with a self-tuning Gaussian affinity; K by the eigengap.
 - ``ssc``: Sparse Subspace Clustering (Elhamifar & Vidal, PAMI 2013) with the affine constraint,
@@ -27,8 +27,8 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k, kmeans
 from mosegpipe.errors import InputError
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k, kmeans
 
 logger = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ def zscore_columns(traj: npt.ArrayLike) -> npt.NDArray[np.float64]:
     return (x - x.mean(axis=0)) / np.where(std > 0, std, 1.0)
 
 
-def _check_k(k: int | None, n: int) -> None:
+def check_k(k: int | None, n: int) -> None:
     if k is not None and not 1 <= k <= n:
         raise InputError(f"--k {k} must lie between 1 and the number of tracks ({n})")
 
@@ -124,7 +124,7 @@ def kmeans_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray
 
     Args:
         traj: (N, D) trajectory matrix, pixels.
-        k: number of motions, or None for the choice of :func:`mosegpipe.cluster.cluster_auto_k`
+        k: number of motions, or None for the choice of :func:`mosegpipe.group.cluster.cluster_auto_k`
             with its default rule (``ClusterConfig().method``: the silhouette; K in 1..8).
         seed: K-means seed.
 
@@ -132,7 +132,7 @@ def kmeans_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray
         (N,) int64 labels ordered by decreasing cluster size.
     """
     z = zscore_columns(traj)
-    _check_k(k, z.shape[0])
+    check_k(k, z.shape[0])
     cfg = ClusterConfig(k_max=MAX_AUTO_K, seed=seed)
     return cluster_auto_k(z, cfg, k=k).labels
 
@@ -177,7 +177,7 @@ def spectral_raw(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArr
         (N,) int64 labels ordered by decreasing cluster size.
     """
     z = zscore_columns(traj)
-    _check_k(k, z.shape[0])
+    check_k(k, z.shape[0])
     return spectral_labels(self_tuning_affinity(z), k, seed=seed)
 
 
@@ -273,7 +273,7 @@ def ssc(traj: npt.ArrayLike, k: int | None, seed: int = 0) -> npt.NDArray[np.int
     """
     z = zscore_columns(traj)
     n = z.shape[0]
-    _check_k(k, n)
+    check_k(k, n)
     if n == 1:
         return np.zeros(1, dtype=np.int64)
     c = np.abs(ssc_coefficients(z))

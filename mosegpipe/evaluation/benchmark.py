@@ -20,13 +20,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import ConfigError
 from mosegpipe.evaluation.folds import sequence_of
 from mosegpipe.evaluation.metrics import misclassification_error, nmi
 from mosegpipe.evaluation.report import summarize, write_results
-from mosegpipe.io import atomic_write
-from mosegpipe.model import SubspaceNet
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.io.read import atomic_write
 from mosegpipe.training.loop import TrainConfig
 from mosegpipe.training.losses import LOSS_REVISIONS
 from mosegpipe.training.run import train_sources

@@ -18,7 +18,12 @@ Scores of one clip (`score_clip`), all on the masks as written (0 = the world, 2
   over the whole clip (sum of intersections over sum of unions); 0 and 255 are never matched to an
   object, and an object left without a label (or with IoU 0) scores 0. An object's J is the mean over
   the clip's frames of DAVIS's region similarity (1 on a frame where neither it nor its label shows).
-  `j_object` is the mean over the clip's objects; `objects_found` the share matched at all.
+  `j_object` is the mean over the clip's objects; `objects_found` the share matched at all. This is
+  DAVIS-2017's per-video matching (one label per object for the whole video: a label switch costs the
+  frames after it); beside it `j_object_frame`, the same with a matching per frame (which forgives
+  switches), and `switches_per_object`, the mean over objects of their identity switches
+  (`identities.identity_switches`: changes of the moving label covering most of an object, in the frames
+  where it shows at least `MIN_SHARE` of the frame and that label more than `LABEL_SHARE` of it).
 - **correct K**: per window (the pipeline's windows in whole-video mode, the one clip in clip5 mode),
   the moving labels written (labels other than 0 and 255 covering at least `MIN_SHARE` of the frame in
   one of the window's frames) against the true objects that move in the world in that window and show
@@ -45,15 +50,15 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
 
 from mosegpipe.errors import ConfigError, MosegError
+from mosegpipe.evaluation.identities import identity_switches, match_objects_video, object_j
 from mosegpipe.evaluation.metrics import jaccard, misclassification_error
 from mosegpipe.masks import UNKNOWN, WORLD
 
 if TYPE_CHECKING:
+    from mosegpipe.embed.numpy_net import Embedder
     from mosegpipe.evaluation.records import EvalRequest, EvalResult
-    from mosegpipe.inference import Embedder
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.synth.composite import Composite
 
@@ -95,23 +100,7 @@ def match_objects(pred: npt.ArrayLike, gt: npt.ArrayLike, object_ids: Sequence[i
     p, g = np.asarray(pred), np.asarray(gt)
     if p.shape != g.shape:
         raise ValueError(f"pred has shape {p.shape} but gt has shape {g.shape}")
-    labels = _moving_labels(p)
-    out: dict[int, int | None] = {int(o): None for o in object_ids}
-    if labels.size == 0 or not out:
-        return out
-    iou = np.zeros((len(out), labels.size))
-    for i, oid in enumerate(out):
-        gm = g == oid
-        for j, lab in enumerate(labels):
-            pm = p == lab
-            union = np.count_nonzero(gm | pm)
-            iou[i, j] = np.count_nonzero(gm & pm) / union if union else 0.0
-    rows, cols = linear_sum_assignment(iou, maximize=True)
-    keys = list(out)
-    for r, c in zip(rows, cols):
-        if iou[r, c] > 0:
-            out[keys[r]] = int(labels[c])
-    return out
+    return match_objects_video(p, g, object_ids, ignore=(WORLD, UNKNOWN))
 
 
 def j_per_object(
@@ -244,11 +233,16 @@ def score_clip(clip: Composite, seg: Segmentation) -> dict[str, Any]:
     ks = window_k(seg.masks, gt, clip.object_ids, moving, seg.windows)
     per = labels_per_object(seg.masks, gt, clip.object_ids)
     given = [n for n in per.values() if n > 0]
+    min_px = int(np.ceil(MIN_SHARE * gt.shape[1] * gt.shape[2]))
+    j_frame = object_j(seg.masks, gt, clip.object_ids, per_video=False, ignore=(WORLD, UNKNOWN))
+    switches = identity_switches(seg.masks, gt, clip.object_ids, min_px, LABEL_SHARE, ignore=(WORLD, UNKNOWN))
     truth = np.array([clip.label_at(int(f), [x, y])[0] for f, x, y in seg.track_first], dtype=np.int64).reshape(-1)
     return {
         "objects": len(clip.object_ids),
         "j_object": float(np.mean(list(j.values()))) if j else float("nan"),
         "j_per_object": " ".join(f"{j[o]:.2f}" for o in clip.object_ids),
+        "j_object_frame": float(np.mean(list(j_frame.values()))) if j_frame else float("nan"),
+        "switches_per_object": float(np.mean(list(switches.values()))) if switches else float("nan"),
         "objects_found": float(np.mean([m is not None for m in match.values()])) if match else float("nan"),
         "correct_k": float(np.mean([a == b for a, b in ks])) if ks else 0.0,
         "k_pred": float(np.mean([a for a, _ in ks])) if ks else 0.0,
@@ -345,7 +339,7 @@ def composite_rows(
     clips: Sequence[Composite], mode: str, cfg: PipelineConfig, model: Embedder | None = None
 ) -> list[dict[str, Any]]:
     """The pipeline on each composite, scored: one row per clip (name, plate, kinds, the scores, seconds, error)."""
-    from mosegpipe.inference import load_embedder
+    from mosegpipe.embed.numpy_net import load_embedder
 
     net = model or load_embedder(cfg.frames if mode == "whole" else CLIP_FRAMES)
     rows = []
@@ -359,7 +353,17 @@ def composite_rows(
     return rows
 
 
-SUMMARY_FIELDS = ("j_object", "objects_found", "correct_k", "k_pred", "k_true", "track_error", "labels_per_object")
+SUMMARY_FIELDS = (
+    "j_object",
+    "j_object_frame",
+    "switches_per_object",
+    "objects_found",
+    "correct_k",
+    "k_pred",
+    "k_true",
+    "track_error",
+    "labels_per_object",
+)
 
 
 def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -381,17 +385,19 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 def format_table(rows: Sequence[dict[str, Any]], summary: dict[str, Any], title: str) -> str:
     """A Markdown table: one line per composite, then the means per part."""
-    head = "| clip | plate | objects (path kinds) | J per object | J / object | found | correct K | K written / true | track error % | labels / object | s |"
-    lines = [f"### {title}", "", head, "|" + "---|" * 11]
+    head = "| clip | plate | objects (path kinds) | J per object | J / object (per video / per frame) | switches / object | found | correct K | K written / true | track error % | labels / object | s |"
+    lines = [f"### {title}", "", head, "|" + "---|" * 12]
     for r in rows:
         lines.append(
-            f"| {r['name']} | {r['plate']} | {r['objects']} ({r['kinds']}) | {r['j_per_object']} | {r['j_object']:.3f} | "
+            f"| {r['name']} | {r['plate']} | {r['objects']} ({r['kinds']}) | {r['j_per_object']} | {r['j_object']:.3f} / {r['j_object_frame']:.3f} | "
+            f"{r['switches_per_object']:.2f} | "
             f"{r['objects_found']:.2f} | {r['correct_k']:.2f} | {r['k_pred']:.1f} / {r['k_true']:.1f} | "
             f"{r['track_error']:.1f} | {r['labels_per_object']:.2f} | {r['seconds']:.1f} |"
         )
     for part, m in summary.items():
         lines.append(
-            f"| **mean {part}** ({m['clips']}, failed {m['failed']}) | | | | **{m['j_object']:.3f}** | {m['objects_found']:.2f} | "
+            f"| **mean {part}** ({m['clips']}, failed {m['failed']}) | | | | **{m['j_object']:.3f}** / {m['j_object_frame']:.3f} | "
+            f"{m['switches_per_object']:.2f} | {m['objects_found']:.2f} | "
             f"**{m['correct_k']:.2f}** | {m['k_pred']:.1f} / {m['k_true']:.1f} | **{m['track_error']:.1f}** | "
             f"**{m['labels_per_object']:.2f}** | {m['seconds']:.0f} |"
         )
@@ -399,7 +405,7 @@ def format_table(rows: Sequence[dict[str, Any]], summary: dict[str, Any], title:
     return "\n".join(lines)
 
 
-def _pick(folds: Sequence[str] | None) -> list[tuple[str, list[str] | None]]:
+def pick_folds(folds: Sequence[str] | None) -> list[tuple[str, list[str] | None]]:
     """--folds -> [(part, names or None = all of the part)]: default dev; "dev", "val", "all" or names."""
     from mosegpipe.synth.composite import composite_names
 
@@ -422,9 +428,9 @@ def _pick(folds: Sequence[str] | None) -> list[tuple[str, list[str] | None]]:
 def run_composite(name: str, req: EvalRequest, cfg: PipelineConfig) -> EvalResult:
     """`moseg eval composite` / `composite-clip5` (`name`): generates the composites of the parts or names
     that --folds picks (default: dev), runs the pipeline with `cfg` on each, writes results.md/csv/json."""
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.evaluation.records import EvalResult
     from mosegpipe.evaluation.report import write_results
-    from mosegpipe.inference import load_embedder
     from mosegpipe.synth.composite import composite_set
 
     if req.data_root is None:
@@ -432,14 +438,14 @@ def run_composite(name: str, req: EvalRequest, cfg: PipelineConfig) -> EvalResul
     mode = COMPOSITE_MODES[name]
     model = load_embedder(cfg.frames if mode == "whole" else CLIP_FRAMES, req.model)
     rows: list[dict[str, Any]] = []
-    for part, names in _pick(req.folds):
+    for part, names in pick_folds(req.folds):
         clips = composite_set(req.data_root, part, names=names)
         part_rows = composite_rows(clips, mode, cfg, model)
         rows += part_rows
         if req.progress is not None:
             m = summarize(part_rows)[part]
             req.progress(
-                f"{part}: J per object {m['j_object']:.3f}, correct K {m['correct_k']:.2f}, "
+                f"{part}: J per object {m['j_object']:.3f} (per frame {m['j_object_frame']:.3f}), correct K {m['correct_k']:.2f}, "
                 f"track error {m['track_error']:.1f} %, labels per object {m['labels_per_object']:.2f}"
             )
     summary = summarize(rows)

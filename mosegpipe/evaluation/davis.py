@@ -52,13 +52,15 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image
 
+from mosegpipe.apps.outputs import write_clip_outputs, write_video_outputs
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
+from mosegpipe.evaluation.composite import LABEL_SHARE
 from mosegpipe.evaluation.flow_baseline import FlowHomographyConfig as FlowHomographyConfig  # re-exported
 from mosegpipe.evaluation.flow_baseline import flow_homography_labels
+from mosegpipe.evaluation.identities import object_identities
 from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard
 from mosegpipe.masks import UNKNOWN, WORLD
-from mosegpipe.outputs import write_clip_outputs, write_video_outputs
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.runtime import set_threads
 
@@ -229,7 +231,7 @@ def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | 
             from the clip.
         checkpoint: a checkpoint instead of the shipped weights.
     """
-    from mosegpipe.inference import Embedder, load_embedder
+    from mosegpipe.embed.numpy_net import Embedder, load_embedder
 
     base = cfg if cfg is not None else PipelineConfig()
     models: dict[int, Embedder] = {}
@@ -318,6 +320,9 @@ class DavisRow:
         k: labels found over the clip (255 excluded); 0 on failure.
         seconds: wall time of the method on the clip (reading and scoring excluded).
         error: the MosegError's message when the method failed ("" otherwise).
+        labels: the object's identities over the clip: the moving labels (not 0, not 255) that covered most of
+            it, and at least a tenth, in some frame (`identities.object_identities`; 1 = one throughout, 0 = never found).
+        switches: how often its identity changed (`identities.identity_switches`).
     """
 
     clip: str
@@ -335,6 +340,8 @@ class DavisRow:
     error: str = ""
     world_off: float = 0.0
     majority_j: float = 0.0
+    labels: int = 0
+    switches: int = 0
 
 
 SCORE_FIELDS = (
@@ -348,6 +355,8 @@ SCORE_FIELDS = (
     "world_off",
     "majority_j",
     "k",
+    "labels",
+    "switches",
     "seconds",
 )
 """The DavisRow fields averaged in a report's means."""
@@ -383,7 +392,7 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
         gt: (T, H, W) bool ground truth.
 
     Returns:
-        dict with the j_*, f_*, best_label_j, world_off, majority_j and k fields of DavisRow.
+        dict with the j_*, f_*, best_label_j, world_off, majority_j, k, labels and switches fields of DavisRow.
     """
     lab = np.asarray(labels, dtype=np.uint8)
     j, f = per_frame_scores(foreground_from_labels(lab), gt)
@@ -391,6 +400,8 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
     jm, jr, jd = clip_statistics(j)
     fm, fr, fd = clip_statistics(f)
     present = np.unique(lab)
+    obj = np.asarray(gt, dtype=bool).astype(np.uint8)
+    identities = object_identities(lab, obj, [1], share=LABEL_SHARE, ignore=(WORLD, UNKNOWN))[1]
     return {
         "j_mean": jm,
         "j_recall": jr,
@@ -402,6 +413,8 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
         "world_off": world_off_share(lab, gt),
         "majority_j": float(np.mean(j_majority)),
         "k": int(np.count_nonzero(present != UNKNOWN)),
+        "labels": len(set(identities)),
+        "switches": sum(a != b for a, b in zip(identities, identities[1:])),
     }
 
 
@@ -417,6 +430,8 @@ def summarize_rows(rows: Sequence[DavisRow]) -> dict[str, dict[str, float]]:
         chosen = [r for r in rows if part == "all" or r.part == part]
         if chosen:
             means[part] = {name: float(np.mean([getattr(r, name) for r in chosen])) for name in SCORE_FIELDS}
+            found = [r.labels for r in chosen if r.labels > 0]  # labels per object: of the objects found
+            means[part]["labels"] = float(np.mean(found)) if found else float("nan")
             means[part].update(
                 clips=len(chosen),
                 failed=sum(bool(r.error) for r in chosen),
@@ -493,6 +508,8 @@ def run_davis(
             error=error,
             world_off=scores["world_off"],
             majority_j=scores["majority_j"],
+            labels=int(scores["labels"]),
+            switches=int(scores["switches"]),
         )
         log.info("%s: J %.3f F %.3f (%.1f s)", clip_name, row.j_mean, row.f_mean, seconds)
         rows.append(row)
@@ -521,12 +538,16 @@ def format_table(report: DavisReport) -> str:
         "world off",
         "majority J",
         "K",
+        "labels",
+        "switches",
         "s",
     ]
     lines = [[r.clip, r.part, str(r.frames)] + [_fmt(getattr(r, n)) for n in SCORE_FIELDS] for r in report.rows]
     for part, m in report.means.items():
         label = f"mean {part} ({int(m['clips'])}; world off {int(m['world_off_clips'])})"
-        lines.append([label, "", ""] + [f"{m[n]:.3f}" if n != "k" else f"{m[n]:.1f}" for n in SCORE_FIELDS])
+        lines.append(
+            [label, "", ""] + [f"{m[n]:.3f}" if n not in ("k", "labels") else f"{m[n]:.2f}" for n in SCORE_FIELDS]
+        )
     widths = [max(len(h), *(len(row[i]) for row in lines)) for i, h in enumerate(head)]
     out = [f"DAVIS-2016 {report.mode}, method {report.method}"]
     out.append("  ".join(h.ljust(w) if i < 2 else h.rjust(w) for i, (h, w) in enumerate(zip(head, widths))))

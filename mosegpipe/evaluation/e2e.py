@@ -41,13 +41,14 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import MosegError
+from mosegpipe.evaluation.identities import identity_switches, object_j
 from mosegpipe.evaluation.label_transfer import nearest_within
 from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, mask_scores, misclassification_error
 from mosegpipe.masks import UNKNOWN
-from mosegpipe.model import SubspaceNet
 from mosegpipe.pipeline import PipelineConfig, clip_masks, segment_frames, segment_pair
-from mosegpipe.trajectories import trajectories_from_matches
+from mosegpipe.points.trajectories import trajectories_from_matches
 from mosegpipe.types import Frames
 
 log = logging.getLogger(__name__)
@@ -101,8 +102,8 @@ def same_point_scores(
     Returns:
         {"error_true_k": ..., "<baseline>@K": ...}; NaN when nothing is scored.
     """
-    from mosegpipe.cluster import cluster_auto_k
     from mosegpipe.evaluation.baselines import BASELINES
+    from mosegpipe.group.cluster import cluster_auto_k
 
     k = int(np.unique(gt).size)
     if k == 0:
@@ -148,7 +149,7 @@ def kt3d_video_rows(
         DatasetError: the KT3DMoSeg folder is missing or malformed.
     """
     from mosegpipe.data.kt3dmoseg import kt3d_frame_paths, list_kt3d_sequences, read_kt3d_sequence
-    from mosegpipe.io import read_image
+    from mosegpipe.io.read import read_image
 
     f = cfg.frames if frames is None else frames
     cfg = replace(cfg, frames=f)
@@ -467,7 +468,9 @@ def long_rendered_rows(
         num_motions (labels handed out), J and F (video level, objects only), labels_per_object
         (mean over objects of `labels_per_object`), max_labels_per_object, moving_labels_per_object
         (the same without label 0: identity switches between motions only, not frames where an
-        object was taken for the background), seconds and fps
+        object was taken for the background), j_object (J per object with one moving label per object for
+        the whole video, DAVIS-2017's matching: `identities.object_j`), j_object_frame (the same matched
+        frame by frame), switches_per_object (`identities.identity_switches`, moving labels), seconds and fps
         (segment_video with its masks; rendering and scoring excluded).
     """
     import tempfile
@@ -495,6 +498,10 @@ def long_rendered_rows(
         scores = mask_scores(pred, clip.masks, background=0, unknown=255, tolerance=tolerance)
         per = labels_per_object(pred, clip.masks)
         moving = labels_per_object(pred, clip.masks, ignore=0)
+        shown = sorted(per)  # the objects visible with 200 px or more in some frame
+        j_video = object_j(pred, clip.masks, shown, per_video=True)
+        j_frame = object_j(pred, clip.masks, shown, per_video=False)
+        switches = identity_switches(pred, clip.masks, shown, min_px=200)
         rows.append(
             {
                 "seed": seed,
@@ -506,6 +513,9 @@ def long_rendered_rows(
                 "labels_per_object": float(np.mean(list(per.values()))) if per else float("nan"),
                 "max_labels_per_object": max(per.values(), default=0),
                 "moving_labels_per_object": float(np.mean(list(moving.values()))) if moving else float("nan"),
+                "j_object": float(np.mean(list(j_video.values()))) if j_video else float("nan"),
+                "j_object_frame": float(np.mean(list(j_frame.values()))) if j_frame else float("nan"),
+                "switches_per_object": float(np.mean(list(switches.values()))) if switches else float("nan"),
                 "seconds": seconds,
                 "fps": frames / seconds if seconds > 0 else 0.0,
             }

@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import check_choice
-from mosegpipe.flow import DenseFlow, FlowConfig, camera_residual, fit_camera, to_gray
+from mosegpipe.points.flow import DenseFlow, FlowConfig, camera_residual, fit_camera, to_gray
 from mosegpipe.types import CameraFit, DisPreset
 
 # ---------------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from mosegpipe.types import KMethodName
 __all__ = ["PROTOCOLS", "EndToEnd", "EvalRequest", "EvalResult", "Protocol", "Variant", "get_protocol"]
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.training.loop import TrainConfig
     from mosegpipe.training.recipes import Recipe
@@ -43,10 +43,10 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """Runs a benchmark protocol (see benchmark.run_protocol) with the request's settings."""
     from dataclasses import replace
 
-    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.embed.model import SubspaceNet
+    from mosegpipe.embed.numpy_net import load_model
     from mosegpipe.evaluation.benchmark import EvalConfig, run_protocol
-    from mosegpipe.inference import load_model
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.group.cluster import ClusterConfig
     from mosegpipe.training.loop import TrainConfig, resolve_device, with_overrides
 
     if req.settings:
@@ -87,10 +87,10 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
     return EvalResult(rows, summary, table)
 
 
-def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
+def pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
     """The pipeline settings an end-to-end protocol runs with: F frames, the request's options and settings; the mask
-    networks they ask for loaded before any clip (learned.moving.check_mask_networks: one error, not a zero per clip)."""
-    from mosegpipe.learned.moving import check_mask_networks
+    networks they ask for loaded before any clip (`check_mask_networks`: one error, not a zero per clip)."""
+    from mosegpipe.masks.learned.probability import check_mask_networks
     from mosegpipe.pipeline import PipelineConfig
 
     cfg = PipelineConfig.from_options(
@@ -111,14 +111,14 @@ def _pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
 def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """Runs an end-to-end protocol: the whole pipeline with the shipped (or given) model, scored and written."""
 
+    from mosegpipe.embed.numpy_net import load_model
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
-    from mosegpipe.inference import load_model
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
     if req.folds:
         raise ConfigError(f"--folds {','.join(req.folds)}: {protocol.name} has no folds (it runs every clip)")
     f = req.frames or protocol.default_frames
-    cfg = _pipeline_config(req, f)
+    cfg = pipeline_config(req, f)
     net = load_model(f, req.model)
     rows = protocol.end_to_end(req.data_root, net, cfg, None, req.baselines or None)
     config = {
@@ -146,14 +146,14 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """
     from dataclasses import asdict
 
+    from mosegpipe.embed.numpy_net import load_embedder
     from mosegpipe.evaluation.davis import DAVIS_MODES, MODES, format_table, pipeline_method, run_davis
     from mosegpipe.evaluation.report import write_results
-    from mosegpipe.inference import load_embedder
 
     if req.data_root is None:
         raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
     mode = DAVIS_MODES[protocol.name]
-    cfg = _pipeline_config(req, req.frames or protocol.default_frames)
+    cfg = pipeline_config(req, req.frames or protocol.default_frames)
     load_embedder(MODES[mode] or cfg.frames, req.model)  # a checkpoint that cannot be used: refused before any clip
     methods: list[tuple[str, Any]] = [("pipeline", pipeline_method(cfg, req.model))]
     if req.baselines:
@@ -194,7 +194,7 @@ def run_composite_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     object; `req.folds` picks a part (dev, the default; val; all) or composites by name."""
     from mosegpipe.evaluation.composite import run_composite
 
-    return run_composite(protocol.name, req, _pipeline_config(req, req.frames or protocol.default_frames))
+    return run_composite(protocol.name, req, pipeline_config(req, req.frames or protocol.default_frames))
 
 
 def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
@@ -228,7 +228,7 @@ def run_end_to_end_loo(protocol: Protocol, req: EvalRequest) -> EvalResult:
         )
     train_cfg = TrainOverrides(steps=req.steps, batch_size=req.batch_size, lr=req.lr, loss=req.loss).apply(recipe.train)
     device = resolve_device(req.device)
-    cfg = _pipeline_config(req, train_cfg.frames)
+    cfg = pipeline_config(req, train_cfg.frames)
     say = req.progress or (lambda _msg: None)
     names = protocol.fold_names(req.data_root)
     if req.folds is not None:
@@ -277,7 +277,7 @@ def _fold_init(
     `req.init`, else out_dir/<recipe.init>.pt, trained first by its own recipe when missing."""
     import hashlib
 
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.training.run import train_recipe
 
     init: SubspaceNet | None = None
@@ -311,8 +311,8 @@ def _fold_model(
     from fold_dir when trained earlier with the same config hash, else trained now and stored there."""
     import json
 
-    from mosegpipe.io import write_text
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
+    from mosegpipe.io.read import write_text
     from mosegpipe.training.run import train_sources
 
     meta_path, model_path = fold_dir / f"{name}.json", fold_dir / f"{name}.pt"

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.pipeline import PipelineConfig
     from mosegpipe.types import LabeledClip
 

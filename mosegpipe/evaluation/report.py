@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from mosegpipe.evaluation.metrics import correct_k_rate
-from mosegpipe.io import write_csv, write_text
+from mosegpipe.io.read import write_csv, write_text
 
 
 def _mean_median(vals: np.ndarray) -> dict[str, float]:
@@ -146,7 +146,7 @@ def _fmt(col: str, val: Any, digits: int = 1) -> str:
         return f"{100 * val:.2f}"
     if col == "seconds":
         return f"{1000 * val:.0f}"
-    if col.startswith(("J", "F")):
+    if col.startswith(("J", "F", "j_object")):
         return f"{val:.3f}"
     if isinstance(val, (float, np.floating)):
         return f"{val:.{digits}f}"

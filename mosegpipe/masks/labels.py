@@ -33,7 +33,7 @@ def _distance_and_cells(
     return dist, cells
 
 
-def _nearest(
+def nearest_labels(
     xy_int: npt.NDArray[np.int64], values: npt.NDArray[np.uint8], size_hw: tuple[int, int], max_distance_px: float
 ) -> npt.NDArray[np.uint8]:
     dist, voronoi = _distance_and_cells(xy_int, size_hw)
@@ -187,7 +187,7 @@ def labels_to_mask(
     elif cfg.method == "vote":
         mask = _vote(xy[inside], values, (height, width), cfg)  # type: ignore[arg-type]
     else:
-        mask = _nearest(xy_int[inside], values, (height, width), cfg.max_distance_px)
+        mask = nearest_labels(xy_int[inside], values, (height, width), cfg.max_distance_px)
     if cfg.median_px > 1:
         mask = cv2.medianBlur(mask, cfg.median_px)
     return mask

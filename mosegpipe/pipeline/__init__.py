@@ -2,7 +2,7 @@
 
 Compute only: `segment_frames` / `segment_clip` / `segment_pair` / `segment_tracks` return immutable
 results with their timings, and `segment_video` walks a whole video as a stream of window results.
-Writing any of them into an output folder is `mosegpipe.outputs`. `decode_errors` turns whatever
+Writing any of them into an output folder is `mosegpipe.apps.outputs`. `decode_errors` turns whatever
 OpenCV or the OS raise on a broken input into an InputError.
 
 Modules: config (PipelineConfig and its checked loading), common (the model, the shared checks),
@@ -13,11 +13,12 @@ labels kept across windows). Every public name is re-exported here.
 
 from __future__ import annotations
 
-from mosegpipe.inference import load_model
+from mosegpipe.embed.numpy_net import load_model
+from mosegpipe.group.labels import LabelBook, LabelConfig, match_labels
+from mosegpipe.group.refine import check_rigid
 from mosegpipe.pipeline.clip import ClipResult, clip_masks, segment_clip, segment_frames
-from mosegpipe.pipeline.common import check_rigid, decode_errors, embed_at_model_frames, model_info
+from mosegpipe.pipeline.common import decode_errors, embed_at_model_frames, model_info
 from mosegpipe.pipeline.config import PRESETS, PipelineConfig
-from mosegpipe.pipeline.labels import LabelBook, LabelConfig, match_labels
 from mosegpipe.pipeline.pair import PairResult, segment_pair
 from mosegpipe.pipeline.tracks import TracksResult, segment_tracks, tracks_clip
 from mosegpipe.pipeline.video import (

@@ -11,33 +11,28 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import cluster_auto_k
+from mosegpipe.embed.numpy_net import Embedder
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.flow import FrameMotion, flow_fits
-from mosegpipe.flow_tracks import combine_tracks, track_flow
-from mosegpipe.grouping import group_geometric
-from mosegpipe.inference import Embedder
-from mosegpipe.io import check_images, read_video, video_info
-from mosegpipe.learned.moving import check_mask_networks
+from mosegpipe.group.refine import group_window
+from mosegpipe.group.rigid import label_by_rigid_motion
+from mosegpipe.io.read import check_images, read_video, video_info
 from mosegpipe.masks import labels_to_masks, motion_masks
-from mosegpipe.motion import stack_motion
+from mosegpipe.masks.learned.probability import check_mask_networks
+from mosegpipe.masks.moving_pixels import stack_motion
 from mosegpipe.pipeline.common import (
-    _check_k,
-    _frames,
-    _model_or_default,
-    check_rigid,
+    check_k,
     decode_errors,
     embed_at_model_frames,
+    frames_text,
     model_info,
-    split_movers,
-    world_to_zero,
+    model_or_default,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.rigid import label_by_rigid_motion
-from mosegpipe.track import spread_corners, track_klt, track_points
-from mosegpipe.trajectories import build_trajectories
+from mosegpipe.points.flow import FrameMotion, flow_fits
+from mosegpipe.points.flow_grid import combine_tracks, track_flow
+from mosegpipe.points.klt import spread_corners, track_klt, track_points
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.types import FLOW_MASK_METHODS, Clustering, Frames, Tracks, Trajectories
-from mosegpipe.world import explain_parallax
 
 
 @dataclass(frozen=True)
@@ -90,23 +85,11 @@ def group_tracks(
     Returns:
         ((N, E) float32 embeddings, the clustering).
     """
-    if cfg.method == "geometric":
-        t0 = time.perf_counter()
-        clustering = group_geometric(traj.data, size_hw, cfg.geometric, k=cfg.k)
-        clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
-        timings["cluster"] = time.perf_counter() - t0
+    grouped = group_window(traj, size_hw, cfg, model, k=cfg.k, motion=motion, timings=timings)
+    if grouped.embeddings is None:
         data = traj.data
-        return np.asarray(data[:, 2:] - np.tile(data[:, :2], traj.num_frames - 1), dtype=np.float32), clustering
-    t0 = time.perf_counter()
-    emb = embed_at_model_frames(model, traj)
-    timings["embed"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    clustering = cluster_auto_k(emb, cfg.cluster, k=cfg.k, points=traj.data)
-    clustering = check_rigid(clustering, traj.data, size_hw, cfg, emb)
-    clustering = world_to_zero(clustering, traj.data, size_hw, cfg, motion=motion)
-    clustering = split_movers(clustering, emb, traj.data, cfg)
-    timings["cluster"] = time.perf_counter() - t0
-    return emb, clustering
+        return np.asarray(data[:, 2:] - np.tile(data[:, :2], traj.num_frames - 1), dtype=np.float32), grouped.clustering
+    return grouped.embeddings, grouped.clustering
 
 
 def _uses_flow_points(frames: Frames, cfg: PipelineConfig) -> bool:
@@ -152,7 +135,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
     check_mask_networks(cfg.mask)
-    model = _model_or_default(model, frames.num_frames, timings)
+    model = model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     # Flow points, the world's camera evidence and the motion masks share the clip's flows: computed once, here.
     shared = (
@@ -171,7 +154,7 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
             f"{frames.source or 'clip'}: only {traj.num_points} tracks survived {frames.num_frames} frames; "
             f"need at least {cfg.min_tracks} (textureless or blank frames?)"
         )
-    _check_k(cfg.k, traj.num_points, frames.source or "clip")
+    check_k(cfg.k, traj.num_points, frames.source or "clip")
     if frames.num_frames == 1 and cfg.k is None:
         emb, clustering = _one_frame(traj, cfg, model, timings)
     else:
@@ -228,11 +211,8 @@ def clip_masks(
         (T, H, W) uint8 masks, 255 = unknown.
     """
     if cfg.mask.method in FLOW_MASK_METHODS and images.shape[0] >= 2 and flow_fits(images.shape[1:3], cfg.flow):
-        # the world's 3D structure: its parallax is not motion (the mask network takes the camera residual
-        # as it was trained on it, before this step)
-        if motion is not None and cfg.mask.method == "motion":
-            motion = explain_parallax(motion, tracks.xy[track_ids], labels, cfg.world)
-        return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion)
+        # the world's 3D structure: its parallax is not motion (MaskSequence.moving)
+        return motion_masks(images, tracks, track_ids, labels, cfg.mask, before, after, motion, cfg.world)
     budget = cfg.mask.extra_tracks
     if budget > 0 and len(track_ids) and images.shape[0] >= 2:
         corners = spread_corners(images[0], budget, tracks.xy[tracks.visible[:, 0], 0], cfg.track)
@@ -318,7 +298,7 @@ def segment_clip(path: str | Path, cfg: PipelineConfig = PipelineConfig(), model
             hint = f" of the {claimed} its header lists (truncated or corrupt video?)"
         after = f" from frame {cfg.start}" if cfg.start else ""
         raise InputError(
-            f"{path}: only {_frames(frames.num_frames)} could be read{after}{hint}; --frames needs {cfg.frames}"
+            f"{path}: only {frames_text(frames.num_frames)} could be read{after}{hint}; --frames needs {cfg.frames}"
         )
     read_s = time.perf_counter() - t0
     result = segment_frames(frames, cfg, model)

@@ -44,18 +44,16 @@ PRESETS: dict[str, tuple[str, ...]] = {
     "fast": ("mask.motion.flow.scale=0.5", "mask.motion.work_scale=0.5", "track.win_size_px=11"),
 }
 """The settings each named preset (types.PRESET_NAMES, `--preset`) changes, as `with_settings` takes them; the
-options given to a command and its --set apply after them (PipelineConfig.from_options). Chosen from `benchmarks/profile_video.py` (the dense flow is
-half of a frame's CPU, the mask steps a fifth) and measured on the 20 DAVIS dev clips only (docs/RESULTS.md,
-"Speed": CPU per frame and J side by side):
+options given to a command and its --set apply after them (PipelineConfig.from_options). The dense flow is half
+of a frame's CPU and the mask steps a fifth (`benchmarks/profile_video.py`), so the presets trade those:
 
-- best: the defaults, DIS medium (patch stride 4, 1 refinement iteration) at full resolution, the mask
-  steps at 0.75 of the frame size (issue 38: 3 iterations before, DAVIS dev J 0.7575 against 0.7572).
-- balanced: DIS with a patch stride of 6 and 1 refinement iteration (half of DIS's time), the mask steps at
-  half size, KLT's window 11 px (dev J 0.748 against 0.749 with 21).
-- fast: the flow (DIS, its forward-backward check, the camera fit) on half-size frames (a quarter of the
-  pixels) and the mask steps at half size: J 0.04 below best (1 refinement iteration: dev J 0.717 against
-  0.714 with 3); KLT's Lucas-Kanade window 11 px instead of 21 (0.44x KLT's CPU, dev J 0.7167 against 0.717).
-  DIS's "fast" preset at full size cost as much J (its finest scale is half the image's) for less speed.
+- best: the defaults: DIS medium (patch stride 4, 1 refinement iteration) at full resolution, the mask steps
+  at 0.75 of the frame size.
+- balanced: DIS with a patch stride of 6 (half of DIS's time), the mask steps at half size, KLT's window 11 px.
+- fast: the flow (DIS, its forward-backward check, the camera fit) on half-size frames and the mask steps at
+  half size, KLT's window 11 px: about twice as fast as best, J about 0.04 lower.
+
+Speed and J of each, measured on the DAVIS dev clips: docs/RESULTS.md, "Speed".
 """
 
 
@@ -99,7 +97,7 @@ class PipelineConfig:
         geometric: the settings of method "geometric".
         joint: the settings of method "joint".
         mask: dense-mask settings (and, as mask.motion.flow, the dense flow: the property `flow`).
-        world: how the world's motion (label 0) is told from the moving ones (mosegpipe.world).
+        world: how the world's motion (label 0) is told from the moving ones (mosegpipe.group.world).
         labels: whole videos: how a motion keeps its label through the windows it is missing from (pipeline.labels).
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix fit explains less of it is outliers.
         video_k_step: whole videos: a window tries K up to the previous window's K plus this (None = the full sweep).

@@ -8,21 +8,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import cluster_auto_k
+from mosegpipe.embed.numpy_net import Embedder
 from mosegpipe.errors import TooFewTracksError
-from mosegpipe.inference import Embedder
-from mosegpipe.io import check_images, read_image
+from mosegpipe.group.cluster import cluster_auto_k
+from mosegpipe.group.twoview import robust_fit
+from mosegpipe.group.world import world_cluster, world_first, world_scores
+from mosegpipe.io.read import check_images, read_image
 from mosegpipe.masks import labels_to_mask
-from mosegpipe.match import match_sift
-from mosegpipe.pipeline.common import _check_k, _model_or_default, decode_errors, embed_at_model_frames, model_info
+from mosegpipe.pipeline.common import check_k, decode_errors, embed_at_model_frames, model_info, model_or_default
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.trajectories import trajectories_from_matches
+from mosegpipe.points.sift import match_sift
+from mosegpipe.points.trajectories import trajectories_from_matches
 from mosegpipe.types import Clustering, Matches
-from mosegpipe.world import world_cluster, world_first, world_scores
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,7 @@ class PairResult:
         matches: SIFT correspondences (N).
         embeddings: (N, E) float32.
         clustering: labels (N,) in 0..k-1 as clustered.
-        labels: (N,) int64 final labels: motions 0..m-1 (0 = the world, `mosegpipe.world`), -1 for the outlier
+        labels: (N,) int64 final labels: motions 0..m-1 (0 = the world, `mosegpipe.group.world`), -1 for the outlier
             cluster (if one was found).
         outlier_cluster: which cluster was labelled outliers (None when none was).
         masks: two (H_i, W_i) uint8 masks, m = motion m, 255 = unknown / outlier.
@@ -63,8 +63,13 @@ def _outlier_cluster(matches: Matches, labels: npt.NDArray[np.int64], k: int, mi
         if idx.size < 8:
             ratios[c] = 0.0
             continue
-        _, inl = cv2.findFundamentalMat(
-            matches.xy1[idx].astype(np.float64), matches.xy2[idx].astype(np.float64), cv2.FM_RANSAC, 2.0, 0.99
+        _, inl = robust_fit(
+            "fundamental",
+            matches.xy1[idx].astype(np.float64),
+            matches.xy2[idx].astype(np.float64),
+            "ransac",
+            2.0,
+            confidence=0.99,
         )
         ratios[c] = 0.0 if inl is None else float(inl.mean())
     worst = min(ratios, key=lambda c: ratios[c])
@@ -101,7 +106,7 @@ def segment_pair(
             images.append(read_image(img))
     im1, im2 = images
     names = " and ".join(str(i) if not isinstance(i, np.ndarray) else "<array>" for i in (img1, img2))
-    model = _model_or_default(model, 2, timings)
+    model = model_or_default(model, 2, timings)
     t0 = time.perf_counter()
     matches = match_sift(im1, im2, cfg.match)
     timings["match"] = time.perf_counter() - t0
@@ -110,7 +115,7 @@ def segment_pair(
             f"{names}: only {matches.num_matches} SIFT matches; need at least {cfg.min_tracks} "
             "(blank, textureless or unrelated images?)"
         )
-    _check_k(cfg.k, matches.num_matches, names, "matches")
+    check_k(cfg.k, matches.num_matches, names, "matches")
     traj = trajectories_from_matches(matches)
     t0 = time.perf_counter()
     emb = embed_at_model_frames(model, traj)
@@ -122,7 +127,7 @@ def segment_pair(
     if outlier is not None:
         labels[clustering.labels == outlier] = -1
         labels[clustering.labels > outlier] -= 1
-    # the world's motion is 0, told by where its matches lie in the first image (mosegpipe.world)
+    # the world's motion is 0, told by where its matches lie in the first image (mosegpipe.group.world)
     motions = int(labels.max()) + 1 if (labels >= 0).any() else 0
     scores = world_scores(matches.xy1, labels, motions, im1.shape[:2], cfg=cfg.world)
     labels = world_first(labels, world_cluster(scores, cfg.world))

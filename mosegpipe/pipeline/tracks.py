@@ -11,13 +11,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from mosegpipe.embed.numpy_net import Embedder
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.inference import Embedder
-from mosegpipe.io import read_video
+from mosegpipe.io.read import read_video
 from mosegpipe.pipeline.clip import ClipResult, clip_masks, group_tracks
-from mosegpipe.pipeline.common import _check_k, _model_or_default, decode_errors, model_info
+from mosegpipe.pipeline.common import check_k, decode_errors, model_info, model_or_default
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.trajectories import build_trajectories
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.types import Clustering, Frames, Tracks, Trajectories
 
 # Pixel coordinates beyond this are not pixels (a 1e300 became inf in float32 and then crashed the
@@ -112,14 +112,14 @@ def segment_tracks(
     span = finite[vis].max(axis=0) if vis.any() else np.zeros(2)
     tracks = Tracks(xy=finite, visible=vis, size_hw=(int(span[1]) + 1, int(span[0]) + 1))
     timings: dict[str, float] = {}
-    model = _model_or_default(model, window, timings)
+    model = model_or_default(model, window, timings)
     traj = build_trajectories(tracks, frames=window, start=start)
     if traj.num_points < cfg.min_tracks:
         raise TooFewTracksError(
             f"only {traj.num_points} of {num} tracks are visible in all frames {start}..{start + window - 1}; "
             f"need at least {cfg.min_tracks} (choose a shorter window with frames/start)"
         )
-    _check_k(cfg.k, traj.num_points, "tracks")
+    check_k(cfg.k, traj.num_points, "tracks")
     emb, clustering = group_tracks(traj, tracks.size_hw, cfg, model, timings)
     labels = np.full(num, -1, dtype=np.int64)
     labels[traj.track_ids] = clustering.labels

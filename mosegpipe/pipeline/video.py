@@ -5,7 +5,7 @@ re-seeds corners at every window start, so tracks run on from one window into th
 clusters take the global label of the previous window's cluster they share most tracks with
 (Hungarian matching on the overlap counts); a cluster of new tracks starts a new global label, a
 cluster that split off a known motion only once it splits off in two windows running
-(`mosegpipe.pipeline.labels`). On a near tie of the automatic-K scores a window keeps the previous
+(`mosegpipe.group.labels`). On a near tie of the automatic-K scores a window keeps the previous
 window's K. A shot cut (`_is_cut`) ends a window early and starts tracking afresh. Only the current
 window's frames (at most F images) are held.
 
@@ -26,40 +26,34 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.embed.numpy_net import Embedder, load_model
 from mosegpipe.errors import InputError, TooFewTracksError
-from mosegpipe.flow import FlowStream, FrameMotion, flow_fits
-from mosegpipe.geometry_select import geometry_supported
-from mosegpipe.grouping import group_geometric
-from mosegpipe.inference import Embedder, load_model
-from mosegpipe.io import iter_video, video_info
-from mosegpipe.learned.moving import check_mask_networks, learned_moving
-from mosegpipe.learned.which import which_motion, window_features
+from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
+from mosegpipe.group.joint import geometry_supported
+from mosegpipe.group.labels import LabelBook, match_labels, small_guard
+from mosegpipe.group.refine import group_window
+from mosegpipe.io.read import iter_video, video_info
 from mosegpipe.masks import (
     MOVING_UNCLUSTERED,
     UNKNOWN,
     WORLD,
     MaskConfig,
-    carry_unclustered,
-    reassign_along,
 )
-from mosegpipe.motion import ColourMemory, moving_from_motion
+from mosegpipe.masks.compose import MaskSequence
+from mosegpipe.masks.learned.probability import check_mask_networks
+from mosegpipe.masks.learned.which import window_features
+from mosegpipe.masks.moving_pixels import ColourMemory
 from mosegpipe.pipeline.common import (
-    _frames,
-    check_rigid,
     decode_errors,
-    embed_at_model_frames,
-    split_movers,
-    world_to_zero,
+    frames_text,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.pipeline.labels import LabelBook, match_labels, small_guard
-from mosegpipe.pipeline.window import VideoFrame, WindowResult, _Frame, frame_mask
+from mosegpipe.pipeline.window import FrameTracks, VideoFrame, WindowResult, frame_mask
+from mosegpipe.points.flow import FlowStream, FrameMotion, flow_fits
+from mosegpipe.points.klt import KLTTracker, tracks_from_steps
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.runtime import run_ahead, warnings_held
-from mosegpipe.track import KLTTracker, tracks_from_steps
-from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import FLOW_MASK_METHODS, Trajectories
-from mosegpipe.world import explain_parallax
 
 log = logging.getLogger("mosegpipe.pipeline.video")
 
@@ -123,7 +117,7 @@ def segment_video(
             so those are always computed here, in order.
         frames: the frames themselves, (index, (H, W, 3) uint8 RGB) in increasing index order, read
             in place of `path`, which then only names the source in messages (a live source:
-            mosegpipe.live); cfg.start and max_frames do not apply, and the caller checks the frame
+            mosegpipe.apps.live.run); cfg.start and max_frames do not apply, and the caller checks the frame
             size.
 
     Yields:
@@ -165,7 +159,8 @@ def segment_video(
             f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
     memory = cfg.mask.motion.colour_memory
-    run = _VideoRun(book=LabelBook(cfg=cfg.labels), colour=ColourMemory(memory) if memory > 0 else None)
+    colour = ColourMemory(memory) if memory > 0 else None
+    run = _VideoRun(book=LabelBook(cfg=cfg.labels), masks=MaskSequence(cfg.mask, video=True, colour=colour))
     with contextlib.ExitStack() as stack:
         # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
@@ -195,9 +190,8 @@ class _VideoRun:
         num_done: frames of the windows labelled so far.
         cuts: frames that start a new shot.
         ambiguous: (first, last) frame of each window whose K was ambiguous.
-        last_mask: the last labelled frame's mask (None at the start of a shot): the moving regions
-            no clustered motion reached take the label they had there (`masks.carry_unclustered`).
-        colour: the motion masks' colour model of the shot's windows so far (None = each window alone).
+        masks: the video's mask sequence: the last labelled frame's mask (the moving regions no clustered motion
+            reached take the label they had there) and the motion masks' colour model of the shot so far.
         frame_before: the frame before the last motion-masked window's last frame (whose flows the stream
             keeps: the next window's first frame takes its flow back to it), or None.
     """
@@ -211,8 +205,7 @@ class _VideoRun:
     num_done: int = 0
     cuts: set[int] = field(default_factory=set)
     ambiguous: list[tuple[int, int]] = field(default_factory=list)
-    last_mask: npt.NDArray[np.uint8] | None = None
-    colour: ColourMemory | None = None
+    masks: MaskSequence = field(default_factory=lambda: MaskSequence(MaskConfig(), video=True))
     frame_before: int | None = None
 
 
@@ -252,7 +245,7 @@ def _read_windows(
     max_frames: int | None,
     frames: Iterable[tuple[int, npt.NDArray[np.uint8]]] | None = None,
     stream: FlowStream | None = None,
-) -> Iterator[tuple[list[_Frame], bool, int | None]]:
+) -> Iterator[tuple[list[FrameTracks], bool, int | None]]:
     """Reads and tracks the frames and cuts them into windows, each as soon as it is complete.
 
     Each frame is handed to `stream` (when given and the frames are large enough for dense flow),
@@ -272,9 +265,9 @@ def _read_windows(
     """
     f = cfg.frames
     tracker = KLTTracker(replace(cfg.track, reseed=True, reseed_every=f - 1))
-    window: list[_Frame] = []
+    window: list[FrameTracks] = []
     first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
-    held: tuple[list[_Frame], bool] | None = None  # a full window waiting for the next frame's flows
+    held: tuple[list[FrameTracks], bool] | None = None  # a full window waiting for the next frame's flows
     frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames) if frames is None else iter(frames)
     while True:
         with decode_errors(path):
@@ -311,7 +304,7 @@ def _read_windows(
     if held is not None:
         yield *held, None
     if run.num_frames < f:
-        raise InputError(f"{path}: only {_frames(run.num_frames)} could be read; --frames needs {f}")
+        raise InputError(f"{path}: only {frames_text(run.num_frames)} could be read; --frames needs {f}")
     if not first_done or len(window) > 1:
         yield window, first_done, None
 
@@ -333,11 +326,11 @@ def _window_sweep(cfg: PipelineConfig, prev_k: int) -> ClusterConfig:
 
 
 def _cluster_window(
-    window: list[_Frame], cfg: PipelineConfig, model: Embedder, run: _VideoRun, motion: FrameMotion | None = None
+    window: list[FrameTracks], cfg: PipelineConfig, model: Embedder, run: _VideoRun, motion: FrameMotion | None = None
 ) -> tuple[npt.NDArray[np.int64], _WindowLabels]:
     """Clusters the tracks live through the whole window (by cfg.method) and maps the clusters to global labels,
     the world's motion to 0 (told by where its tracks lie, the window's dense flow `motion` when given, and
-    which tracks were the world in the window before: `mosegpipe.world`).
+    which tracks were the world in the window before: `mosegpipe.group.world`).
 
     Returns:
         (tracker ids of the tracks live through the whole window, their global labels; k = 0 when
@@ -353,21 +346,22 @@ def _cluster_window(
         log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
         return common, _WindowLabels()
     forced = None if cfg.k is None else min(cfg.k, common.size)
-    emb = None
-    if cfg.method == "geometric":  # rigid models fitted one after another: no embedding, no check
-        clustering = group_geometric(traj.data, tracks.size_hw, cfg.geometric, k=forced)
-        sweep_k = clustering.k
-    else:
-        emb = embed_at_model_frames(model, Trajectories(data=traj.data, track_ids=common))
-        with warnings_held(logging.getLogger(cluster_auto_k.__module__)):
-            sweep = _window_sweep(cfg, run.prev_k)
-            clustering = cluster_auto_k(emb, sweep, k=forced, points=traj.data, prefer_k=run.prev_k or None)
-        sweep_k = clustering.k  # the next window's preferred K: the embedding's, before the check
-        clustering = check_rigid(clustering, traj.data, tracks.size_hw, cfg, emb)
     before = np.array([run.prev.get(int(i), -1) for i in common], np.int64)
-    clustering = world_to_zero(clustering, traj.data, tracks.size_hw, cfg, before == WORLD, before >= 0, motion)
-    if emb is not None:
-        clustering = split_movers(clustering, emb, traj.data, cfg)
+    # automatic K's ambiguity warnings are reported once for the video, not per window
+    with warnings_held(logging.getLogger(cluster_auto_k.__module__)):
+        grouped = group_window(
+            Trajectories(data=traj.data, track_ids=common),
+            tracks.size_hw,
+            cfg,
+            model,
+            k=forced,
+            sweep=_window_sweep(cfg, run.prev_k),
+            prefer_k=run.prev_k or None,
+            was_world=before == WORLD,
+            known=before >= 0,
+            motion=motion,
+        )
+    clustering, sweep_k = grouped.clustering, grouped.sweep_k  # the next window's preferred K: the embedding's
     glob = np.full(common.size, -1, np.int64)
     kept = clustering.labels >= 0  # method "joint" leaves out the tracks no model explains (-1)
     xy_all = traj.data.reshape(common.size, len(window), 2)
@@ -381,7 +375,7 @@ def _cluster_window(
         world=cfg.world.enabled,
         xy=xy_all[kept],
         frame=window[0][0],
-        supported=_small_rigid(clustering.labels[kept], traj.data[kept], cfg),
+        supported=small_rigid(clustering.labels[kept], traj.data[kept], cfg),
     )
     keep = glob >= 0
     found = _WindowLabels(
@@ -392,7 +386,7 @@ def _cluster_window(
     return common, found
 
 
-def _small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
+def small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
     """Method "joint" with cfg.joint.new_rigid_tracks: the moving clusters (not 0) smaller than the label matching's
     guard, of at least that many tracks, that geometry shows to be a rigid motion of their own
     (`geometry_select.geometry_supported`); match_labels labels them whatever their size. Else none."""
@@ -406,7 +400,7 @@ def _small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32],
 
 
 def _label_window(
-    window: list[_Frame],
+    window: list[FrameTracks],
     first_labelled: bool,
     cfg: PipelineConfig,
     model: Embedder,
@@ -423,9 +417,7 @@ def _label_window(
     before = run.prev  # the last labelled window's labels: tracks that end inside this window keep theirs
     if not first_labelled:  # a shot starts here: no mask to carry over, its colours are new, no motion returns
         run.book.forget()
-        run.last_mask = None
-        if run.colour is not None:
-            run.colour.reset()
+        run.masks.new_shot()
         run.frame_before = None
     motion = None
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
@@ -444,16 +436,16 @@ def _label_window(
     ]
     moving, which, motion = _window_pixels(window, skip, labs, cfg, run, stream, motion, found)
     labelled = []
+    seen = [(ids, xy) for _, _, ids, xy in window]
     for at, (item, lab, moved) in enumerate(zip(window[skip:], labs, moving), start=skip):
         # the motion masks need the frame before's mask: computed here, in order, whatever `masks` says
         frame = _labelled_frame(item, lab, cfg.mask, masks or moved is not None, moved)
         if frame.mask is not None:
             feats = None if which is None else which[at - skip]
-            frame = replace(
-                frame, mask=_final_mask(frame.mask, run.last_mask, window, at, lab, motion, cfg.mask, feats)
-            )
-            run.last_mask = frame.mask
+            frame = replace(frame, mask=run.masks.finish(frame.mask, at, seen, lab, motion, feats))
         labelled.append(frame)
+    if labelled and labelled[-1].mask is not None:  # the next window starts on this frame: its labels carry on
+        run.book.remember_mask(labelled[-1].mask, labelled[-1].index)
     run.num_windows += 1
     run.num_done += len(labelled)
     result = WindowResult(
@@ -477,7 +469,7 @@ def _label_window(
 
 
 def _window_pixels(
-    window: list[_Frame],
+    window: list[FrameTracks],
     skip: int,
     labs: list[npt.NDArray[np.int64]],
     cfg: PipelineConfig,
@@ -493,17 +485,13 @@ def _window_pixels(
     which = None
     if stream is None or motion is None:
         return moving, which, motion
-    if found.track_ids.size and cfg.mask.method == "motion":  # the world's 3D structure: its parallax is not motion
-        motion = explain_parallax(motion, found.xy, found.labels, cfg.world)
     indices = [t for t, _, _, _ in window]
     images = np.stack([img for _, img, _, _ in window])
-    shown = _shown_motions(run.last_mask)
+    shown = _shown_motions(run.masks.last_mask)
     anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
-    moving = (
-        learned_moving(images, motion, cfg.mask.learned, first=skip)
-        if cfg.mask.method == "learned"
-        else moving_from_motion(images, motion, cfg.mask.motion, first=skip, colour=run.colour, anchors=anchors)
-    )
+    # the world's 3D structure: its parallax is not motion
+    parallax = (found.xy, found.labels, cfg.world) if found.track_ids.size else None
+    moving, motion = run.masks.moving(images, motion, first=skip, parallax=parallax, anchors=anchors)
     stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
     run.frame_before = indices[-2]
     which = window_features(images, motion, cfg.mask, labs, skip)
@@ -519,32 +507,8 @@ def _shown_motions(mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.int64]:
     return np.flatnonzero(counts).astype(np.int64)
 
 
-def _final_mask(
-    mask: npt.NDArray[np.uint8],
-    last_mask: npt.NDArray[np.uint8] | None,
-    window: list[_Frame],
-    at: int,
-    labels: npt.NDArray[np.int64],
-    motion: FrameMotion | None,
-    cfg: MaskConfig,
-    features: npt.NDArray[np.float32] | None = None,
-) -> npt.NDArray[np.uint8]:
-    """Frame `at` of the window: its mask with its moving pixels given the motion the per-motion network picks
-    (`which_motion`, with its `features`), then the motion that explains their flow (`reassign_along` the flow to
-    the window's next frame, or to the frame before for its last one), and its unclustered regions their label
-    before (`carry_unclustered`, `last_mask`: the frame before's final mask)."""
-    if features is not None:
-        mask = which_motion(mask, features, window[at][3], labels, cfg.learned.which_weights)
-    if motion is not None and motion.forward is not None and motion.backward is not None and cfg.reassign_ratio > 0:
-        near = at + 1 if at < len(motion.forward) else at - 1
-        flow = motion.forward[at] if near > at else motion.backward[near]
-        step = (window[at][2], window[at][3], window[near][2], window[near][3])
-        mask = reassign_along(mask, step, labels, flow, motion.scale, cfg.reassign_ratio)
-    return carry_unclustered(mask, last_mask)
-
-
 def _labelled_frame(
-    item: _Frame,
+    item: FrameTracks,
     labels: npt.NDArray[np.int64],
     cfg: MaskConfig,
     masks: bool,

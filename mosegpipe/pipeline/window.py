@@ -19,7 +19,7 @@ from mosegpipe.types import FLOW_MASK_METHODS
 AMBIGUOUS_K_NOTE = "the K choice is ambiguous"
 """How cluster_auto_k's note (and warning) for an ambiguous K choice starts."""
 
-_Frame = tuple[int, npt.NDArray[np.uint8], npt.NDArray[np.int64], npt.NDArray[np.float32]]
+FrameTracks = tuple[int, npt.NDArray[np.uint8], npt.NDArray[np.int64], npt.NDArray[np.float32]]
 
 
 @dataclass(frozen=True)

@@ -18,14 +18,14 @@ from typing import TYPE_CHECKING, Any, Literal, cast, get_args
 from mosegpipe.errors import ConfigError, check_choice
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.types import LabeledClip
 
 Budget = Literal["cpu", "full"]
 """--budget: "cpu" fits a small CPU machine; "full" is the paper's scale."""
 
 # Bumped when a study's computation changes, so that stored parts of the old code are redone.
-_PARTS_VERSION = 1
+PARTS_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -96,7 +96,7 @@ class Study:
 # Shared helpers: resumable parts, model identity, clips, plots
 
 
-def _hash(obj: Any) -> str:
+def stable_hash(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -109,12 +109,12 @@ def model_id(model: SubspaceNet) -> str:
     return digest.hexdigest()[:16]
 
 
-def _part_path(req: StudyRequest, key: str, suffix: str) -> Path:
+def part_path(req: StudyRequest, key: str, suffix: str) -> Path:
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in key)
     return req.out_dir / "parts" / f"{safe}{suffix}"
 
 
-def _load_part(path: Path, config_hash: str) -> dict[str, Any] | None:
+def load_part(path: Path, config_hash: str) -> dict[str, Any] | None:
     """A stored part's payload if it was computed under `config_hash`, else None."""
     if not path.is_file():
         return None
@@ -127,37 +127,37 @@ def _load_part(path: Path, config_hash: str) -> dict[str, Any] | None:
     return cast(dict[str, Any], stored["payload"])
 
 
-def _save_part(path: Path, config_hash: str, payload: dict[str, Any]) -> None:
-    from mosegpipe.io import write_json
+def save_part(path: Path, config_hash: str, payload: dict[str, Any]) -> None:
+    from mosegpipe.io.read import write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, {"config_hash": config_hash, "payload": payload})
 
 
-def _check_budget(req: StudyRequest) -> Budget:
+def check_budget(req: StudyRequest) -> Budget:
     return cast(Budget, check_choice("--budget", req.budget, get_args(Budget)))
 
 
-def _budget_note(study: Study, budget: str) -> str:
+def budget_note(study: Study, budget: str) -> str:
     same = len(set(study.budgets.values())) == 1
     what = study.budgets.get(budget, "")
     return f"Budget: {budget} ({what}{'; --budget cpu and full are the same for this study' if same else ''})."
 
 
-def _data_root(req: StudyRequest, study: Study) -> Path:
+def resolve_data_root(req: StudyRequest, study: Study) -> Path:
     if req.data_root is None:
         raise ConfigError(f"study {study.name} needs the benchmark data (--data-root or MOSEG_DATA)")
     return req.data_root
 
 
-def _models(req: StudyRequest) -> tuple[SubspaceNet, SubspaceNet]:
+def study_models(req: StudyRequest) -> tuple[SubspaceNet, SubspaceNet]:
     """(5-frame model, two-view model): the request's checkpoints or the shipped weights."""
-    from mosegpipe.inference import load_model
+    from mosegpipe.embed.numpy_net import load_model
 
     return load_model(5, req.model), load_model(2, req.pair_model)
 
 
-def _datasets(root: Path) -> dict[str, list[LabeledClip]]:
+def load_datasets(root: Path) -> dict[str, list[LabeledClip]]:
     """The test clips the studies read: KT3DMoSeg frames 1-5 of every sequence, every AdelaideRMF pair."""
     from mosegpipe.data.adelaidermf import load_adelaide
     from mosegpipe.data.kt3dmoseg import kt3d_test_clips
@@ -168,7 +168,7 @@ def _datasets(root: Path) -> dict[str, list[LabeledClip]]:
 DATASET_TITLES = {"kt3dmoseg": "KT3DMoSeg", "adelaidermf": "AdelaideRMF"}
 
 
-def _pyplot() -> Any:
+def pyplot_module() -> Any:
     """matplotlib's pyplot on the Agg backend (files only, no display needed)."""
     import matplotlib
 
@@ -179,15 +179,15 @@ def _pyplot() -> Any:
 
 
 def _save_figure(fig: Any, path: Path, dpi: int = 80) -> None:
-    from mosegpipe.io import atomic_write
+    from mosegpipe.io.read import atomic_write
 
     with atomic_write(path) as tmp:
         fig.savefig(tmp, format="png", dpi=dpi)
-    _pyplot().close(fig)
+    pyplot_module().close(fig)
 
 
-def _write_outputs(req: StudyRequest, table: str, results: dict[str, Any], fig: Any) -> list[Path]:
-    from mosegpipe.io import write_json, write_text
+def write_outputs(req: StudyRequest, table: str, results: dict[str, Any], fig: Any) -> list[Path]:
+    from mosegpipe.io.read import write_json, write_text
 
     req.out_dir.mkdir(parents=True, exist_ok=True)
     paths = [req.out_dir / "table.md", req.out_dir / "results.json", req.out_dir / "plot.png"]

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from mosegpipe.model import ModelConfig, SubspaceNet
+    from mosegpipe.embed.model import ModelConfig, SubspaceNet
     from mosegpipe.studies.common import Study, StudyRequest, StudyResult
     from mosegpipe.studies.ransac_curves import RansacConfig
     from mosegpipe.synth.lce import LCEConfig
@@ -118,14 +118,14 @@ def _train_kind(
     req: StudyRequest, study: Study, kind: str, budget: ImbalanceBudget, say: Callable[[str], None]
 ) -> tuple[SubspaceNet, dict[str, Any]]:
     """The trained model of one kind: the stored part when its hash matches, else trained and stored."""
-    from mosegpipe.model import SubspaceNet
-    from mosegpipe.studies.common import _hash, _part_path
+    from mosegpipe.embed.model import SubspaceNet
+    from mosegpipe.studies.common import part_path, stable_hash
     from mosegpipe.synth.lce import LCEConfig, single_kind_splits
     from mosegpipe.training.loop import recipe_of, train_model
 
     train_cfg, model_cfg = _configs(budget)
     gen = LCEConfig()
-    chash = _hash(
+    chash = stable_hash(
         {
             "study": study.name,
             "v": _VERSION,
@@ -136,7 +136,7 @@ def _train_kind(
             "generator": asdict(gen),
         }
     )
-    path = _part_path(req, f"model__{kind}", ".pt")
+    path = part_path(req, f"model__{kind}", ".pt")
     if path.is_file():
         try:
             stored = SubspaceNet.from_checkpoint(path)
@@ -188,9 +188,9 @@ def imbalance_rows(
     """
     from dataclasses import replace
 
-    from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import evaluate_clips
     from mosegpipe.evaluation.metrics import misclassification_error
+    from mosegpipe.group.cluster import ClusterConfig
     from mosegpipe.studies.ransac_curves import sequential_ransac
 
     base = _ransac_config(noise_sigma)
@@ -236,7 +236,7 @@ def summarize_imbalance(parts: list[dict[str, Any]]) -> dict[str, dict[str, dict
     return out
 
 
-def _table(summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
+def table_text(summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
     kinds = list(summary)
     ks = sorted({int(k) for kind in kinds for k in summary[kind]})
     head = ["K"] + [f"{KIND_TITLES.get(kind, kind)}: {METHOD_TITLES[m]}" for kind in kinds for m in METHODS]
@@ -272,10 +272,10 @@ def _table(summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) ->
     )
 
 
-def _plot(summary: dict[str, dict[str, dict[str, float]]]) -> Any:
-    from mosegpipe.studies.common import _pyplot
+def plot_summary(summary: dict[str, dict[str, dict[str, float]]]) -> Any:
+    from mosegpipe.studies.common import pyplot_module
 
-    plt = _pyplot()
+    plt = pyplot_module()
     kinds = list(summary)
     fig, axes = plt.subplots(1, len(kinds), figsize=(3.2 * len(kinds), 3.2), sharey=True, squeeze=False)
     styles = {"subspacenet_true_k": ("C0", "-"), "subspacenet_auto_k": ("C0", "--"), "ransac": ("C3", "-")}
@@ -307,17 +307,17 @@ def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
     """Figure 4: error against the number of models for SubspaceNet and sequential RANSAC (see the module docstring)."""
     from mosegpipe.studies.common import (
         StudyResult,
-        _check_budget,
-        _hash,
-        _load_part,
-        _part_path,
-        _save_part,
-        _write_outputs,
+        check_budget,
+        load_part,
         model_id,
+        part_path,
+        save_part,
+        stable_hash,
+        write_outputs,
     )
     from mosegpipe.synth.lce import SINGLE_KIND_K, LCEConfig, single_kind_splits
 
-    budget_name = _check_budget(req)
+    budget_name = check_budget(req)
     budget = IMBALANCE_BUDGETS[budget_name]
     say = req.progress or (lambda _msg: None)
     gen = LCEConfig()
@@ -336,7 +336,7 @@ def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
         }
         splits = single_kind_splits(kind, num_train=0, num_test=budget.num_test, seed=0, cfg=gen)
         for k in SINGLE_KIND_K:
-            chash = _hash(
+            chash = stable_hash(
                 {
                     "study": study.name,
                     "v": _VERSION,
@@ -349,12 +349,12 @@ def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
                     "generator": asdict(gen),
                 }
             )
-            path = _part_path(req, f"test__{kind}__k{k}", ".json")
-            payload = _load_part(path, chash)
+            path = part_path(req, f"test__{kind}__k{k}", ".json")
+            payload = load_part(path, chash)
             if payload is None:
                 rows = imbalance_rows(model, list(splits[f"test/k{k}"]), kind, req.k_max, gen.noise_sigma)
                 payload = {"kind": kind, "k": k, "rows": rows}
-                _save_part(path, chash, payload)
+                save_part(path, chash, payload)
                 computed += 1
                 mean = {m: 100.0 * float(np.mean([r[m] for r in rows])) for m in METHODS}
                 say(
@@ -365,7 +365,7 @@ def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
     log.info("sampling-imbalance: %d test parts computed, %d reused", computed, len(parts) - computed)
     summary = summarize_imbalance(parts)
     notes = _notes(budget_name, budget, gen, ransac_cfg, req.k_max, training)
-    table = _table(summary, notes)
+    table = table_text(summary, notes)
     results = {
         "study": study.name,
         "budget": budget_name,
@@ -376,7 +376,7 @@ def run_sampling_imbalance(study: Study, req: StudyRequest) -> StudyResult:
         "summary": summary,
         "parts": parts,
     }
-    files = _write_outputs(req, table, results, _plot(summary))
+    files = write_outputs(req, table, results, plot_summary(summary))
     return StudyResult(table, results, files)
 
 

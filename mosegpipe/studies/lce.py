@@ -28,26 +28,26 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mosegpipe.embed.model import ModelConfig
 from mosegpipe.errors import ConfigError
-from mosegpipe.model import ModelConfig
 from mosegpipe.studies.common import (
-    _PARTS_VERSION,
+    PARTS_VERSION,
     Study,
     StudyRequest,
     StudyResult,
-    _budget_note,
-    _check_budget,
-    _hash,
-    _load_part,
-    _part_path,
-    _pyplot,
-    _save_part,
-    _write_outputs,
+    budget_note,
+    check_budget,
+    load_part,
+    part_path,
+    pyplot_module,
+    save_part,
+    stable_hash,
+    write_outputs,
 )
 from mosegpipe.training.loop import TrainConfig
 
 if TYPE_CHECKING:
-    from mosegpipe.model import SubspaceNet
+    from mosegpipe.embed.model import SubspaceNet
     from mosegpipe.training.loop import Sampler, TrainState
     from mosegpipe.types import LabeledClip
 
@@ -87,7 +87,7 @@ class CurveConfig:
         return {"name": self.name, "model": self.model.to_dict(), "train": asdict(self.train)}
 
 
-def _train(**overrides: Any) -> TrainConfig:
+def run_training(**overrides: Any) -> TrainConfig:
     # The lce recipe's settings (recipes.py), with a constant learning rate after the warm-up.
     base = TrainConfig(frames=1, batch_size=16, lr=1e-3, flip=True, reverse=False, lr_min_ratio=1.0)
     return TrainConfig(**{**asdict(base), **overrides})
@@ -105,21 +105,21 @@ CURVE_CONFIGS: tuple[CurveConfig, ...] = (
         "recipe",
         "the lce recipe: 30 blocks x 64, shared input norm, L2 loss, lr 1e-3",
         _LCE_MODEL,
-        _train(),
+        run_training(),
         cpu_steps=4000,
     ),
     CurveConfig(
         "channel-norm",
         "the recipe with x and y z-scored separately at the input (context normalisation of the input)",
         ModelConfig(in_dim=2, width=64, num_blocks=30, embed_dim=5, input_norm="channel"),
-        _train(),
+        run_training(),
         cpu_steps=2000,
     ),
     CurveConfig(
         "lr-3e-3",
         "the recipe with a 3x larger learning rate",
         _LCE_MODEL,
-        _train(lr=3e-3),
+        run_training(lr=3e-3),
         cpu_steps=2000,
     ),
     # Does a step of 64 samples learn as much as four steps of 16 (the samples seen are what counts), or
@@ -128,7 +128,7 @@ CURVE_CONFIGS: tuple[CurveConfig, ...] = (
         "batch-64",
         "the recipe with 64 samples per step: learning per sample seen, or per update?",
         _LCE_MODEL,
-        _train(batch_size=64),
+        run_training(batch_size=64),
         cpu_steps=2000,
     ),
 )
@@ -194,10 +194,10 @@ def score_clips(model: SubspaceNet, clips: Sequence[LabeledClip], k_max: int = 8
         {"error": auto-K error, "error_true_k": error with the true K, "nmi": NMI with auto K,
         "correct_k": share of clips with the right K}, all fractions in [0, 1], and "clips".
     """
-    from mosegpipe.cluster import ClusterConfig
     from mosegpipe.evaluation.benchmark import evaluate_clips
+    from mosegpipe.group.cluster import ClusterConfig
 
-    with _quiet("mosegpipe.cluster"):
+    with _quiet("mosegpipe.group.cluster"):
         rows = evaluate_clips(model, clips, ClusterConfig(k_max=k_max))
     return {
         "error": float(np.mean([r["error"] for r in rows])),
@@ -218,7 +218,7 @@ def _splits(budget: CurveBudget) -> dict[str, list[LabeledClip]]:
     }
 
 
-def _train_sampler() -> Sampler:
+def train_sampler() -> Sampler:
     """Uniform draws from the 8000-sample train split, each sample generated on its first draw.
 
     The same stream as the `lce` source's clip_sampler (one rng.integers(8000) per draw, the same
@@ -243,13 +243,13 @@ def _kmeans_reference(req: StudyRequest, clips: Sequence[LabeledClip], chash: st
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.metrics import misclassification_error
 
-    path = _part_path(req, "kmeans-raw", ".json")
-    payload = _load_part(path, chash)
+    path = part_path(req, "kmeans-raw", ".json")
+    payload = load_part(path, chash)
     if payload is None:
         fn = BASELINES["kmeans-raw"]
         errs = [misclassification_error(fn(c.traj, c.k), c.labels) for c in clips]
         payload = {"error_true_k": float(np.mean(errs)), "clips": len(errs)}
-        _save_part(path, chash, payload)
+        save_part(path, chash, payload)
     return float(payload["error_true_k"])
 
 
@@ -278,7 +278,7 @@ def _run_config(
     """
     import torch
 
-    from mosegpipe.io import atomic_write
+    from mosegpipe.io.read import atomic_write
     from mosegpipe.training.loop import recipe_of, train_model
 
     say = req.progress or (lambda _msg: None)
@@ -287,15 +287,15 @@ def _run_config(
     cps = checkpoint_steps(steps, budget.num_checkpoints)
     device = _device(budget_name, req.device)
     chash = _curve_hash(cc, cfg, cps, clips, req.k_max, device)
-    paths = {s: _part_path(req, f"{cc.name}__step{s:07d}", ".json") for s in cps}
-    parts: dict[int, dict[str, Any] | None] = {s: _load_part(paths[s], chash) for s in cps}
+    paths = {s: part_path(req, f"{cc.name}__step{s:07d}", ".json") for s in cps}
+    parts: dict[int, dict[str, Any] | None] = {s: load_part(paths[s], chash) for s in cps}
     missing = [s for s in cps if parts[s] is None]
     spent = {"train": 0.0, "eval": 0.0}
     if not missing:
         say(f"{cc.name}: all {len(cps)} checkpoints stored")
         return [p for p in parts.values() if p is not None], spent
 
-    state_path = _part_path(req, f"{cc.name}__state", ".pt")
+    state_path = part_path(req, f"{cc.name}__state", ".pt")
     resume = _stored_state(state_path, chash, device, min(missing))
     if resume is not None:
         say(f"{cc.name}: resuming from step {resume.step}")
@@ -312,7 +312,7 @@ def _run_config(
                 "loss": loss,
                 **{split: score_clips(model, c, req.k_max) for split, c in clips.items()},
             }
-            _save_part(paths[state.step], chash, payload)
+            save_part(paths[state.step], chash, payload)
             parts[state.step] = payload
             say(
                 f"{cc.name} step {state.step}: val {100 * payload['val']['error']:.2f} / "
@@ -330,7 +330,7 @@ def _run_config(
         spent["eval"] += time.perf_counter() - t0
 
     result = train_model(
-        _train_sampler(),
+        train_sampler(),
         cfg,
         cc.model,
         log_every=max(1, min(100, cps[0])),
@@ -348,10 +348,10 @@ def _curve_hash(
     cc: CurveConfig, cfg: TrainConfig, cps: list[int], clips: dict[str, list[LabeledClip]], k_max: int, device: str
 ) -> str:
     """The hash a configuration's checkpoint parts and training state are stored under."""
-    return _hash(
+    return stable_hash(
         {
             "study": "lce-curve",
-            "v": _PARTS_VERSION,
+            "v": PARTS_VERSION,
             "config": cc.to_dict(),
             "train": asdict(cfg),
             "checkpoints": cps,
@@ -449,8 +449,8 @@ def _tables(
     ]
 
 
-def _plot(configs: Sequence[CurveConfig], rows: list[dict[str, Any]], kmeans: float) -> Any:
-    plt = _pyplot()
+def plot_summary(configs: Sequence[CurveConfig], rows: list[dict[str, Any]], kmeans: float) -> Any:
+    plt = pyplot_module()
     fig, (ax_err, ax_nmi) = plt.subplots(1, 2, figsize=(10.0, 4.0))
     for i, cc in enumerate(configs):
         mine = [r for r in rows if r["config"] == cc.name]
@@ -492,7 +492,7 @@ def run_lce_curve(
         configs: the configurations (None: CURVE_CONFIGS).
         budget: what req.budget means (None: BUDGETS[req.budget]); tests pass a tiny one.
     """
-    budget_name = _check_budget(req)
+    budget_name = check_budget(req)
     device = _device(budget_name, req.device)  # checked before anything is computed
     budget = budget or BUDGETS[budget_name]
     configs = tuple(configs or CURVE_CONFIGS)[: budget.num_configs]
@@ -500,7 +500,7 @@ def run_lce_curve(
         configs = tuple(replace(cc, train=replace(cc.train, batch_size=budget.batch_size)) for cc in configs)
     t_start, cpu_start = time.perf_counter(), time.process_time()
     clips = _splits(budget)
-    kmeans = _kmeans_reference(req, clips["test"], _hash({"study": study.name, "test": len(clips["test"])}))
+    kmeans = _kmeans_reference(req, clips["test"], stable_hash({"study": study.name, "test": len(clips["test"])}))
     rows: list[dict[str, Any]] = []
     seconds: dict[str, dict[str, float]] = {}
     steps = {cc.name: budget.full_steps or cc.cpu_steps for cc in configs}
@@ -510,7 +510,7 @@ def run_lce_curve(
         seconds[cc.name] = {k: round(v, 1) for k, v in spent.items()}
     wall, cpu = time.perf_counter() - t_start, time.process_time() - cpu_start
     notes = [
-        _budget_note(study, budget_name),
+        budget_note(study, budget_name),
         f"Data: the LCE splits of synth/lce.py (seed 0); training samples drawn from the 8000-sample train split; "
         f"scored on the first {len(clips['val'])} val and first {len(clips['test'])} test samples (K = 4 each). "
         f"Error: misclassification (Hungarian matching), auto K by the silhouette rule (K in 1..{req.k_max}) and "
@@ -537,6 +537,6 @@ def run_lce_curve(
         "cpu_seconds": round(cpu, 1),
         "rows": rows,
     }
-    files = _write_outputs(req, table, results, _plot(configs, rows, kmeans))
+    files = write_outputs(req, table, results, plot_summary(configs, rows, kmeans))
     models = [req.out_dir / "models" / f"{cc.name}.pt" for cc in configs]
     return StudyResult(table, results, files + [p for p in models if p.is_file()])

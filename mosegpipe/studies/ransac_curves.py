@@ -174,7 +174,7 @@ def _check_kind(kind: str) -> str:
 # Minimal-sample fits, vectorised over H hypotheses: (H, m, 2) points -> (H, P) parameters, (H,) valid
 
 
-def _lines_from_pairs(s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+def lines_from_pairs(s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     d = s[:, 1] - s[:, 0]
     length = np.linalg.norm(d, axis=1)
     valid = length > 1e-12
@@ -183,7 +183,7 @@ def _lines_from_pairs(s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float6
     return np.concatenate([n, c[:, None]], axis=1), valid
 
 
-def _circles_from_triples(s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+def circles_from_triples(s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     # Circumcentre of the triangle (a, b, c); collinear triples (zero area) have none.
     a, b, c = s[:, 0], s[:, 1], s[:, 2]
     den = 2.0 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
@@ -201,7 +201,7 @@ def _conic_rows(xy: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     return np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=-1)
 
 
-def _conics_from_quintuples(s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+def conics_from_quintuples(s: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
     # The conic A x^2 + B xy + C y^2 + D x + E y + F = 0 through 5 points is the null vector of the
     # (5, 6) design matrix; it is an ellipse when 4AC - B^2 > 0 (it is real: it passes through the points).
     _, sv, vh = np.linalg.svd(_conic_rows(s))
@@ -333,15 +333,15 @@ def _hypotheses(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """(valid hypotheses (H', P), their (H', N) distances to `pts`) for (H, m, 2) minimal samples."""
     if kind == "line":
-        params, valid = _lines_from_pairs(samples)
+        params, valid = lines_from_pairs(samples)
         params = params[valid]
         return params, np.abs(params[:, :2] @ pts.T + params[:, 2:3])
     if kind == "circle":
-        params, valid = _circles_from_triples(samples)
+        params, valid = circles_from_triples(samples)
         params = params[valid]
         d = np.sqrt(((pts[None] - params[:, None, :2]) ** 2).sum(-1))
         return params, np.abs(d - params[:, 2:3])
-    params, valid = _conics_from_quintuples(samples)
+    params, valid = conics_from_quintuples(samples)
     params = params[valid]
     return params, _sampson(params, pts)
 

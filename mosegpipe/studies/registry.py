@@ -24,23 +24,23 @@ import numpy.typing as npt
 
 from mosegpipe.errors import ConfigError, lookup
 from mosegpipe.studies.common import (
-    _PARTS_VERSION,
     DATASET_TITLES,
+    PARTS_VERSION,
     Study,
     StudyRequest,
     StudyResult,
-    _budget_note,
-    _check_budget,
-    _data_root,
-    _datasets,
-    _hash,
-    _load_part,
-    _models,
-    _part_path,
-    _pyplot,
-    _save_part,
-    _write_outputs,
+    budget_note,
+    check_budget,
+    load_datasets,
+    load_part,
     model_id,
+    part_path,
+    pyplot_module,
+    resolve_data_root,
+    save_part,
+    stable_hash,
+    study_models,
+    write_outputs,
 )
 
 if TYPE_CHECKING:
@@ -75,9 +75,9 @@ def model_selection_rows(
         Methods "<rule>" for each automatic-K rule of cluster.py on the embeddings, "true K" (the
         same embeddings with K given, for reference) and "<baseline>" for each baseline's own choice.
     """
-    from mosegpipe.cluster import ClusterConfig, cluster_auto_k
     from mosegpipe.evaluation.baselines import BASELINES
     from mosegpipe.evaluation.metrics import misclassification_error
+    from mosegpipe.group.cluster import ClusterConfig, cluster_auto_k
     from mosegpipe.types import KMethodName
 
     out: dict[str, dict[str, float | int]] = {}
@@ -120,7 +120,7 @@ def summarize_model_selection(rows: Sequence[dict[str, Any]]) -> dict[str, dict[
 
 
 def _model_selection_table(summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
-    from mosegpipe.cluster import ClusterConfig
+    from mosegpipe.group.cluster import ClusterConfig
     from mosegpipe.types import KMethodName
 
     datasets = list(summary)
@@ -145,7 +145,7 @@ def _model_selection_table(summary: dict[str, dict[str, dict[str, float]]], note
 
 
 def _model_selection_plot(summary: dict[str, dict[str, dict[str, float]]]) -> Any:
-    plt = _pyplot()
+    plt = pyplot_module()
     datasets = list(summary)
     methods = [m for m in dict.fromkeys(m for d in datasets for m in summary[d]) if m != "true K"]
     fig, ax = plt.subplots(figsize=(7.5, 3.6))
@@ -173,19 +173,19 @@ def run_model_selection(study: Study, req: StudyRequest) -> StudyResult:
     """
     from mosegpipe.evaluation.benchmark import embed_clip
 
-    budget = _check_budget(req)
-    root = _data_root(req, study)
+    budget = check_budget(req)
+    root = resolve_data_root(req, study)
     say = req.progress or (lambda _msg: None)
-    model5, model2 = _models(req)
+    model5, model2 = study_models(req)
     models = {"kt3dmoseg": model5, "adelaidermf": model2}
     ids = {d: model_id(m) for d, m in models.items()}
     rows: list[dict[str, Any]] = []
     done = 0
-    for dataset, clips in _datasets(root).items():
-        chash = _hash({"study": study.name, "v": _PARTS_VERSION, "model": ids[dataset], "k_max": req.k_max})
+    for dataset, clips in load_datasets(root).items():
+        chash = stable_hash({"study": study.name, "v": PARTS_VERSION, "model": ids[dataset], "k_max": req.k_max})
         for clip in clips:
-            path = _part_path(req, f"{dataset}__{clip.name}", ".json")
-            payload = _load_part(path, chash)
+            path = part_path(req, f"{dataset}__{clip.name}", ".json")
+            payload = load_part(path, chash)
             if payload is None:
                 emb = embed_clip(models[dataset], clip)
                 payload = {
@@ -195,14 +195,14 @@ def run_model_selection(study: Study, req: StudyRequest) -> StudyResult:
                     "k_true": clip.k,
                     "methods": model_selection_rows(clip, emb, req.k_max),
                 }
-                _save_part(path, chash, payload)
+                save_part(path, chash, payload)
                 say(f"{dataset} {clip.name}: done")
                 done += 1
             rows.append(payload)
     log.info("model-selection: %d parts computed, %d reused", done, len(rows) - done)
     summary = summarize_model_selection(rows)
     notes = [
-        _budget_note(study, budget),
+        budget_note(study, budget),
         f"Models: {req.model or 'shipped 5-frame'} (KT3DMoSeg, weights {ids['kt3dmoseg']}), "
         f"{req.pair_model or 'shipped two-view'} (AdelaideRMF, weights {ids['adelaidermf']}); "
         f"K in 1..{req.k_max} for the embedding rules, 1..8 for the baselines.",
@@ -217,7 +217,7 @@ def run_model_selection(study: Study, req: StudyRequest) -> StudyResult:
         "summary": summary,
         "rows": rows,
     }
-    files = _write_outputs(req, table, results, _model_selection_plot(summary))
+    files = write_outputs(req, table, results, _model_selection_plot(summary))
     return StudyResult(table, results, files)
 
 
@@ -250,7 +250,7 @@ def tsne_2d(x: npt.ArrayLike, seed: int = 0) -> npt.NDArray[np.float32]:
 def _find_clips(root: Path, names: Sequence[str]) -> list[tuple[str, LabeledClip]]:
     from mosegpipe.evaluation.folds import sequence_of
 
-    datasets = _datasets(root)
+    datasets = load_datasets(root)
     found = []
     for name in names:
         hits = [(d, c) for d, clips in datasets.items() for c in clips if name in (c.name, sequence_of(c))]
@@ -262,7 +262,7 @@ def _find_clips(root: Path, names: Sequence[str]) -> list[tuple[str, LabeledClip
 
 
 def _tsne_plot(panels: list[dict[str, Any]]) -> Any:
-    plt = _pyplot()
+    plt = pyplot_module()
     fig, axes = plt.subplots(len(panels), 2, figsize=(7.0, 3.2 * len(panels)), squeeze=False)
     for row, panel in enumerate(panels):
         labels = np.asarray(panel["labels"])
@@ -287,20 +287,20 @@ def run_tsne(study: Study, req: StudyRequest) -> StudyResult:
     from mosegpipe.evaluation.baselines import zscore_columns
     from mosegpipe.evaluation.benchmark import embed_clip
 
-    budget = _check_budget(req)
-    root = _data_root(req, study)
+    budget = check_budget(req)
+    root = resolve_data_root(req, study)
     say = req.progress or (lambda _msg: None)
     names = req.clips or DEFAULT_TSNE_CLIPS
     chosen = _find_clips(root, names)
-    model5, model2 = _models(req)
+    model5, model2 = study_models(req)
     models = {"kt3dmoseg": model5, "adelaidermf": model2}
     panels = []
     rows = []
     for dataset, clip in chosen:
         mid = model_id(models[dataset])
-        chash = _hash({"study": study.name, "v": _PARTS_VERSION, "model": mid})
-        path = _part_path(req, f"{dataset}__{clip.name}", ".json")
-        payload = _load_part(path, chash)
+        chash = stable_hash({"study": study.name, "v": PARTS_VERSION, "model": mid})
+        path = part_path(req, f"{dataset}__{clip.name}", ".json")
+        payload = load_part(path, chash)
         if payload is None:
             emb = embed_clip(models[dataset], clip)
             payload = {
@@ -312,14 +312,14 @@ def run_tsne(study: Study, req: StudyRequest) -> StudyResult:
                 "raw": tsne_2d(zscore_columns(clip.traj)).tolist(),
                 "embedding": tsne_2d(emb).tolist(),
             }
-            _save_part(path, chash, payload)
+            save_part(path, chash, payload)
             say(f"{dataset} {clip.name}: t-SNE done")
         panels.append(payload)
         rows.append({k: payload[k] for k in ("dataset", "name", "num_points", "k_true")} | {"model": mid})
     lines = [
         "# Study: tsne (the paper's Figure 3, bottom row)",
         "",
-        _budget_note(study, budget),
+        budget_note(study, budget),
         "t-SNE (scikit-learn, 2-D, PCA init, seed 0) of the z-scored trajectory matrix and of the embeddings; "
         "colours: ground-truth groups. Picture: plot.png.",
         "",
@@ -330,7 +330,7 @@ def run_tsne(study: Study, req: StudyRequest) -> StudyResult:
     ]
     table = "\n".join(lines)
     results = {"study": study.name, "budget": budget, "clips": rows}
-    files = _write_outputs(req, table, results, _tsne_plot(panels))
+    files = write_outputs(req, table, results, _tsne_plot(panels))
     return StudyResult(table, results, files)
 
 

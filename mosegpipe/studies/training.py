@@ -73,8 +73,8 @@ __all__ = [
 ]
 
 
-def _datasets() -> dict[str, StudyData]:
-    from mosegpipe.model import ModelConfig
+def load_datasets() -> dict[str, StudyData]:
+    from mosegpipe.embed.model import ModelConfig
 
     return {
         # The shipped 5-frame architecture (recipes.py); KT3DMoSeg windows of the training sequences.
@@ -272,11 +272,11 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
     from mosegpipe.studies import common as st
     from mosegpipe.training.loop import resolve_device
 
-    budget_name: Budget = st._check_budget(req)
+    budget_name: Budget = st.check_budget(req)
     device = resolve_device(req.device or "cpu")
     budget = spec.budgets[budget_name]
     say = req.progress or (lambda _msg: None)
-    datasets = _datasets()
+    datasets = load_datasets()
     parts: list[dict[str, Any]] = []
     computed = 0
     t_start = time.perf_counter()
@@ -295,15 +295,15 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
                     test = [c for c in clips if not data.folds_by_name or fold_key(c) in held_out]
                     key = f"{dname}__{_slug(variant.label)}__{fold}__t{trial}"
                     chash = _part_hash(study, data, variant, budget, held_out, test, trial)
-                    path = st._part_path(req, key, ".json")
-                    payload = st._load_part(path, chash)
+                    path = st.part_path(req, key, ".json")
+                    payload = st.load_part(path, chash)
                     if payload is None:
                         with limited_threads(1):
                             payload = train_and_score(
                                 data, variant, budget.steps, req.data_root, held_out, test, seed=trial, device=device
                             )
                         payload |= {"dataset": dname, "variant": variant.label, "fold": fold, "trial": trial}
-                        st._save_part(path, chash, payload)
+                        st.save_part(path, chash, payload)
                         computed += 1
                         err = 100.0 * float(np.mean([r["error"] for r in payload["rows"]]))
                         say(f"{key}: trained in {payload['train_seconds']:.0f} s, error {err:.2f} %")
@@ -311,7 +311,7 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
     log.info("%s: %d models trained, %d reused", study.name, computed, len(parts) - computed)
     summary = summarize_variants(parts)
     notes = [
-        st._budget_note(study, budget_name),
+        st.budget_note(study, budget_name),
         *spec.notes,
         "Error: misclassification rate (Hungarian matching) with the automatic K (silhouette, K <= 8), mean "
         "over the test clips (± std over trials); true K: the same embeddings with K given. AdelaideRMF "
@@ -319,7 +319,7 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
         f"Wall time of this run: {time.perf_counter() - t_start:.0f} s ({computed} models trained, "
         f"{len(parts) - computed} reused).",
     ]
-    table = _table(spec, summary, notes)
+    table = table_text(spec, summary, notes)
     results = {
         "study": study.name,
         "budget": budget_name,
@@ -328,7 +328,7 @@ def run_training_study(spec: TrainingStudy, study: Study, req: StudyRequest) -> 
         "summary": summary,
         "parts": parts,
     }
-    files = st._write_outputs(req, table, results, _plot(spec, summary))
+    files = st.write_outputs(req, table, results, plot_summary(spec, summary))
     return st.StudyResult(table, results, files)
 
 
@@ -345,10 +345,10 @@ def _part_hash(
     from mosegpipe.studies import common as st
     from mosegpipe.training.losses import LOSS_REVISIONS
 
-    return st._hash(
+    return st.stable_hash(
         {
             "study": study.name,
-            "v": st._PARTS_VERSION,
+            "v": st.PARTS_VERSION,
             "data": dataclasses.asdict(data),
             "variant": dataclasses.asdict(variant),
             "steps": budget.steps,
@@ -366,7 +366,7 @@ def _slug(label: str) -> str:
     return "-".join("".join(ch if ch.isalnum() else " " for ch in label.lower()).split())
 
 
-def _table(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
+def table_text(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]], notes: list[str]) -> str:
     from mosegpipe.studies.common import DATASET_TITLES
 
     titles = {**DATASET_TITLES, "lce": "lines/circles/ellipses"}
@@ -391,10 +391,10 @@ def _table(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]],
     return "\n".join([f"# Study: {spec.title}", "", *notes, "", *lines, ""])
 
 
-def _plot(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]]) -> Any:
-    from mosegpipe.studies.common import DATASET_TITLES, _pyplot
+def plot_summary(spec: TrainingStudy, summary: dict[str, dict[str, dict[str, float]]]) -> Any:
+    from mosegpipe.studies.common import DATASET_TITLES, pyplot_module
 
-    plt = _pyplot()
+    plt = pyplot_module()
     datasets = list(summary)
     fig, axes = plt.subplots(1, len(datasets), figsize=(3.4 * len(datasets) + 0.6, 3.2), squeeze=False)
     numeric = all(v.x is not None for v in spec.variants)

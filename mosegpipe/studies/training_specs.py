@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from mosegpipe.errors import ConfigError
 
 if TYPE_CHECKING:
-    from mosegpipe.model import ModelConfig
+    from mosegpipe.embed.model import ModelConfig
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """The 3-D scene of a synthetic clip (mosegpipe.synth.trajectories): the background's and the objects'
-points and motions (_Body, _World), which points an object hides, and outlier tracks."""
+points and motions (Body, BodyWorld), which points an object hides, and outlier tracks."""
 
 from __future__ import annotations
 
@@ -19,11 +19,11 @@ from mosegpipe.synth.camera import (
 )
 
 
-def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+def log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
 
-def _background_points(
+def background_points(
     rng: np.random.Generator, cam: PinholeCamera, n: int, driving: bool, depth_m: float, ground_m: float
 ) -> tuple[npt.NDArray[np.float64], str]:
     """World points (n, 3) of the static scene, all visible in frame 0, and the scene kind.
@@ -63,7 +63,7 @@ def _background_points(
 
 
 @dataclass
-class _Body:
+class Body:
     """One body in its own frame: world point x = centre + R(motion) @ orient @ q(local)."""
 
     kind: str
@@ -96,7 +96,7 @@ def _shape_points(
     return p * half
 
 
-def _object_body(
+def object_body(
     rng: np.random.Generator,
     cam: PinholeCamera,
     n: int,
@@ -105,7 +105,7 @@ def _object_body(
     depth_m: float,
     ground_m: float,
     motion_range: tuple[float, float],
-) -> _Body:
+) -> Body:
     """Sample one moving object of n points placed so that its centre is in view in frame 0."""
     if driving:
         # Cars, vans, cyclists, pedestrians on the road, heading along it (either way) or crossing.
@@ -127,7 +127,7 @@ def _object_body(
         depth = rng.uniform(0.35, 0.85) * depth_m
         uv = rng.uniform([0.1 * cam.w, 0.1 * cam.h], [0.9 * cam.w, 0.9 * cam.h])
         centre = cam.rays(uv[None])[0] * depth
-        footprint = _log_uniform(rng, 0.04, 0.35) * cam.w  # object width on screen, pixels
+        footprint = log_uniform(rng, 0.04, 0.35) * cam.w  # object width on screen, pixels
         half = 0.5 * footprint * depth / cam.f * rng.uniform(0.4, 1.0, 3)
         orient = axis_angle_matrix(random_unit(rng), rng.uniform(0, math.pi))
         vel = random_unit(rng) * rng.uniform(0.3, 1.0) * 2 * half.max()
@@ -156,7 +156,7 @@ def _object_body(
         axis = np.zeros(3)
         axis[(split + rng.integers(1, 3)) % 3] = 1.0
         hinge_rotvec = axis * rng.uniform(0.3, 1.0) * random_sign(rng)
-    return _Body(
+    return Body(
         kind,
         local,
         centre,
@@ -169,14 +169,14 @@ def _object_body(
         hinge_part,
         hinge_point,
         hinge_rotvec,
-        _log_uniform(rng, *motion_range),
+        log_uniform(rng, *motion_range),
     )
 
 
-class _World:
+class BodyWorld:
     """All points of all bodies, vectorised; positions(scale) gives (F, N, 3) world points."""
 
-    def __init__(self, bodies: list[_Body], frames: int) -> None:
+    def __init__(self, bodies: list[Body], frames: int) -> None:
         self.frames = frames
         self.sizes = np.array([len(b.local) for b in bodies])
         self.body = np.repeat(np.arange(len(bodies)), self.sizes)
@@ -224,7 +224,7 @@ class _World:
         return out
 
 
-def _occluded(
+def occluded_mask(
     uv: npt.NDArray[np.float64],
     z: npt.NDArray[np.float64],
     body: npt.NDArray[np.int64],
@@ -259,7 +259,7 @@ def _occluded(
     return hidden.any(axis=(0, 1))
 
 
-def _outlier_tracks(
+def outlier_tracks(
     rng: np.random.Generator,
     n: int,
     frames: int,

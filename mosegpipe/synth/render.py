@@ -257,7 +257,7 @@ class _Quad:
 
 
 @dataclass
-class _Body:
+class Body:
     """A rigid group of quads with a pose per frame: x_world = rot[t] @ x_local + pos[t]."""
 
     label: int
@@ -434,7 +434,7 @@ def render_clip(cfg: RenderConfig = RenderConfig(), photos: Sequence[npt.NDArray
 
 def _background_bodies(
     rng: np.random.Generator, cfg: RenderConfig, photos: Sequence[npt.NDArray[np.uint8]]
-) -> list[_Body]:
+) -> list[Body]:
     """The still wall (label 0) that fills the view, and the ground in front of it when cfg.ground."""
     h, w = cfg.size_hw
     frames = cfg.frames
@@ -449,7 +449,7 @@ def _background_bodies(
         np.array([0.0, 0.0, -1.0]),
         _texture(rng, cfg.texture, (wall_texels, round(wall_texels * h / w)), photos),
     )
-    background = [_Body(0, [wall], still_rot, still_pos, cull=False)]
+    background = [Body(0, [wall], still_rot, still_pos, cull=False)]
     if cfg.ground:
         near, far = 2.0, _WALL_DEPTH_M
         half = 0.5 * wall_w
@@ -462,7 +462,7 @@ def _background_bodies(
             ]
         )
         tex = _texture(rng, cfg.texture, (wall_texels, wall_texels // 2), photos)
-        background.append(_Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)], still_rot, still_pos, cull=False))
+        background.append(Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)], still_rot, still_pos, cull=False))
     return background
 
 
@@ -472,10 +472,10 @@ def _object_bodies(
     specs: Sequence[ObjectSpec],
     f: float,
     photos: Sequence[npt.NDArray[np.uint8]],
-) -> list[_Body]:
+) -> list[Body]:
     """The moving objects (labels 1, 2, ...), textured about one texel a pixel at their starting depth."""
     frames = cfg.frames
-    bodies: list[_Body] = []
+    bodies: list[Body] = []
     t = np.arange(frames, dtype=np.float64)[:, None]
     for i, spec in enumerate(specs):
         size = np.asarray(spec.size_m, dtype=np.float64)
@@ -492,7 +492,7 @@ def _object_bodies(
         orient = rotation_matrix(spec.rotation)
         rot = np.stack([rotation_matrix(np.asarray(spec.spin) * k) @ orient for k in range(frames)])
         pos = np.asarray(spec.centre_m) + t * np.asarray(spec.velocity_m)
-        bodies.append(_Body(i + 1, quads, rot, pos, cull=spec.shape == "box"))
+        bodies.append(Body(i + 1, quads, rot, pos, cull=spec.shape == "box"))
     return bodies
 
 

@@ -35,13 +35,13 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.synth.bodies import (
-    _background_points,
-    _Body,
-    _log_uniform,
-    _object_body,
-    _occluded,
-    _outlier_tracks,
-    _World,
+    Body,
+    BodyWorld,
+    background_points,
+    log_uniform,
+    object_body,
+    occluded_mask,
+    outlier_tracks,
 )
 from mosegpipe.synth.camera import (
     NEAR_M,
@@ -214,7 +214,7 @@ def _draw(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str)
     f = 0.5 * w / math.tan(0.5 * fov)
     motion = str(cfg.camera_motions[rng.integers(len(cfg.camera_motions))])
     driving = motion == "driving"
-    depth_m = 15.0 if driving else _log_uniform(rng, 1.0, 20.0)
+    depth_m = 15.0 if driving else log_uniform(rng, 1.0, 20.0)
     ground_m = rng.uniform(1.4, 1.8)  # camera height above the road (driving)
     rot, centre = trajectory_camera_poses(rng, motion, frames, depth_m)
     cam = PinholeCamera(f, (w - 1) / 2.0, (h - 1) / 2.0, h, w, rot, centre)
@@ -222,7 +222,7 @@ def _draw(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str)
     min_pts = cfg.min_points_per_group
     need, ratio, has_bg, num_objects, target, drawn = _point_budget(rng, cfg)
     bodies, bg_kind = _scene_bodies(rng, cfg, cam, has_bg, num_objects, drawn, driving, depth_m, ground_m)
-    world = _World(bodies, frames)
+    world = BodyWorld(bodies, frames)
     kinds = [b.kind for b in bodies]
     objects = [i for i, b in enumerate(bodies) if b.kind != "background"]
 
@@ -238,7 +238,7 @@ def _draw(rng: np.random.Generator, cfg: SyntheticConfig, pair: bool, name: str)
     ok = (z > NEAR_M).all(axis=0)
     ok &= ((obs >= 0) & (obs <= np.array([w - 1.0, h - 1.0]))).all(axis=(0, 2))
     if objects:
-        ok &= ~_occluded(uv, z, world.body, objects, ok)  # type: ignore[arg-type,operator]
+        ok &= ~occluded_mask(uv, z, world.body, objects, ok)  # type: ignore[arg-type,operator]
     keep = np.flatnonzero(ok)
     keep = keep[_take(rng, world.body[keep], target)]
     body = world.body[keep]
@@ -297,7 +297,7 @@ def _point_budget(
     num_bodies = max(need, min(num_bodies, inliers // min_pts))
     has_bg = rng.random() < cfg.background_prob
     num_objects = num_bodies - int(has_bg)
-    weights = np.array([1.0] * int(has_bg) + [_log_uniform(rng, *cfg.object_weight) for _ in range(num_objects)])
+    weights = np.array([1.0] * int(has_bg) + [log_uniform(rng, *cfg.object_weight) for _ in range(num_objects)])
     target = np.maximum(min_pts, np.round(inliers * weights / weights.sum())).astype(np.int64)
     # Raising small bodies to the minimum is paid for by the largest ones.
     excess = int(target.sum()) - inliers
@@ -319,15 +319,15 @@ def _scene_bodies(
     driving: bool,
     depth_m: float,
     ground_m: float,
-) -> tuple[list[_Body], str | None]:
+) -> tuple[list[Body], str | None]:
     """The background (when there is one) and the objects, with the kind of background drawn (None: none)."""
-    bodies: list[_Body] = []
+    bodies: list[Body] = []
     bg_kind = None
     if has_bg:
-        xyz, bg_kind = _background_points(rng, cam, int(drawn[0]), driving, depth_m, ground_m)
+        xyz, bg_kind = background_points(rng, cam, int(drawn[0]), driving, depth_m, ground_m)
         zero = np.zeros(3)
         bodies.append(
-            _Body(
+            Body(
                 "background",
                 xyz,
                 zero,
@@ -346,15 +346,13 @@ def _scene_bodies(
     for i in range(num_objects):
         kind = str(cfg.object_kinds[rng.integers(len(cfg.object_kinds))])
         bodies.append(
-            _object_body(
-                rng, cam, int(drawn[i + int(has_bg)]), kind, driving, depth_m, ground_m, cfg.relative_motion_px
-            )
+            object_body(rng, cam, int(drawn[i + int(has_bg)]), kind, driving, depth_m, ground_m, cfg.relative_motion_px)
         )
     return bodies, bg_kind
 
 
 def _scaled_projection(
-    cam: PinholeCamera, world: _World, bodies: list[_Body], objects: list[int]
+    cam: PinholeCamera, world: BodyWorld, bodies: list[Body], objects: list[int]
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """(image points, depths, each body's mean displacement in px) once each object's motion is scaled
     to its target relative motion."""
@@ -398,13 +396,13 @@ def _with_outliers(
     outlier_label = None
     if num_out:
         if cfg.outliers_as_group:
-            out_tracks = _outlier_tracks(rng, num_out, frames, w, h, None, pair)
+            out_tracks = outlier_tracks(rng, num_out, frames, w, h, None, pair)
             outlier_label = len(kinds_alive)
             out_labels = np.full(num_out, outlier_label)
             kinds_alive.append("outlier")
         else:
             host = rng.integers(num_in, size=num_out)
-            out_tracks = _outlier_tracks(rng, num_out, frames, w, h, tracks[0, host], pair)
+            out_tracks = outlier_tracks(rng, num_out, frames, w, h, tracks[0, host], pair)
             out_labels = labels[host]
         tracks = np.concatenate([tracks, out_tracks], axis=1)
         labels = np.concatenate([labels, out_labels])

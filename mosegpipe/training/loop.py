@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from mosegpipe.embed.model import ModelConfig, SubspaceNet, pad_batch
 from mosegpipe.errors import ConfigError
-from mosegpipe.model import ModelConfig, SubspaceNet, pad_batch
 from mosegpipe.training.losses import LOSSES
 from mosegpipe.types import DEVICE_CHOICES, LabeledClip, is_device_name
 

@@ -36,11 +36,11 @@ from mosegpipe.evaluation.label_transfer import (
     transfer_match_labels,
     transfer_track_labels,
 )
-from mosegpipe.io import default_cache_dir, write_npz
-from mosegpipe.match import MatchConfig, match_sift
+from mosegpipe.io.read import default_cache_dir, write_npz
+from mosegpipe.points.klt import TrackConfig, track_klt
+from mosegpipe.points.sift import MatchConfig, match_sift
+from mosegpipe.points.trajectories import build_trajectories
 from mosegpipe.synth.composite import Composite, CompositeConfig
-from mosegpipe.track import TrackConfig, track_klt
-from mosegpipe.trajectories import build_trajectories
 from mosegpipe.types import Frames, LabeledClip
 
 log = logging.getLogger(__name__)
@@ -99,7 +99,7 @@ def kt3d_own_clips(
         DatasetError: the KT3DMoSeg folder is missing or malformed.
     """
     from mosegpipe.data.kt3dmoseg import kt3d_frame_paths, list_kt3d_sequences, read_kt3d_sequence
-    from mosegpipe.io import read_image
+    from mosegpipe.io.read import read_image
 
     folder = (
         Path(cache_dir or default_cache_dir())
@@ -324,7 +324,7 @@ def texture_sources(data_root: str | Path, exclude: Collection[str] = ()) -> lis
         (source name, loader) pairs in a fixed order.
     """
     from mosegpipe.data.adelaidermf import list_adelaide, read_adelaide_pair
-    from mosegpipe.io import read_image, read_video
+    from mosegpipe.io.read import read_image, read_video
 
     root = Path(data_root)
     sources: list[tuple[str, PhotoLoader]] = []

@@ -14,11 +14,11 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from mosegpipe.embed.model import ModelConfig
 from mosegpipe.errors import ConfigError, lookup
-from mosegpipe.model import ModelConfig
+from mosegpipe.points.trajectories import window_starts
 from mosegpipe.training.augment import PAIR_AUGMENT, TRACK_AUGMENT, TrackAugmentConfig, augment_point_set
 from mosegpipe.training.loop import Sampler, TrainConfig, clip_sampler, mixture_sampler
-from mosegpipe.trajectories import window_starts
 from mosegpipe.types import LabeledClip
 
 

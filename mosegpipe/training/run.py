@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mosegpipe.model import ModelConfig, SubspaceNet
+from mosegpipe.embed.model import ModelConfig, SubspaceNet
 from mosegpipe.training.loop import TrainConfig, TrainResult, recipe_of, train_model, with_overrides
 from mosegpipe.training.recipes import Recipe, build_sampler, get_recipe, get_source
 

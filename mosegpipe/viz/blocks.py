@@ -15,19 +15,19 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.viz.common import (
-    _CHOSEN_COLOR,
-    _EYE_POSITION,
-    _OTHER_COLOR,
-    _SIDE_SHARES,
+    CHOSEN_COLOR,
     EMBEDDING_BOX,
+    EYE_POSITION,
+    OTHER_COLOR,
+    SIDE_SHARES,
     VizConfig,
-    _split_note,
-    _summary_head,
     embedding_to_3d,
     fit_in_box,
     k_chart,
     mask_colors,
     point_colors,
+    split_note,
+    summary_head,
 )
 
 if TYPE_CHECKING:
@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger("mosegpipe.viz")
 
 
-def _panels(timeline: bool) -> list[Any]:
+def view_panels(timeline: bool) -> list[Any]:
     """The viewer's blueprint and selection panels folded (open, they took a third of the width);
     the time panel open where there is a timeline to scrub."""
     import rerun.blueprint as rrb
@@ -50,20 +50,20 @@ def _panels(timeline: bool) -> list[Any]:
     ]
 
 
-def _side_column(k_scores: Mapping[int, float]) -> rrb.Vertical:
+def side_column(k_scores: Mapping[int, float]) -> rrb.Vertical:
     """Summary, K chart (when there are scores) and embedding, stacked."""
     import rerun.blueprint as rrb
 
     views: list[rrb.View] = [rrb.TextDocumentView(origin="summary", name="summary")]
-    shares = [_SIDE_SHARES["summary"]]
+    shares = [SIDE_SHARES["summary"]]
     if k_scores:
         chart = k_chart(k_scores)
         bounds = rrb.VisualBounds2D(x_range=chart.x_range, y_range=chart.y_range)
         views.append(rrb.Spatial2DView(origin="k_scores", name="score per K", visual_bounds=bounds))
-        shares.append(_SIDE_SHARES["k_scores"])
-    eye = rrb.EyeControls3D(position=_EYE_POSITION, look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0))
+        shares.append(SIDE_SHARES["k_scores"])
+    eye = rrb.EyeControls3D(position=EYE_POSITION, look_target=(0.0, 0.0, 0.0), eye_up=(0.0, 0.0, 1.0))
     views.append(rrb.Spatial3DView(origin="embedding", name="embedding", eye_controls=eye))
-    shares.append(_SIDE_SHARES["embedding"])
+    shares.append(SIDE_SHARES["embedding"])
     return rrb.Vertical(*views, row_shares=shares)
 
 
@@ -183,8 +183,8 @@ def _log_k_chart(rec: rr.RecordingStream, k_scores: Mapping[int, float], k: int)
     chart = k_chart(k_scores)
     x_lo, x_hi = float(chart.ks.min()) - 0.5, float(chart.ks.max()) + 0.5
     strips = [[(x_lo, 0.0), (x_hi, 0.0)]] + [[(float(x), 0.0), (float(x), float(y))] for x, y in chart.tips]
-    rec.log("k_scores/stems", rr.LineStrips2D(strips, colors=_OTHER_COLOR, radii=rr.Radius.ui_points(1.0)), static=True)
-    colors = [_CHOSEN_COLOR if c == k else _OTHER_COLOR for c in chart.ks]
+    rec.log("k_scores/stems", rr.LineStrips2D(strips, colors=OTHER_COLOR, radii=rr.Radius.ui_points(1.0)), static=True)
+    colors = [CHOSEN_COLOR if c == k else OTHER_COLOR for c in chart.ks]
     radii = rr.Radius.ui_points([6.0 if c == k else 4.0 for c in chart.ks])
     rec.log("k_scores/scores", rr.Points2D(chart.tips, colors=colors, radii=radii), static=True)
     # The labels hang from points of their own (a tip's own label would lie on its stem); their
@@ -198,7 +198,7 @@ def _log_k_chart(rec: rr.RecordingStream, k_scores: Mapping[int, float], k: int)
         rec.log(entity, points, static=True)
 
 
-def _log_embedding_and_scores(
+def log_embedding_and_scores(
     rec: rr.RecordingStream,
     class_ids: npt.NDArray[np.uint16],
     embeddings: npt.NDArray[np.floating],
@@ -215,16 +215,16 @@ def _log_embedding_and_scores(
 
     points = rr.Points3D(fit_in_box(embedding_to_3d(embeddings)), class_ids=class_ids, radii=cfg.embedding_radius)
     rec.log("embedding", points, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # +Z up, as the eye
-    box = rr.Boxes3D(half_sizes=[(EMBEDDING_BOX,) * 3], colors=_OTHER_COLOR, radii=rr.Radius.ui_points(0.5))
+    box = rr.Boxes3D(half_sizes=[(EMBEDDING_BOX,) * 3], colors=OTHER_COLOR, radii=rr.Radius.ui_points(0.5))
     rec.log("embedding/box", box, static=True)
     if k_scores:
-        _log_k_chart(rec, k_scores, k - _split_note(k_note)[0])
+        _log_k_chart(rec, k_scores, k - split_note(k_note)[0])
         summary += "\nscore per K: " + ", ".join(f"{c}: {k_scores[c]:.3g}" for c in sorted(k_scores)) + "\n"
-    head = _summary_head(k, k_scores, k_note, k_method)
+    head = summary_head(k, k_scores, k_note, k_method)
     rec.log("summary", rr.TextDocument(head + summary, media_type="text/markdown"), static=True)
 
 
-class _Sink:
+class Sink:
     """A recording stream into memory, written to its file by Python when finished.
 
     Rerun's own file sink writes on a thread of its own: when the disk fills up, that thread dies
@@ -277,7 +277,7 @@ class _Sink:
 _FLUSH_TIMEOUT_S = 120.0
 
 
-def _log_written(final: Path, what: str, started: float) -> None:
+def log_written(final: Path, what: str, started: float) -> None:
     logger.info(
         "wrote %s (%s, %.1f kB) in %.2f s", final, what, final.stat().st_size / 1e3, time.perf_counter() - started
     )

@@ -12,19 +12,19 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import atomic_write
+from mosegpipe.io.read import atomic_write
 from mosegpipe.types import Frames, Tracks
 from mosegpipe.viz.blocks import (
-    _log_embedding_and_scores,
-    _log_written,
-    _panels,
-    _side_column,
-    _Sink,
+    Sink,
     log_annotation_contexts,
+    log_embedding_and_scores,
     log_image_layers,
     log_trails,
+    log_written,
+    side_column,
+    view_panels,
 )
-from mosegpipe.viz.common import _MAIN_SHARES, MAX_CLASSES, TIMELINE, VizConfig, class_ids_of, class_names
+from mosegpipe.viz.common import MAIN_SHARES, MAX_CLASSES, TIMELINE, VizConfig, class_ids_of, class_names
 
 if TYPE_CHECKING:
     import rerun.blueprint as rrb
@@ -63,10 +63,10 @@ def _clip_blueprint(k_scores: Mapping[int, float]) -> rrb.Blueprint:
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial2DView(origin="video", name="frame, tracks and masks"),
-            _side_column(k_scores),
-            column_shares=_MAIN_SHARES,
+            side_column(k_scores),
+            column_shares=MAIN_SHARES,
         ),
-        *_panels(timeline=True),
+        *view_panels(timeline=True),
     )
 
 
@@ -124,11 +124,11 @@ def write_recording(
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        sink = _Sink(tmp, app_id, final, blueprint)
+        sink = Sink(tmp, app_id, final, blueprint)
         rec, written = sink.rec, False
         try:
             log_annotation_contexts(rec, ["video"] if masks is not None else [], class_names(k))
-            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
+            log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
             for t in range(frames.num_frames):
                 rec.set_time(TIMELINE, sequence=frames.start + t)
                 seen = visible[:, t]
@@ -140,5 +140,5 @@ def write_recording(
             written = True
         finally:
             sink.finish(write=written)
-    _log_written(final, f"{frames.num_frames} frames, {len(track_ids)} tracks", started)
+    log_written(final, f"{frames.num_frames} frames, {len(track_ids)} tracks", started)
     return final

@@ -29,15 +29,15 @@ EMBEDDING_BOX = 1.0
 
 # The 3-D view looks at the cube's centre from this point, 5.24 half-sizes away: the cube's bounding
 # sphere (radius sqrt(3)) fits any field of view of 39 degrees or more, whatever the panel's shape.
-_EYE_POSITION = (3.0, -3.5, 2.5)
+EYE_POSITION = (3.0, -3.5, 2.5)
 
 # Layout shares: the frame takes 3/4 of the width; the side column stacks summary, K chart and
 # embedding. In a 1600x900 window that leaves the summary ~170 px, room for 8 lines; it has 3-5.
-_MAIN_SHARES = [3.0, 1.0]
-_SIDE_SHARES = {"summary": 1.0, "k_scores": 1.0, "embedding": 1.6}
+MAIN_SHARES = [3.0, 1.0]
+SIDE_SHARES = {"summary": 1.0, "k_scores": 1.0, "embedding": 1.6}
 
-_CHOSEN_COLOR = (255, 190, 0)
-_OTHER_COLOR = (150, 150, 150)
+CHOSEN_COLOR = (255, 190, 0)
+OTHER_COLOR = (150, 150, 150)
 
 UNLABELLED_POINT_COLOR = UNKNOWN_RGB
 """Colour of unlabelled / outlier points (class 255): the unknown grey of every output (colours.UNKNOWN_RGB)."""
@@ -317,7 +317,7 @@ def k_chart(k_scores: Mapping[int, float]) -> KChart:
 _RIGID_SPLIT = re.compile(r"the rigid-motion check split off (\d+) groups? \(K = (\d+) -> (\d+)\)")
 
 
-def _split_note(note: str) -> tuple[int, str]:
+def split_note(note: str) -> tuple[int, str]:
     """(groups the rigid-motion check split off, the rest of the note) from a Clustering.note, whose
     rigid part pipeline.check_rigid writes as "the rigid-motion check split off S group(s) (K = a -> b)"."""
     found = _RIGID_SPLIT.search(note)
@@ -343,7 +343,7 @@ def k_statement(k: int, k_scores: Mapping[int, float], note: str = "", method: s
     head = f"K = {k} written"
     if method == "fixed":
         return f"{head}: given (--k)"
-    split, rest = _split_note(note)
+    split, rest = split_note(note)
     chosen = k - split
     finite = {c: float(v) for c, v in k_scores.items() if np.isfinite(v)}
     if not finite:
@@ -359,8 +359,8 @@ def k_statement(k: int, k_scores: Mapping[int, float], note: str = "", method: s
     return text
 
 
-def _summary_head(k: int, k_scores: Mapping[int, float], note: str, method: str) -> str:
+def summary_head(k: int, k_scores: Mapping[int, float], note: str, method: str) -> str:
     """First lines of a summary: the K written and why (k_statement), then any other note on K."""
     statement = k_statement(k, k_scores, note, method)
-    rest = _split_note(note)[1]
+    rest = split_note(note)[1]
     return f"**{statement}**\n\n" + (f"note: {rest}\n\n" if rest and rest not in statement else "")

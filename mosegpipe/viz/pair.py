@@ -11,18 +11,18 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import atomic_write
+from mosegpipe.io.read import atomic_write
 from mosegpipe.types import Matches
 from mosegpipe.viz.blocks import (
-    _log_embedding_and_scores,
-    _log_written,
-    _panels,
-    _side_column,
-    _Sink,
+    Sink,
     log_annotation_contexts,
+    log_embedding_and_scores,
     log_image_layers,
+    log_written,
+    side_column,
+    view_panels,
 )
-from mosegpipe.viz.common import _MAIN_SHARES, MAX_CLASSES, VizConfig, class_ids_of, class_names
+from mosegpipe.viz.common import MAIN_SHARES, MAX_CLASSES, VizConfig, class_ids_of, class_names
 
 
 def _validate_pair(
@@ -100,27 +100,27 @@ def write_pair_recording(
                 rrb.Spatial2DView(origin="image1", name="image 1"),
                 rrb.Spatial2DView(origin="image2", name="image 2"),
             ),
-            _side_column(k_scores),
-            column_shares=_MAIN_SHARES,
+            side_column(k_scores),
+            column_shares=MAIN_SHARES,
         ),
-        *_panels(timeline=False),  # no timeline to scrub
+        *view_panels(timeline=False),  # no timeline to scrub
     )
     outliers = int((labels < 0).sum())
     summary = f"{matches.num_matches} matches ({outliers} outliers)\n"
 
     final = Path(path)
     with atomic_write(final) as tmp:
-        sink = _Sink(tmp, app_id, final, blueprint)
+        sink = Sink(tmp, app_id, final, blueprint)
         rec, written = sink.rec, False
         try:
             names = class_names(num_classes, unknown="unknown / outlier")
             log_annotation_contexts(rec, ["image1", "image2"] if masks is not None else [], names)
-            _log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
+            log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
             for i, xy in enumerate((matches.xy1, matches.xy2)):
                 mask = None if masks is None else masks[i]
                 log_image_layers(rec, f"image{i + 1}", images[i], mask, xy, class_ids, cfg, static=True)
             written = True
         finally:
             sink.finish(write=written)
-    _log_written(final, f"pair, {matches.num_matches} matches", started)
+    log_written(final, f"pair, {matches.num_matches} matches", started)
     return final

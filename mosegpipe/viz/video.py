@@ -15,8 +15,8 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.io import H264Encoder, atomic_write
-from mosegpipe.viz.blocks import _log_written, _panels, _Sink, log_annotation_contexts, log_image_layers, log_trails
+from mosegpipe.io.read import H264Encoder, atomic_write
+from mosegpipe.viz.blocks import Sink, log_annotation_contexts, log_image_layers, log_trails, log_written, view_panels
 from mosegpipe.viz.common import MAX_CLASSES, TIMELINE, VIDEO_VIZ, VizConfig, class_ids_of, class_names, score_lead
 
 if TYPE_CHECKING:
@@ -31,11 +31,13 @@ def video_blueprint(windows: bool, margins: bool) -> rrb.Blueprint:
 
     frame = rrb.Spatial2DView(origin="video", name="frame, tracks and masks")
     if not windows:
-        return rrb.Blueprint(frame, *_panels(timeline=True))
+        return rrb.Blueprint(frame, *view_panels(timeline=True))
     series = [rrb.TimeSeriesView(origin="windows/k", name="K per window")]
     if margins:
         series.append(rrb.TimeSeriesView(origin="windows/k_margin", name="how clear K is (score lead)"))
-    return rrb.Blueprint(rrb.Vertical(frame, rrb.Horizontal(*series), row_shares=[5.0, 1.0]), *_panels(timeline=True))
+    return rrb.Blueprint(
+        rrb.Vertical(frame, rrb.Horizontal(*series), row_shares=[5.0, 1.0]), *view_panels(timeline=True)
+    )
 
 
 class VideoRecorder:
@@ -94,7 +96,7 @@ class VideoRecorder:
         self._target = atomic_write(self.path)
         tmp = self._target.__enter__()
         try:
-            self._sink: _Sink | None = _Sink(tmp, app_id, self.path, video_blueprint(windows, margins))
+            self._sink: Sink | None = Sink(tmp, app_id, self.path, video_blueprint(windows, margins))
             log_annotation_contexts(self._sink.rec, ["video"], class_names(MAX_CLASSES))
         except BaseException as exc:
             self._close_encoder(flush=False)
@@ -238,7 +240,7 @@ class VideoRecorder:
                 self._target.__exit__(type(exc), exc, exc.__traceback__)
                 raise
             self._target.__exit__(None, None, None)
-            _log_written(self.path, f"{self._num_frames} frames", self._started)
+            log_written(self.path, f"{self._num_frames} frames", self._started)
         return self.path
 
     def abort(self) -> None:

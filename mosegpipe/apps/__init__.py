@@ -1,0 +1,1 @@
+"""What runs the pipeline for a user: Segmenter, the output folders, batches of clips, live sources."""

@@ -1,0 +1,1 @@
+"""Live mode (`moseg live`): sources, the reader thread, the run."""

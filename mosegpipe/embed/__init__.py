@@ -1,0 +1,1 @@
+"""The embedding: SubspaceNet (PyTorch), its NumPy copy for inference, the shipped weights."""

@@ -1,0 +1,480 @@
+"""The mask sequence (`MaskSequence`), used by clips, whole videos and live, and its steps after the moving pixels:
+moving pixels labelled by the nearest track of a moving motion (`moving_to_labels`), given the motion whose step
+explains their flow (`reassign_by_flow`), a moving region that no moving motion's tracks explain split off as a
+motion of its own (`split_unexplained`), an unclustered region given its label in the frame before
+(`carry_unclustered`); `motion_masks`, a clip's "motion" or "learned" masks."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from mosegpipe.colours import WORLD
+from mosegpipe.configs.grouping import WorldConfig
+from mosegpipe.group.twoview import robust_fit
+from mosegpipe.group.world import explain_parallax
+from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, labels_to_mask, nearest_labels
+from mosegpipe.masks.learned.probability import learned_moving
+from mosegpipe.masks.learned.which import which_motion, window_features
+from mosegpipe.masks.moving_pixels import Anchors, ColourMemory, moving_from_motion, moving_masks, stack_motion
+from mosegpipe.points.flow import FrameMotion
+from mosegpipe.types import Tracks
+
+
+def label_moving_pixels(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    new_label: int,
+) -> npt.NDArray[np.uint8]:
+    """One frame's label image: static pixels get the background label, moving ones a moving motion's.
+
+    A moving pixel takes the label of the nearest track of a motion other than the background (the
+    "nearest" partition of those tracks); with no such track in the frame it takes `new_label` (a
+    motion the camera fit found that the tracks' clustering did not).
+
+    Args:
+        moving: (H, W) bool moving pixels.
+        xy: (N, 2) float32 track positions in this frame (pixels).
+        labels: (N,) int64 their motion labels (-1 = unlabelled, ignored).
+        background: the background motion's label.
+        new_label: label for moving pixels when no track of a moving motion is in the frame.
+
+    Returns:
+        (H, W) uint8 label image.
+    """
+    height, width = moving.shape
+    out = np.full((height, width), max(background, 0), np.uint8)
+    if not moving.any():
+        return out
+    keep = (labels >= 0) & (labels != background)
+    pts = np.round(xy[keep]).astype(np.int64)
+    inside = (pts[:, 0] >= 0) & (pts[:, 0] < width) & (pts[:, 1] >= 0) & (pts[:, 1] < height)
+    if not inside.any():
+        out[moving] = new_label
+        return out
+    present = np.unique(labels[keep][inside])
+    if present.size == 1:  # one moving motion: it is every moving pixel's nearest
+        out[moving] = present[0]
+        return out
+    nearest = nearest_labels(pts[inside], labels[keep][inside].astype(np.uint8), (height, width), np.inf)
+    out[moving] = nearest[moving]
+    return out
+
+
+def carry_unclustered(
+    mask: npt.NDArray[np.uint8], previous: npt.NDArray[np.uint8] | None, min_share: float = 0.3
+) -> npt.NDArray[np.uint8]:
+    """A whole video's frame mask with its MOVING_UNCLUSTERED regions given the moving label they had.
+
+    Each connected region of MOVING_UNCLUSTERED pixels (moving, but no track of a moving motion in
+    the frame: the window's clustering merged the object into the background, or its tracks were
+    lost) takes the moving label that covers most of it in the frame before, when that label covers at
+    least `min_share` of it: an object keeps its identity through the windows where the clustering
+    misses it, instead of turning into an anonymous mover. A label counts when it is neither this
+    world (WORLD) nor MOVING_UNCLUSTERED or UNKNOWN.
+
+    Args:
+        mask: (H, W) uint8 label image of this frame (`moving_to_labels`).
+        previous: the frame before's final mask, same shape (None: the first frame of a shot).
+        min_share: least share of the region the label must cover in the frame before.
+
+    Returns:
+        (H, W) uint8: `mask` itself when nothing changes, else a relabelled copy.
+    """
+    unclustered = mask == MOVING_UNCLUSTERED
+    if previous is None or previous.shape != mask.shape or not unclustered.any():
+        return mask
+    background = WORLD
+    num, regions = cv2.connectedComponents(unclustered.astype(np.uint8), connectivity=8)
+    before = previous.astype(np.int64)
+    usable = (before != background) & (before != MOVING_UNCLUSTERED) & (before != UNKNOWN) & unclustered
+    if not usable.any():
+        return mask
+    # counts[r, l]: pixels of region r that carried label l in the frame before
+    counts = np.zeros((num, 256), np.int64)
+    np.add.at(counts, (regions[usable], before[usable]), 1)
+    sizes = np.bincount(regions[unclustered], minlength=num)
+    best = counts.argmax(axis=1)
+    take = counts[np.arange(num), best] >= min_share * np.maximum(sizes, 1)
+    take[0] = False  # region 0: the pixels that are not MOVING_UNCLUSTERED
+    if not take.any():
+        return mask
+    out = mask.copy()
+    relabel = take[regions] & unclustered
+    out[relabel] = best[regions[relabel]].astype(np.uint8)
+    return out
+
+
+def moving_to_labels(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int = WORLD,
+    image: npt.NDArray[np.uint8] | None = None,
+    cfg: MaskConfig = MaskConfig(),
+) -> npt.NDArray[np.uint8]:
+    """One frame's "motion" mask from its moving pixels and labelled points.
+
+    Static pixels take the background's label. A moving pixel takes the label the watershed of the
+    labelled points gives it (edges between two moving motions follow the image) when that is a
+    moving motion's, else the label of the nearest point of a moving motion, else MOVING_UNCLUSTERED.
+
+    Args:
+        moving: (H, W) bool moving pixels (`motion.moving_masks`).
+        xy: (N, 2) float32 positions of the frame's points, pixels.
+        labels: (N,) int64 their labels (-1 = unlabelled, ignored).
+        background: the world's label (static pixels take it).
+        image: (H, W, 3) uint8 RGB frame for the watershed (None = nearest points only).
+        cfg: the watershed's settings (max_distance_px, scale, ...).
+
+    Returns:
+        (H, W) uint8: background label where static, a moving motion's label (or MOVING_UNCLUSTERED) where moving.
+    """
+    labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+    xy = np.asarray(xy, np.float32).reshape(-1, 2)
+    out = label_moving_pixels(moving, xy, labels, background, MOVING_UNCLUSTERED)
+    keep = labels >= 0
+    # The flood only decides between two or more moving motions: with one, every moving pixel has its
+    # label already (the nearest-track partition above).
+    if image is not None and moving.any() and np.unique(labels[keep & (labels != background)]).size >= 2:
+        # At the mask stage's scale: it only draws the border between two moving motions.
+        flood_cfg = replace(cfg, method="watershed", scale=min(cfg.scale, cfg.motion.work_scale))
+        flood = labels_to_mask(xy[keep], labels[keep], moving.shape, flood_cfg, image)
+        take = moving & (flood != background) & (flood != UNKNOWN)
+        out[take] = flood[take]
+    return out
+
+
+Seen = tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]
+"""One frame's labelled tracks: (M,) int64 ids and (M, 2) float32 positions, pixels."""
+
+
+def common_step(
+    seen: Seen, near: Seen
+) -> tuple[npt.NDArray[np.intp], tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]:
+    """The tracks of one frame also seen in a neighbour frame, matched by id: (their rows in `seen`, ((K, 2) float32
+    positions here, (K, 2) there))."""
+    _, here, there = np.intersect1d(seen[0], near[0], assume_unique=True, return_indices=True)
+    return here, (np.asarray(seen[1], np.float32)[here], np.asarray(near[1], np.float32)[there])
+
+
+@dataclass
+class MaskSequence:
+    """The one mask sequence of clips, whole videos and live, and the state a video carries between frames.
+
+    The steps, in order: the world's parallax explained in the flow evidence ("motion" masks,
+    `explain_parallax`) -> the moving pixels (the motion-mask chain `moving_from_motion`, or the mask network
+    `learned_moving`) -> labelled by the tracks (`moving_to_labels`, by the caller, which also makes the other
+    methods' masks) -> `finish`: the per-motion network's choice (`which_motion`), each moving pixel given the
+    motion whose step explains its flow (`reassign_by_flow`), then in clips the regions no motion explains split
+    off (`split_unexplained`), in videos the unclustered regions given their label in the frame before
+    (`carry_unclustered`).
+
+    A clip makes one per clip (`motion_masks`); a whole video one for the video (`segment_video`), whose colour
+    model of the shot and last final mask go from window to window.
+
+    Attributes:
+        cfg: mask settings.
+        video: whole-video mode (the frame before's mask is carried).
+        colour: the motion masks' colour model of the shot's windows so far (None = each stack alone).
+        last_mask: the last finished frame's mask (None at the start of a shot).
+    """
+
+    cfg: MaskConfig
+    video: bool = False
+    colour: ColourMemory | None = None
+    last_mask: npt.NDArray[np.uint8] | None = None
+
+    def new_shot(self) -> None:
+        """A shot starts: no mask to carry over, its colours are new."""
+        self.last_mask = None
+        if self.colour is not None:
+            self.colour.reset()
+
+    def moving(
+        self,
+        images: npt.NDArray[np.uint8],
+        motion: FrameMotion,
+        first: int = 0,
+        parallax: tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], WorldConfig] | None = None,
+        anchors: list[Anchors] | None = None,
+    ) -> tuple[npt.NDArray[np.bool_], FrameMotion]:
+        """The moving pixels of frames first..T-1 of a stack, and the flow evidence they were judged on.
+
+        Args:
+            images: (T, H, W, 3) uint8 RGB.
+            motion: the stack's flow evidence (`stack_motion` / the video's flow stream).
+            first: the first frame to mask.
+            parallax: (xy (N, T, 2), labels (N,), world settings) of the labelled tracks: with the "motion"
+                masks the world's 3D structure is explained first (the mask network takes the camera residual
+                it was trained on). None: not explained.
+            anchors: whole videos: per masked frame, the tracks that keep a motion the frame before showed.
+
+        Returns:
+            ((T - first, H, W) bool moving, the FrameMotion used).
+        """
+        if parallax is not None and self.cfg.method == "motion":
+            motion = explain_parallax(motion, *parallax)
+        if self.cfg.method == "learned":
+            return learned_moving(images, motion, self.cfg.learned, first=first), motion
+        moving = moving_from_motion(images, motion, self.cfg.motion, first=first, colour=self.colour, anchors=anchors)
+        return moving, motion
+
+    def finish(
+        self,
+        mask: npt.NDArray[np.uint8],
+        at: int,
+        seen: Sequence[Seen],
+        labels: npt.NDArray[np.int64],
+        motion: FrameMotion | None,
+        features: npt.NDArray[np.float32] | None = None,
+        moving: npt.NDArray[np.bool_] | None = None,
+    ) -> npt.NDArray[np.uint8]:
+        """Frame `at` of a stack, labelled (`moving_to_labels`), through the sequence's last steps.
+
+        Args:
+            mask: (H, W) uint8 labels of the frame.
+            at: its index in the stack (and in `motion`'s flows).
+            seen: per frame of the stack, its labelled tracks (ids ascending, positions).
+            labels: (M,) int64 the labels of frame `at`'s tracks.
+            motion: the stack's flow evidence (None: the flow steps are skipped).
+            features: the frame's per-motion network inputs (`window_features`), if it has something to choose.
+            moving: (H, W) bool the frame's moving pixels (clips: the unexplained regions' split).
+        """
+        cfg = self.cfg
+        ids, xy = seen[at]
+        if features is not None:
+            mask = which_motion(mask, features, xy, labels, cfg.learned.which_weights)
+        if motion is not None and motion.forward is not None and motion.backward is not None:
+            near = at + 1 if at < len(motion.forward) else at - 1
+            flow = motion.forward[at] if near > at else motion.backward[near]
+            here, step = common_step((ids, xy), seen[near])
+            if cfg.reassign_ratio > 0 and here.size:
+                mask = reassign_by_flow(mask, step, labels[here], flow, motion.scale, cfg.reassign_ratio)
+            if not self.video and cfg.unexplained_px > 0 and moving is not None:
+                mask = split_unexplained(mask, moving, step, labels[here], WORLD, flow, motion.scale, cfg)
+        if self.video:
+            mask = carry_unclustered(mask, self.last_mask)
+            self.last_mask = mask
+        return mask
+
+
+def motion_masks(
+    images: npt.NDArray[np.uint8],
+    tracks: Tracks,
+    track_ids: npt.NDArray[np.int64],
+    labels: npt.NDArray[np.int64],
+    cfg: MaskConfig = MaskConfig(),
+    before: npt.NDArray[np.uint8] | None = None,
+    after: npt.NDArray[np.uint8] | None = None,
+    motion: FrameMotion | None = None,
+    world: WorldConfig | None = None,
+) -> npt.NDArray[np.uint8]:
+    """The "motion" (or "learned") masks of a clip: moving pixels from the dense flow, labelled by the clip's tracks.
+
+    Args:
+        images: (T, H, W, 3) uint8 RGB, T >= 2.
+        tracks: the clip's tracks.
+        track_ids: (M,) int64 rows of `tracks` that carry labels, ascending.
+        labels: (M,) int64 their labels; 0 is the world (WORLD, `mosegpipe.group.world`).
+        cfg: mask settings (cfg.motion; cfg.learned when cfg.method is "learned"; the watershed's for the
+            borders between moving motions).
+        before, after: the source's frames next to the clip, as evidence (`moving_pixels.stack_motion`).
+        motion: `stack_motion` of the clip, if already computed (None = computed here).
+        world: the world's parallax settings: with a given `motion`, its 3D structure is explained first.
+
+    Returns:
+        (T, H, W) uint8 masks.
+    """
+    labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+    sequence = MaskSequence(cfg)
+    parallax = None if world is None or motion is None else (tracks.xy[track_ids], labels, world)
+    if motion is None and (
+        cfg.unexplained_px > 0 or cfg.reassign_ratio > 0 or cfg.method == "learned" or cfg.which == "learned"
+    ):
+        motion = stack_motion(images, cfg.motion, before, after)  # its flows serve both steps
+    if motion is None:
+        moving = moving_masks(images, cfg.motion, before=before, after=after)
+    else:
+        moving, motion = sequence.moving(images, motion, parallax=parallax)
+    visible = tracks.visible[track_ids]  # (M, T)
+    seen = [(track_ids[visible[:, t]], tracks.xy[track_ids[visible[:, t]], t]) for t in range(len(moving))]
+    out = np.empty(moving.shape, dtype=np.uint8)
+    features = None if motion is None else window_features(images, motion, cfg, (labels[s] for s in visible.T))
+    for t in range(len(moving)):
+        lab = labels[visible[:, t]]
+        out[t] = moving_to_labels(moving[t], seen[t][1], lab, WORLD, images[t], cfg)
+        feats = None if features is None else features[t]
+        out[t] = sequence.finish(out[t], t, seen, lab, motion, feats, moving[t])
+    return out
+
+
+def _full_size(flow: npt.NDArray[np.float32], scale: float, hw: tuple[int, int]) -> npt.NDArray[np.float32]:
+    """A flow at `scale` of the frame resized (linear) to the frame's (h, w), in full-resolution pixels."""
+    if scale == 1:
+        return flow
+    out: npt.NDArray[np.float32] = cv2.resize(flow, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) / np.float32(scale)
+    return out
+
+
+def split_unexplained(
+    mask: npt.NDArray[np.uint8],
+    moving: npt.NDArray[np.bool_],
+    step: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    flow: npt.NDArray[np.float32],
+    scale: float,
+    cfg: MaskConfig = MaskConfig(),
+) -> npt.NDArray[np.uint8]:
+    """One frame's "motion" mask with the moving regions no clustered motion explains set to MOVING_UNCLUSTERED.
+
+    Each moving motion of the mask with at least 8 tracks gets the homography of its tracks' step to the
+    neighbour frame (RANSAC, 2 px); a moving pixel whose flow misses its own motion's prediction by more than
+    max(cfg.unexplained_px, 2 x the 90th percentile of that motion's tracks' misses), and every other moving
+    motion's by as much, is unexplained. Unexplained regions (after an opening of 5 x 5 px) of at least
+    cfg.unexplained_area of the frame whose own flow one homography explains (cfg.unexplained_rigid of
+    their pixels within 1 px) take MOVING_UNCLUSTERED. A motion with fewer tracks is not judged.
+
+    Args:
+        mask: (H, W) uint8 labels of the frame (`moving_to_labels`).
+        moving: (H, W) bool moving pixels.
+        step: (N, 2) float32 positions of the labelled tracks in this frame and (N, 2) in the neighbour frame.
+        labels: (N,) int64 their labels.
+        background: the background's label.
+        flow: (h, w, 2) float32 flow from this frame to the neighbour frame at the flow's scale.
+        scale: the flow's scale (h / H).
+        cfg: the thresholds (unexplained_px, unexplained_area, unexplained_rigid).
+
+    Returns:
+        (H, W) uint8 labels (`mask` itself when nothing changes).
+    """
+    height, width = moving.shape
+    present = [int(m) for m in np.unique(mask[moving]) if m not in (background, UNKNOWN, MOVING_UNCLUSTERED)]
+    if not present:
+        return mask
+    flow = _full_size(flow, scale, (height, width))
+    xy, xy_next = step
+    ys, xs = np.nonzero(moving)  # only moving pixels are judged: a tenth of the frame or less
+    points = np.stack([xs, ys], axis=1).astype(np.float32)
+    ends = points + flow[ys, xs]
+    explained = np.zeros(ys.size, bool)
+    judged = np.zeros((height, width), bool)
+    for m in present:
+        of = labels == m
+        hom = robust_fit("homography", xy[of], xy_next[of], "ransac", 2.0)[0] if of.sum() >= 8 else None
+        if hom is None:
+            continue
+        track_miss = np.linalg.norm(
+            cv2.perspectiveTransform(xy[of].reshape(-1, 1, 2), hom).reshape(-1, 2) - xy_next[of], axis=1
+        )
+        limit = max(cfg.unexplained_px, 2.0 * float(np.percentile(track_miss, 90)))
+        predicted = cv2.perspectiveTransform(points.reshape(-1, 1, 2), hom).reshape(-1, 2)
+        explained |= np.linalg.norm(ends - predicted, axis=1) <= limit
+        judged |= mask == m
+    unexplained = judged.copy()
+    unexplained[ys[explained], xs[explained]] = False
+    unexplained = cv2.morphologyEx(unexplained.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+    n, regions, stats, _ = cv2.connectedComponentsWithStats(unexplained, connectivity=8)
+    split = np.zeros(n, bool)
+    for r in 1 + np.nonzero(stats[1:, cv2.CC_STAT_AREA] >= cfg.unexplained_area * height * width)[0]:
+        ry, rx = np.nonzero(regions == r)
+        pick = slice(None, None, max(1, ry.size // 1500))
+        p = np.stack([rx[pick], ry[pick]], axis=1).astype(np.float32)
+        own, inliers = robust_fit("homography", p, p + flow[ry[pick], rx[pick]], "ransac", 1.0)
+        split[r] = own is not None and inliers is not None and float(inliers.mean()) >= cfg.unexplained_rigid
+    if not split.any():
+        return mask
+    out = mask.copy()
+    out[split[regions]] = MOVING_UNCLUSTERED
+    return out
+
+
+REASSIGN_MIN_TRACKS = 6
+"""A moving motion needs this many tracks in the frame and its neighbour for `reassign_by_flow` to fit its step."""
+
+
+def reassign_by_flow(
+    mask: npt.NDArray[np.uint8],
+    step: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+    flow: npt.NDArray[np.float32],
+    scale: float,
+    ratio: float,
+) -> npt.NDArray[np.uint8]:
+    """One frame's mask with each moving pixel given the moving motion whose step best explains its flow.
+
+    Each moving motion of the mask with at least REASSIGN_MIN_TRACKS tracks gets the affine map of its tracks'
+    step to the neighbour frame (RANSAC, 2 px). A pixel of such a motion whose flow another one's map predicts
+    with less than `ratio` times its own's miss takes that motion (the nearest track's label, which the mask
+    gives it, bleeds across touching objects); a 5 x 5 median over those pixels then removes single flips.
+    World, unknown and unclustered pixels are left as they are, and so is every pixel's moving or not.
+
+    Args:
+        mask: (H, W) uint8 labels of the frame (`moving_to_labels`).
+        step: (N, 2) float32 positions of the labelled tracks in this frame and (N, 2) in the neighbour frame.
+        labels: (N,) int64 their labels.
+        flow: (h, w, 2) float32 flow from this frame to the neighbour frame at the flow's scale.
+        scale: the flow's scale (h / H).
+        ratio: `MaskConfig.reassign_ratio`.
+
+    Returns:
+        (H, W) uint8 labels (`mask` itself when fewer than two motions can be fitted).
+    """
+    height, width = mask.shape
+    xy, xy_next = step
+    models = {}
+    for m in np.unique(mask):
+        of = labels == m
+        if m in (WORLD, UNKNOWN, MOVING_UNCLUSTERED) or of.sum() < REASSIGN_MIN_TRACKS:
+            continue
+        affine = cv2.estimateAffine2D(xy[of], xy_next[of], method=cv2.RANSAC, ransacReprojThreshold=2.0)[0]
+        if affine is not None:
+            models[int(m)] = affine
+    if len(models) < 2:
+        return mask
+    flow = _full_size(flow, scale, (height, width))
+    names = np.array(sorted(models), np.uint8)
+    judged = np.isin(mask, names)
+    ys, xs = np.nonzero(judged)
+    points = np.stack([xs, ys], axis=1).astype(np.float32)
+    ends = points + flow[ys, xs]
+    miss = np.stack([np.linalg.norm(ends - points @ models[m][:, :2].T - models[m][:, 2], axis=1) for m in names])
+    own = miss[np.searchsorted(names, mask[ys, xs]), np.arange(ys.size)]
+    best = miss.argmin(axis=0)
+    change = miss[best, np.arange(ys.size)] < ratio * own
+    if not change.any():
+        return mask
+    out = mask.copy()
+    out[ys[change], xs[change]] = names[best[change]]
+    smooth = cv2.medianBlur(out, 5)
+    take = judged & np.isin(smooth, names)
+    out[take] = smooth[take]
+    return out
+
+
+def reassign_along(
+    mask: npt.NDArray[np.uint8],
+    tracks: tuple[npt.NDArray[np.int64], npt.NDArray[np.float32], npt.NDArray[np.int64], npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+    flow: npt.NDArray[np.float32],
+    scale: float,
+    ratio: float,
+) -> npt.NDArray[np.uint8]:
+    """`reassign_by_flow` with the step of the tracks seen in this frame and in its neighbour frame.
+
+    Args:
+        tracks: (ids, xy) of this frame's tracks and (ids, xy) of the neighbour frame's.
+        labels: (N,) int64 labels of this frame's tracks.
+        flow, scale, ratio: as `reassign_by_flow`'s.
+    """
+    here, step = common_step(tracks[:2], tracks[2:])
+    if not here.size:
+        return mask
+    return reassign_by_flow(mask, step, labels[here], flow, scale, ratio)

@@ -1,0 +1,1 @@
+"""Points and their trajectories: KLT tracks, SIFT pairs, the dense flow and its point grid, the trajectory matrix."""
