@@ -42,7 +42,7 @@ EXIT_CODES = {
     130: "interrupted by Ctrl-C (one 'moseg: error: interrupted' line)",
     143: "terminated by SIGTERM (one 'moseg: error: terminated (SIGTERM)' line)",
 }
-"""Exit codes of every moseg command (README, docs/CLI.md): 128 + the signal for a signal, as shells do."""
+"""Exit codes of every moseg command (docs/CLI.md): 128 + the signal for a signal, as shells do."""
 
 INTERRUPTED = 130
 TERMINATED = 143

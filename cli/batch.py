@@ -19,6 +19,7 @@ from mosegpipe.cli.options import (
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
+    MaxSide,
     Method,
     MethodChoice,
     ModelOpt,
@@ -83,6 +84,7 @@ def batch(
     masks: MaskOptions = MaskOptions(),
     mask_extra_tracks: MaskExtraTracks = MASK_EXTRA_TRACKS,
     preset: Preset = PresetChoice(PRESET_NAMES[0]),
+    max_side: MaxSide = None,
     model: ModelOpt = None,
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Redo clips that already have outputs (default: resume).")
@@ -158,6 +160,7 @@ def batch(
         masks=masks,
         mask_extra_tracks=mask_extra_tracks,
         preset=preset,
+        max_side=max_side,
     )
     engine = enum_value(engine)
     if address is not None and engine != "ray":

@@ -4,6 +4,7 @@ tracks made elsewhere): parse the options, one library call, print."""
 from __future__ import annotations
 
 import time
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -27,6 +28,7 @@ from mosegpipe.cli.options import (
     ClusterOptions,
     MaskExtraTracks,
     MaskOptions,
+    MaxSide,
     Method,
     MethodChoice,
     ModelOpt,
@@ -49,6 +51,13 @@ from mosegpipe.cli.options import (
 from mosegpipe.errors import InputError
 from mosegpipe.settings import MAX_FRAME_INDEX, MAX_FRAMES
 from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS
+
+
+class RunOutputs(StrEnum):
+    """What `moseg run --outputs` writes."""
+
+    all = "all"
+    masks = "masks"
 
 
 @friendly
@@ -96,6 +105,15 @@ def run(
     masks: MaskOptions = MaskOptions(),
     mask_extra_tracks: MaskExtraTracks = MASK_EXTRA_TRACKS,
     preset: Preset = PresetChoice(PRESET_NAMES[0]),
+    max_side: MaxSide = None,
+    outputs: Annotated[
+        RunOutputs,
+        typer.Option(
+            "--outputs",
+            help="all: masks, labels.npz, overlays, overlay.mp4, recording.rrd; masks: masks/, labels.npz and "
+            "summary.json only (no overlays, no recording).",
+        ),
+    ] = RunOutputs.all,
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     no_rrd: NoRrd = False,
@@ -107,8 +125,9 @@ def run(
     """Segment the motions in --frames frames of CLIP from --start (or the whole video with --whole).
 
     Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ (--whole: overlay.mp4) and
-    recording.rrd into the output folder; see docs/OUTPUTS.md. With --whole a progress bar with the time left is drawn on
-    stderr when it is a terminal. Exit code 1 with one 'moseg: error:' line on failure.
+    recording.rrd into the output folder (--outputs masks: the masks only); see docs/OUTPUTS.md; `moseg
+    export` turns the masks into per-object PNGs, alpha mattes or a cut-out video. With --whole a progress
+    bar with the time left is drawn on stderr when it is a terminal. Exit code 1 with one 'moseg: error:' line on failure.
     """
     started = time.perf_counter()
     # Paths and option combinations first: the libraries take a second to import.
@@ -140,22 +159,25 @@ def run(
         masks=masks,
         mask_extra_tracks=mask_extra_tracks,
         preset=preset,
+        max_side=max_side,
     )
+    views = outputs == RunOutputs.all
+    rrd = views and not no_rrd
     out = out or default_out_here(clip, "_moseg")
     lock_out(out)
     check_output_dir(out, overwrite)
-    _import_ahead(cfg, whole=whole, rrd=not no_rrd)
+    _import_ahead(cfg, whole=whole, rrd=rrd)
     net = load_embedder(frames, model)
     if whole:
         with frames_progress(clip, cfg, max_frames, quiet) as on_window:
             summary = write_video_outputs(
-                clip, out, cfg, net, overwrite=overwrite, rrd=not no_rrd, max_frames=max_frames, on_window=on_window
+                clip, out, cfg, net, overwrite, rrd, max_frames, on_window=on_window, overlays=views
             )
-        print_video_summary(summary, out, not no_rrd)
+        print_video_summary(summary, out, rrd)
         print_total(started)
         return
     result = segment_clip(clip, cfg, net)
-    summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=not no_rrd)
+    summary = write_clip_outputs(result, out, cfg, overwrite=overwrite, rrd=rrd, overlays=views)
     print_summary(summary, out)
     print_total(started)
 
@@ -263,7 +285,7 @@ def read_tracks_file(path: Path) -> tuple[Any, Any]:
 @friendly
 @option_blocks
 def tracks(
-    file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: README).")],
+    file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: docs/CLI.md).")],
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Output folder (default: in the current folder, FILE's name + '_moseg')."),

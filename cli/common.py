@@ -107,10 +107,14 @@ def print_summary(summary: dict[str, Any], out: Path) -> None:
     if summary.get("k_note"):
         typer.echo(f"note: {summary['k_note']}")
     typer.echo("timings: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in summary["timings_s"].items()))
-    files = "summary.json, labels.npz, masks/, overlay/" + (", overlay.mp4" if (out / "overlay.mp4").exists() else "")
-    files += ", recording.rrd" if (out / "recording.rrd").exists() else ""
-    typer.echo(f"wrote {out}/ ({files})")
+    typer.echo(f"wrote {out}/ ({_written(out)})")
     _print_view_hint(out)
+
+
+def _written(out: Path) -> str:
+    """What an output folder holds, in the order docs/OUTPUTS.md lists it: `summary.json, labels.npz, masks/, ...`."""
+    names = ("summary.json", "labels.npz", "masks/", "overlay/", "overlay.mp4", "recording.rrd")
+    return ", ".join(name for name in names if (out / name.rstrip("/")).exists())
 
 
 def _print_view_hint(out: Path) -> None:
@@ -126,7 +130,7 @@ def print_video_summary(summary: dict[str, Any], out: Path, rrd: bool) -> None:
         f"({summary['num_windows_labelled']} labelled) -> {summary['num_motions']} motion labels"
     )
     typer.echo(f"{summary['seconds']:.1f} s, {summary['processing_fps']:.1f} frames/s")
-    typer.echo(f"wrote {out}/ (summary.json, labels.npz, masks/, overlay.mp4" + (", recording.rrd)" if rrd else ")"))
+    typer.echo(f"wrote {out}/ ({_written(out)})")
     _print_view_hint(out)
 
 

@@ -19,6 +19,7 @@ from mosegpipe.cli.options import (
     RIGID_CHECK,
     ClusterOptions,
     MaskOptions,
+    MaxSide,
     Method,
     MethodChoice,
     ModelOpt,
@@ -332,6 +333,7 @@ def live(
     tracker: TrackerOptions = TrackerOptions(),
     masks: MaskOptions = MaskOptions(),
     preset: Preset = PresetChoice(LIVE_PRESET),
+    max_side: MaxSide = None,
     model: ModelOpt = None,
     overwrite: Overwrite = False,
     no_rrd: NoRrd = False,
@@ -367,6 +369,7 @@ def live(
         tracker=tracker,
         masks=masks,
         preset=preset,
+        max_side=max_side,
     )
     if out is not None:
         lock_out(out)

@@ -43,6 +43,7 @@ from mosegpipe.settings import (
     MAX_MIN_DISTANCE_PX,
     MAX_THREADS,
     MAX_WIN_SIZE_PX,
+    MIN_MAX_SIDE_PX,
     SettingError,
 )
 from mosegpipe.types import (
@@ -173,6 +174,17 @@ Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace results al
 
 
 NoRrd = Annotated[bool, typer.Option("--no-rrd", help="Skip the Rerun recording.")]
+
+
+MaxSide = Annotated[
+    int | None,
+    typer.Option(
+        "--max-side",
+        min=MIN_MAX_SIDE_PX,
+        help="Segment frames whose longer side exceeds N px shrunk to N (faster on HD video); the masks are "
+        "written at the input's size (labels upsampled, edges snapped to the frame's).",
+    ),
+]
 
 
 Start = Annotated[
@@ -478,11 +490,15 @@ def pipeline_cfg(
     masks: MaskOptions | None = None,
     mask_extra_tracks: int | None = None,
     preset: StrEnum | str | None = None,
+    max_side: int | None = None,
 ) -> Any:
     """The PipelineConfig of a command's options (`PipelineConfig.from_options`; tracker / masks None: the
-    library's defaults; mask_extra_tracks None: not an option of the command; preset None: "best"). The preset
-    applies first, then the tracker and mask options that were given (`_given`): an option typed or set in a
-    --config file wins over the preset, one left at its default does not undo it."""
+    library's defaults; mask_extra_tracks None: not an option of the command; preset None: "best"; max_side
+    None: frames segmented at their size). The preset applies first, then the tracker and mask options that were
+    given (`_given`): an option typed or set in a --config file wins over the preset, one left at its default does
+    not undo it."""
+    from dataclasses import replace
+
     from mosegpipe.pipeline import PipelineConfig
 
     track = tracker.config_fields() if tracker is not None else {}
@@ -491,7 +507,7 @@ def pipeline_cfg(
     if mask_extra_tracks is not None and (given is None or "mask_extra_tracks" in given):
         mask["extra_tracks"] = mask_extra_tracks
     try:
-        return PipelineConfig.from_options(
+        config = PipelineConfig.from_options(
             frames,
             start=start,
             k=clustering.k,
@@ -505,6 +521,7 @@ def pipeline_cfg(
             mask=mask,
             preset=enum_value(preset),
         )
+        return config if max_side is None else replace(config, max_side=max_side)
     except SettingError as exc:  # named by the option that set it
         if exc.path not in SETTING_OPTIONS:
             raise

@@ -1,6 +1,6 @@
 """mosegpipe: motion segmentation of tracked points with SubspaceNet.
 
-The public API, stage by stage (see README.md):
+The public API, stage by stage (see docs/HOW-IT-WORKS.md):
 
     frames = read_video("clip.mp4", max_frames=5)        # Frames (T, H, W, 3) uint8
     tracks = track_klt(frames)                           # Tracks xy (N, T, 2), visible (N, T)

@@ -105,3 +105,35 @@ def value_names(num_motions: int, unknown: str = "unknown") -> dict[int, str]:
     if num_motions:
         names[WORLD] = "the world (motion 0)"
     return {**names, MOVING_UNCLUSTERED: "moving, no clustered motion", UNKNOWN: unknown}
+
+
+def legend_rows(
+    labels: npt.NDArray[np.int64], mask_values: npt.NDArray[np.int64] | None = None, unknown: str = "unknown"
+) -> list[tuple[int, str, tuple[int, int, int], int]]:
+    """The rows of a legend: what each colour of an overlay or a recording is, and how many tracks it has.
+
+    A value's colour never depends on the frame or the window: it is its entry in :func:`point_palette`
+    (the colour of its tracks' dots; the world's white, its pixels untinted), the same mask value always
+    the same colour.
+
+    Args:
+        labels: (N,) int64 track labels (-1 = unlabelled, not counted).
+        mask_values: values the mask shows, added without tracks when no track has them (254, 255).
+        unknown: the name of 255.
+
+    Returns:
+        (value, name, (R, G, B), tracks) per value, by value: "the world (motion 0)", "motion m", ...
+    """
+    labels = np.asarray(labels, dtype=np.int64).reshape(-1)
+    counts = np.bincount(labels[(labels >= 0) & (labels <= UNKNOWN)], minlength=256)
+    shown = set(np.flatnonzero(counts).tolist())
+    if mask_values is not None:
+        shown |= {int(v) for v in np.asarray(mask_values).reshape(-1) if v in (MOVING_UNCLUSTERED, UNKNOWN)}
+    highest = max((v for v in shown if v < MOVING_UNCLUSTERED), default=-1)
+    names = value_names(highest + 1, unknown)
+    palette = point_palette()
+    rows = []
+    for value in sorted(shown):
+        r, g, b = (int(c) for c in palette[value])
+        rows.append((value, names.get(value, f"motion {value}"), (r, g, b), int(counts[value])))
+    return rows

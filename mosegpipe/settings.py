@@ -29,6 +29,8 @@ MAX_FRAMES = 10_000
 """The longest window of trajectories, frames ((N, 2F) per window)."""
 MAX_FRAME_INDEX = 2**31 - 1
 """The largest frame index (OpenCV seeks with an int)."""
+MIN_MAX_SIDE_PX = 32
+"""Smallest `max_side` (PipelineConfig, `--max-side`) taken: below it no frame holds enough corners to track."""
 MAX_CORNERS = 100_000
 """The most KLT corners or flow seeds (past 3e9 OpenCV overflows its int argument)."""
 MAX_WIN_SIZE_PX = 255

@@ -46,7 +46,11 @@ PRESET_NAMES: tuple[PresetName, ...] = get_args(PresetName)
 
 DisPreset = Literal["ultrafast", "fast", "medium"]
 """OpenCV DIS presets of the dense flow (FlowConfig.preset; mosegpipe.points.flow maps them to OpenCV's)."""
+
 DIS_PRESET_NAMES: tuple[DisPreset, ...] = get_args(DisPreset)
+
+EXPORT_FORMATS = ("binary", "alpha", "cutout", "davis", "npz")
+"""What `moseg export --as` writes from an output folder (mosegpipe.apps.export)."""
 
 CameraFit = Literal["ransac", "magsac"]
 """Robust fits of the camera's homography to the flow (FlowConfig.camera_fit; mosegpipe.points.flow maps them to

@@ -435,6 +435,8 @@ def test_every_option_default_is_its_config_fields_default() -> None:
 
 FREE_TEXT = {("batch", "address"), ("view", "bind"), ("train", "exclude"), ("eval", "baselines")}
 FREE_TEXT |= {
+    ("export", "objects"),  # comma-separated mask values, checked by export.parse_objects
+    ("export", "background"),  # a colour, #RRGGBB or R,G,B, checked by export.parse_colour
     ("eval", "folds"),
     ("eval", "settings"),
     ("study", "clips"),
@@ -452,7 +454,7 @@ FREE_TEXT |= {
 def test_every_option_has_help_and_every_choice_is_an_enum() -> None:
     group = typer.main.get_command(app)
     assert sorted(group.commands) == sorted(
-        ["run", "pair", "tracks", "batch", "replay", "view", "live", "train", "eval", "study"]
+        ["run", "pair", "tracks", "export", "batch", "replay", "view", "live", "train", "eval", "study"]
     )
     for name, command in group.commands.items():
         hints = cli_config._option_hints(name)

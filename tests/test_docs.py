@@ -24,7 +24,16 @@ from mosegpipe.cli.app import click_api as click  # typer's own click where it s
 from mosegpipe.cli.main import app
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = ["README.md", "docs/CLI.md", "docs/RESULTS.md", "docs/OUTPUTS.md", "docs/SCALING.md", "samples/README.md"]
+PAGES = [
+    "README.md",
+    "docs/CLI.md",
+    "docs/RESULTS.md",
+    "docs/OUTPUTS.md",
+    "docs/SCALING.md",
+    "docs/HOW-IT-WORKS.md",
+    "docs/TRAINING.md",
+    "samples/README.md",
+]
 PLACEHOLDER = re.compile(r"^[A-Z][A-Z0-9_]*(\.[A-Za-z]+)?$")  # OUT, CLIP, N, SECONDS, FILE.npz ...
 SHELL_LANGS = {"", "bash", "sh", "shell", "console"}
 

@@ -177,9 +177,9 @@ def test_no_import_circles(graph: dict[str, set[str]]) -> None:
 
 
 def test_inference_stages_never_import_training_evaluation_or_synth(graph: dict[str, set[str]]) -> None:
-    # Every module but the training side and the CLI (whose train/eval commands load it on demand): computed, so
-    # that a new module is held to the rule without being listed anywhere.
-    stages = [m for m in graph if not m.startswith((*FORBIDDEN, "mosegpipe.cli"))]
+    # Every module but the training side and the CLI (whose train/eval commands load it on demand; `python -m
+    # mosegpipe` is the CLI too): computed, so that a new module is held to the rule without being listed anywhere.
+    stages = [m for m in graph if not m.startswith((*FORBIDDEN, "mosegpipe.cli", "mosegpipe.__main__"))]
     assert "mosegpipe.pipeline.clip" in stages and "mosegpipe.apps.outputs" in stages
     for module in stages:
         bad = sorted(m for m in reachable(graph, module) if m.startswith(FORBIDDEN))

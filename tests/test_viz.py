@@ -237,6 +237,7 @@ def test_clip_layout(tmp_path: Path) -> None:
     assert {name: (v["class"], v["origin"]) for name, v in views.items()} == {
         "frame, tracks and masks": ("2D", "video"),
         "summary": ("TextDocument", "summary"),
+        "legend": ("TextDocument", "legend"),
         "score per K": ("2D", "k_scores"),
         "embedding": ("3D", "embedding"),
     }
@@ -244,8 +245,8 @@ def test_clip_layout(tmp_path: Path) -> None:
     assert root["contents"][0] == "frame, tracks and masks"
     assert root["col_shares"][1] / sum(root["col_shares"]) <= 0.25  # side column: a quarter of the width
     (side,) = [c for c in layout["containers"].values() if c["row_shares"]]
-    assert side["contents"] == ["summary", "score per K", "embedding"]
-    assert side["row_shares"][0] / sum(side["row_shares"]) >= 0.25  # the summary gets room for its lines
+    assert side["contents"] == ["summary", "legend", "score per K", "embedding"]
+    assert side["row_shares"][0] / sum(side["row_shares"]) >= 0.2  # the summary gets room for its lines
     # The viewer's own side panels start folded; the time panel stays open for scrubbing.
     assert layout["panels"] == {"blueprint_panel": 2, "selection_panel": 2, "time_panel": 3}
     eye = views["embedding"]["props"]["EyeControls3D"]
@@ -437,6 +438,7 @@ def test_pair_layout(tmp_path: Path) -> None:
         "image 1": ("2D", "image1"),
         "image 2": ("2D", "image2"),
         "summary": ("TextDocument", "summary"),
+        "legend": ("TextDocument", "legend"),
         "score per K": ("2D", "k_scores"),
         "embedding": ("3D", "embedding"),
     }
@@ -457,7 +459,7 @@ def test_pair_recording(tmp_path: Path) -> None:
     assert "unknown / outlier" in str(got["batches"]["/"])
     assert _column(got["batches"]["/k_scores/k"], "Points2D:labels")[0] == ["K=2", "K=3"]
     layout = _layout(path)
-    assert {"image 1", "image 2", "summary", "score per K", "embedding"} == set(layout["views"])
+    assert {"image 1", "image 2", "summary", "legend", "score per K", "embedding"} == set(layout["views"])
     assert layout["panels"] == {"blueprint_panel": 2, "selection_panel": 2, "time_panel": 2}  # no timeline
     with pytest.raises(InputError, match="sizes do not match"):
         write_pair_recording(tmp_path / "bad.rrd", (img2, img1), matches, labels, np.zeros((6, 2)), None, {}, 3)
@@ -572,6 +574,7 @@ def test_video_layout(tmp_path: Path) -> None:
         "frame, tracks and masks": ("2D", "video"),
         "K per window": ("TimeSeries", "windows/k"),
         "how clear K is (score lead)": ("TimeSeries", "windows/k_margin"),
+        "legend (this window)": ("TextDocument", "legend"),
     }
     # The frame view shows everything under video/: the frames, the masks and the tracks.
     assert views["frame, tracks and masks"]["props"]["ViewContents"]["query"] == ["$origin/**"]
@@ -592,7 +595,7 @@ def test_video_recorder_without_windows_or_margins(tmp_path: Path) -> None:
     with VideoRecorder(path, margins=False) as rec:
         rec.log_window(0, 3)  # no scores (K forced): K per window only
         rec.log_frame(0, np.zeros((8, 8, 3), np.uint8), np.zeros((1, 2)), np.array([0]), np.array([0]))
-    assert set(_layout(path)["views"]) == {"frame, tracks and masks", "K per window"}
+    assert set(_layout(path)["views"]) == {"frame, tracks and masks", "K per window", "legend (this window)"}
     assert_layout_first(path)
 
 

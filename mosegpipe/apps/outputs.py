@@ -28,7 +28,7 @@ from mosegpipe.embed.numpy_net import load_embedder
 from mosegpipe.errors import InputError, OutputExistsError
 from mosegpipe.io.provenance import source_identity
 from mosegpipe.io.read import video_info, write_jpeg, write_json, write_npz, write_palette_png, write_video
-from mosegpipe.masks import overlay_image
+from mosegpipe.masks import overlay_with_legend
 from mosegpipe.pipeline import (
     ClipResult,
     PairResult,
@@ -126,16 +126,23 @@ def _write_masks_and_overlays(
     xys: list[npt.NDArray[np.float32]],
     labels: npt.NDArray[np.int64],
     fps: float | None = None,
+    overlays_too: bool = True,
+    unknown: str = "unknown",
 ) -> None:
     """masks/NNNNNN.png (palette) and overlay/NNNNNN.jpg for each image, named by its index in the source;
-    with `fps` (0.0 = unknown), the overlays also as overlay.mp4 (H.264, as whole videos write it)."""
+    with `fps` (0.0 = unknown), the overlays also as overlay.mp4 (H.264, as whole videos write it). Without
+    `overlays_too`, the masks only. The legend names 255 `unknown`."""
     (folder / "masks").mkdir()
+    if not overlays_too:
+        for index, mask in zip(indices, masks):
+            write_mask_png(folder / "masks" / f"{index:06d}.png", mask)
+        return
     (folder / "overlay").mkdir()
 
     def overlays() -> Iterator[npt.NDArray[np.uint8]]:
         for index, image, mask, xy in zip(indices, images, masks, xys):
             write_mask_png(folder / "masks" / f"{index:06d}.png", mask)
-            overlay = overlay_image(image, mask, xy, labels)
+            overlay = overlay_with_legend(image, mask, xy, labels, unknown)
             write_jpeg(folder / "overlay" / f"{index:06d}.jpg", overlay, quality=90)
             yield overlay
 
@@ -146,9 +153,11 @@ def _write_masks_and_overlays(
         write_video(folder / "overlay.mp4", overlays(), fps or _FALLBACK_FPS)
 
 
-def _write_clip_views(folder: Path, result: ClipResult, summary: dict[str, Any], rrd: bool) -> None:
-    """A clip's masks/, overlay/, overlay.mp4 and (rrd) recording.rrd into `folder`; the recording's
-    seconds go into summary["timings_s"]."""
+def _write_clip_views(
+    folder: Path, result: ClipResult, summary: dict[str, Any], rrd: bool, overlays: bool = True
+) -> None:
+    """A clip's masks/, (overlays) overlay/ and overlay.mp4, and (rrd) recording.rrd into `folder`; the
+    recording's seconds go into summary["timings_s"]."""
     traj = result.trajectories
     _write_masks_and_overlays(
         folder,
@@ -158,6 +167,7 @@ def _write_clip_views(folder: Path, result: ClipResult, summary: dict[str, Any],
         [result.tracks.xy[traj.track_ids, t] for t in range(result.frames.num_frames)],
         result.clustering.labels,
         fps=result.frames.fps,
+        overlays_too=overlays,
     )
     if rrd:
         from mosegpipe.viz import write_recording
@@ -216,6 +226,7 @@ def write_clip_outputs(
     overwrite: bool = False,
     rrd: bool = True,
     extra: dict[str, Any] | None = None,
+    overlays: bool = True,
 ) -> dict[str, Any]:
     """Writes summary.json, labels.npz, masks/*.png (palette), overlay/*.jpg, overlay.mp4 and recording.rrd
     atomically.
@@ -230,6 +241,8 @@ def write_clip_outputs(
         overwrite: replace an existing moseg output folder.
         rrd: also write the Rerun recording.
         extra: more summary.json fields (a batch records its config hash there).
+        overlays: also write overlay/ and overlay.mp4 (False: the masks, labels.npz and summary.json only,
+            `moseg run --outputs masks`).
 
     Returns:
         The summary dict that was written.
@@ -247,7 +260,7 @@ def write_clip_outputs(
             xy=result.tracks.xy[traj.track_ids],
             embeddings=result.embeddings,
         )
-        _write_clip_views(tmp, result, summary, rrd)
+        _write_clip_views(tmp, result, summary, rrd, overlays)
         write_json(tmp / "summary.json", summary)
     return summary
 
@@ -315,7 +328,10 @@ def write_pair_outputs(
             clusters=result.clustering.labels,
             embeddings=result.embeddings,
         )
-        _write_masks_and_overlays(tmp, [0, 1], result.images, result.masks, [m.xy1, m.xy2], result.labels)
+        xys = [m.xy1, m.xy2]
+        _write_masks_and_overlays(
+            tmp, [0, 1], result.images, result.masks, xys, result.labels, unknown="unknown / outlier"
+        )
         if rrd:
             from mosegpipe.viz import write_pair_recording
 
@@ -380,13 +396,13 @@ def write_video_outputs(
     info: dict[str, Any] | None = None,
     on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None = None,
     summary_extra: Callable[[], dict[str, Any]] | None = None,
+    overlays: bool = True,
 ) -> dict[str, Any]:
     """Segments a whole video (pipeline.segment_video) and streams its outputs into a folder.
 
     Output folder (built atomically; see docs/OUTPUTS.md): masks/NNNNNN.png for every frame (palette
     PNG, value = global motion label, 255 = unknown), overlay.mp4 (H.264), labels.npz, summary.json
-    and recording.rrd (frames as one H.264 video asset, K per window). Only one window's frames are
-    held at a time.
+    and recording.rrd (frames as one H.264 video asset, K per window). Flat memory: a few windows' frames.
 
     Args:
         path: video file or frame folder.
@@ -407,6 +423,7 @@ def write_video_outputs(
             view).
         summary_extra: called once the frames ended; its keys are added to summary.json (a live run's
             counts).
+        overlays: also write overlay.mp4.
 
     Returns:
         The summary dict written to summary.json.
@@ -433,19 +450,28 @@ def write_video_outputs(
                 from mosegpipe.viz import VIDEO_VIZ, VideoRecorder
 
                 # A forced K has no runner-up: no margin chart.
-                recorder = stack.enter_context(
-                    VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps, margins=cfg.k is None)
-                )
+                rec = VideoRecorder(tmp / "recording.rrd", cfg=viz or VIDEO_VIZ, fps=fps, margins=cfg.k is None)
+                recorder = stack.enter_context(rec)
 
             segmented = partial(segment_video, path, cfg, model, max_frames, masks=False, frames=frames)
-            overlays = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window)
-            write_video(tmp / "overlay.mp4", overlays, fps)
+            shown = _written_overlays(segmented, cfg, tmp, windows, recorder, on_frame, on_window, overlays)
+            _drain(shown, tmp / "overlay.mp4" if overlays else None, fps)
         windows.write_labels(tmp / "labels.npz")
         summary = video_summary(path, info, windows, cfg, model, time.perf_counter() - t_start)
         if summary_extra is not None:
             summary.update(summary_extra())
         write_json(tmp / "summary.json", summary)
     return summary
+
+
+def _drain(shown: Iterator[npt.NDArray[np.uint8] | None], video: Path | None, fps: float) -> None:
+    """Runs `shown` to its end (each frame's files are written as it is asked for), its overlays into
+    `video` (H.264) when given."""
+    if video is not None:
+        write_video(video, (o for o in shown if o is not None), fps)
+        return
+    for _ in shown:
+        pass
 
 
 def _written_overlays(
@@ -456,13 +482,15 @@ def _written_overlays(
     recorder: VideoRecorder | None,
     on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None] | None,
     on_window: Callable[[WindowResult], None] | None,
-) -> Iterator[npt.NDArray[np.uint8]]:
-    """Writes each frame's mask (and recording) as the windows arrive; yields its overlay. The windows
-    come from `segmented()`, called when the first overlay is asked for; each goes into `windows`."""
+    overlays: bool = True,
+) -> Iterator[npt.NDArray[np.uint8] | None]:
+    """Writes each frame's mask (and recording) as the windows arrive; yields its overlay (None without
+    `overlays`). The windows come from `segmented()`, called when the first overlay is asked for; each goes
+    into `windows`."""
     for window in run_ahead(segmented(), WINDOWS_AHEAD, "moseg-segment"):
         windows.add(window)  # what the summary and labels.npz need, not the images (flat memory)
         if recorder is not None:
-            recorder.log_window(window.start, window.k, window.k_scores)
+            recorder.log_window(window.start, window.k, window.k_scores, window.labels)
         for fr in window.frames:
             keep = fr.labels >= 0
             mask = frame_mask(fr, cfg.mask)
@@ -471,7 +499,7 @@ def _written_overlays(
                 recorder.log_frame(fr.index, fr.image, fr.xy[keep], fr.track_ids[keep], fr.labels[keep], mask)
             if on_frame is not None:
                 on_frame(fr, mask)
-            yield overlay_image(fr.image, mask, fr.xy[keep], fr.labels[keep])
+            yield overlay_with_legend(fr.image, mask, fr.xy[keep], fr.labels[keep]) if overlays else None
         if on_window is not None:
             on_window(replace(window, frames=()))
         del window, fr  # before the next window is read: hold a few windows' frames at most

@@ -24,7 +24,8 @@ Every method but "motion" and "learned" leaves pixels farther than `max_distance
 unknown (255). What each method and step measured: docs/RESULTS.md ("Real video", "Rendered clips").
 
 Modules: labels (the mask values, MaskConfig, the track-only methods), moving_pixels (which pixels move),
-compose (the mask sequence), learned (the mask networks' inference) and overlays (overlay_mask, overlay_image).
+compose (the mask sequence), learned (the mask networks' inference) and overlays (overlay_mask, overlay_image,
+overlay_with_legend).
 Every public name of labels, compose and overlays is re-exported here.
 """
 
@@ -49,8 +50,10 @@ from mosegpipe.masks.labels import (
     labels_to_masks,
 )
 from mosegpipe.masks.overlays import (
+    draw_legend,
     overlay_image,
     overlay_mask,
+    overlay_with_legend,
 )
 
 __all__ = [
@@ -65,8 +68,10 @@ __all__ = [
     "labels_to_masks",
     "motion_masks",
     "moving_to_labels",
+    "draw_legend",
     "overlay_image",
     "overlay_mask",
+    "overlay_with_legend",
     "reassign_along",
     "reassign_by_flow",
     "split_unexplained",

@@ -1,4 +1,5 @@
-"""Overlays (mosegpipe.masks): a mask tinted over its frame, with the labelled tracks' dots on it."""
+"""Overlays (mosegpipe.masks): a mask tinted over its frame, with the labelled tracks' dots on it and a
+legend of its colours."""
 
 from __future__ import annotations
 
@@ -6,7 +7,15 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.colours import UNKNOWN_RGB, WORLD, mask_palette, point_palette
+from mosegpipe.colours import (
+    MOVING_UNCLUSTERED,
+    UNKNOWN,
+    UNKNOWN_RGB,
+    WORLD,
+    legend_rows,
+    mask_palette,
+    point_palette,
+)
 from mosegpipe.errors import InputError
 
 
@@ -40,6 +49,9 @@ def overlay_mask(
     cv2.copyTo(image, cv2.compare(mask, WORLD, cv2.CMP_EQ), out)
     return out
 
+
+LEGEND_MAX_SHARE = 1 / 3
+"""The largest share of a frame the legend may cover (a tiny frame, or many motions, go without one)."""
 
 _DOT_FILL = [(dy, dx) for dy in range(-3, 4) for dx in range(-3, 4) if dy * dy + dx * dx <= 5]
 _DOT_RING = [(dy, dx) for dy in range(-3, 4) for dx in range(-3, 4) if 5 < dy * dy + dx * dx <= 11]
@@ -98,3 +110,53 @@ def overlay_image(
     _stamp(out, xy_int[inl], _DOT_RING, np.zeros_like(colours))
     _stamp(out, xy_int[inl], _DOT_FILL, colours)
     return out
+
+
+def draw_legend(
+    image: npt.NDArray[np.uint8], rows: list[tuple[int, str, tuple[int, int, int], int]]
+) -> npt.NDArray[np.uint8]:
+    """The legend drawn into the top-left corner of an overlay: per row a swatch of its colour, its name and
+    its track count ("motion 1: 54 tracks"), on a darkened box; sized to the image (text about 1/40 of its
+    height, at least 8 px). Left out where it would cover more than LEGEND_MAX_SHARE of the frame.
+
+    Args:
+        image: (H, W, 3) uint8 RGB overlay, drawn into in place.
+        rows: colours.legend_rows(): (value, name, (R, G, B), tracks).
+
+    Returns:
+        `image`.
+    """
+    if not rows:
+        return image
+    h = image.shape[0]
+    font, scale = cv2.FONT_HERSHEY_SIMPLEX, max(0.35, h / 1000)
+    thick = 1 if h < 900 else 2
+    texts = [f"{name}: {count} track{'s' if count != 1 else ''}" if count else name for _, name, _, count in rows]
+    (_, text_h), _ = cv2.getTextSize("Mg", font, scale, thick)
+    line, pad = int(text_h * 1.8), max(2, text_h // 2)
+    swatch = text_h
+    width = max(cv2.getTextSize(t, font, scale, thick)[0][0] for t in texts) + swatch + 3 * pad
+    height = len(rows) * line + pad
+    if width * height > image.shape[0] * image.shape[1] * LEGEND_MAX_SHARE:
+        return image  # a frame too small to hold it: the picture matters more
+    box = image[:height, :width]
+    box[:] = (box.astype(np.uint16) * 3 // 10).astype(np.uint8)  # darkened to 30 %: the text reads on any frame
+    for i, ((_, _, colour, _), text) in enumerate(zip(rows, texts)):
+        y = pad + i * line + text_h
+        cv2.rectangle(image, (pad, y - swatch), (pad + swatch, y), colour, thickness=-1)
+        cv2.putText(image, text, (2 * pad + swatch, y), font, scale, (255, 255, 255), thick, cv2.LINE_AA)
+    return image
+
+
+def overlay_with_legend(
+    image: npt.NDArray[np.uint8],
+    mask: npt.NDArray[np.uint8] | None,
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    unknown: str = "unknown",
+) -> npt.NDArray[np.uint8]:
+    """overlay_image with its legend (draw_legend): a row per label of the frame's tracks (their count in
+    this frame) and per mask value 254 / 255 the mask shows; what overlay/ and overlay.mp4 hold."""
+    out = overlay_image(image, mask, xy, labels)
+    shown = [] if mask is None else [v for v in (MOVING_UNCLUSTERED, UNKNOWN) if (mask == v).any()]
+    return draw_legend(out, legend_rows(labels, np.array(shown, dtype=np.int64), unknown))

@@ -28,6 +28,7 @@ from mosegpipe.pipeline.common import (
     model_or_default,
 )
 from mosegpipe.pipeline.config import PipelineConfig
+from mosegpipe.pipeline.resize import shrink_factor, shrink_image, shrink_images, upscale_mask, upscale_xy
 from mosegpipe.points.flow import FrameMotion, flow_fits
 from mosegpipe.points.flow_grid import combine_tracks, track_flow
 from mosegpipe.points.klt import spread_corners, track_klt, track_points
@@ -131,7 +132,46 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
 
     One frame shows no motion: unless cfg.k says otherwise, its tracks are one motion (K = 1, with a
     note saying why).
+
+    With cfg.max_side, frames whose longer side exceeds it are segmented shrunk to it and the result is
+    brought back to their size (`full_size`): masks upsampled (edges snapped to the frames'), track positions scaled.
     """
+    scale = shrink_factor(frames.images.shape[1:3], cfg.max_side)
+    if scale >= 1.0:
+        return _segment_frames(frames, cfg, model)
+    t0 = time.perf_counter()
+    small = replace(
+        frames,
+        images=shrink_images(frames.images, scale),
+        before=None if frames.before is None else shrink_image(frames.before, scale),
+        after=None if frames.after is None else shrink_image(frames.after, scale),
+    )
+    resize_s = time.perf_counter() - t0
+    return full_size(_segment_frames(small, cfg, model), frames, scale, resize_s)
+
+
+def full_size(result: ClipResult, frames: Frames, scale: float, resize_s: float = 0.0) -> ClipResult:
+    """A clip's result on frames shrunk by `scale` brought back to `frames` (the input): its frames, its
+        tracks' positions on the input's grid, its masks upsampled with their edges snapped to the input's frames
+    (resize.upscale_mask); timings gain "resize"
+        (the shrinking and the upsampling, seconds)."""
+    t0 = time.perf_counter()
+    tracks = Tracks(
+        xy=upscale_xy(result.tracks.xy, scale),
+        visible=result.tracks.visible,
+        size_hw=(int(frames.images.shape[1]), int(frames.images.shape[2])),
+    )
+    traj = replace(
+        result.trajectories,
+        data=upscale_xy(result.trajectories.data.reshape(-1, 2), scale).reshape(result.trajectories.data.shape),
+    )
+    masks = np.stack([upscale_mask(m, image) for m, image in zip(result.masks, frames.images)])
+    timings = {**result.timings, "resize": resize_s + time.perf_counter() - t0}
+    return replace(result, frames=frames, tracks=tracks, trajectories=traj, masks=masks, timings=timings)
+
+
+def _segment_frames(frames: Frames, cfg: PipelineConfig, model: Embedder | None) -> ClipResult:
+    """segment_frames at the frames' own size."""
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
     check_mask_networks(cfg.mask)

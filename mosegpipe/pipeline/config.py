@@ -30,7 +30,7 @@ from mosegpipe.configs import (
     WorldConfig,
 )
 from mosegpipe.errors import ConfigError, check_choice
-from mosegpipe.settings import Check, SettingError, check_fields, check_setting, check_settings
+from mosegpipe.settings import MIN_MAX_SIDE_PX, Check, SettingError, check_fields, check_setting, check_settings
 from mosegpipe.types import PRESET_NAMES, SEGMENT_METHODS, TRACKERS
 
 PRESETS: dict[str, tuple[str, ...]] = {
@@ -102,6 +102,7 @@ class PipelineConfig:
         outlier_inlier_ratio: pairs: a cluster whose best fundamental-matrix fit explains less of it is outliers.
         video_k_step: whole videos: a window tries K up to the previous window's K plus this (None = the full sweep).
         video_cut_survival: whole videos: fewer surviving tracks than this share is a shot cut (None = no cut detection).
+        max_side: frames with a longer side shrunk to it to segment, masks written at the input's size (None = off).
     """
 
     frames: int = 5
@@ -123,6 +124,7 @@ class PipelineConfig:
     outlier_inlier_ratio: float = 0.5
     video_k_step: int | None = 2
     video_cut_survival: float | None = 0.25
+    max_side: int | None = None
 
     def __post_init__(self) -> None:
         check_fields(self, _PIPELINE_CHECKS)
@@ -272,6 +274,7 @@ _PIPELINE_CHECKS: tuple[Check, ...] = (
     ("tracker", lambda v: v in TRACKERS, f"be one of {', '.join(TRACKERS)}"),
     ("video_k_step", lambda v: v >= 1, "be at least 1 (or None: no limit)"),
     ("video_cut_survival", lambda v: 0 < v < 1, "lie in (0, 1) (or None: no cut detection)"),
+    ("max_side", lambda v: v >= MIN_MAX_SIDE_PX, f"be at least {MIN_MAX_SIDE_PX} pixels (or None: the input's size)"),
 )
 """PipelineConfig's checks of its own choices and switches (its numbers' bounds: settings.BOUNDS)."""
 

@@ -48,7 +48,8 @@ from mosegpipe.pipeline.common import (
     frames_text,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.pipeline.window import FrameTracks, VideoFrame, WindowResult, frame_mask
+from mosegpipe.pipeline.resize import shrunk_stream
+from mosegpipe.pipeline.window import FrameTracks, VideoFrame, WindowResult, at_input_size, frame_mask
 from mosegpipe.points.flow import FlowStream, FrameMotion, flow_fits
 from mosegpipe.points.klt import KLTTracker, tracks_from_steps
 from mosegpipe.points.trajectories import build_trajectories
@@ -169,8 +170,9 @@ def segment_video(
             contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
         )
         for window, first_labelled, after in windows:
-            yield _label_window(window, first_labelled, cfg, model, run, masks, stream, after)
-            del window  # from here on its frames live only in the result: a few windows' frames are held
+            result = _label_window(window, first_labelled, cfg, model, run, masks, stream, after)
+            yield at_input_size(result, run.originals) if run.originals is not None else result
+            del window, result  # from here on its frames live only in the result: a few windows' frames are held
     _report_video_end(path, cfg, info, run, max_frames)
 
 
@@ -207,6 +209,7 @@ class _VideoRun:
     ambiguous: list[tuple[int, int]] = field(default_factory=list)
     masks: MaskSequence = field(default_factory=lambda: MaskSequence(MaskConfig(), video=True))
     frame_before: int | None = None
+    originals: dict[int, npt.NDArray[np.uint8]] | None = None
 
 
 def _no_labels() -> npt.NDArray[np.int64]:
@@ -269,6 +272,9 @@ def _read_windows(
     first_done = False  # whether window[0] was labelled by the window before (it starts on its last frame)
     held: tuple[list[FrameTracks], bool] | None = None  # a full window waiting for the next frame's flows
     frames_iter = iter_video(path, start=cfg.start, max_frames=max_frames) if frames is None else iter(frames)
+    if cfg.max_side is not None:
+        run.originals = {}
+        frames_iter = shrunk_stream(frames_iter, cfg.max_side, run.originals)
     while True:
         with decode_errors(path):
             item = next(frames_iter, None)

@@ -4,7 +4,7 @@ frames (VideoFrame) and a frame's mask (frame_mask)."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -14,6 +14,7 @@ from mosegpipe.masks import (
     labels_to_mask,
     moving_to_labels,
 )
+from mosegpipe.pipeline.resize import upscale_labels, upscale_mask, upscale_xy
 from mosegpipe.types import FLOW_MASK_METHODS
 
 AMBIGUOUS_K_NOTE = "the K choice is ambiguous"
@@ -121,3 +122,21 @@ class WindowResult:
             "k_ambiguous": self.is_k_ambiguous,
             "shot_start": self.shot_start,
         }
+
+
+def at_input_size(window: WindowResult, originals: dict[int, npt.NDArray[np.uint8]]) -> WindowResult:
+    """A window segmented on shrunk frames (cfg.max_side) with its frames brought back to the input's: the
+    input's image (taken out of `originals`), the tracks' positions scaled, the mask upsampled with its edges
+    snapped to the image's (resize.upscale_mask), the moving pixels by nearest neighbour."""
+    frames = []
+    for fr in window.frames:
+        image = originals.pop(fr.index, None)
+        if image is None:  # not shrunk: already at the input's size
+            frames.append(fr)
+            continue
+        size_hw = (int(image.shape[0]), int(image.shape[1]))
+        scale = fr.image.shape[1] / size_hw[1]
+        moving = None if fr.moving is None else upscale_labels(fr.moving.view(np.uint8), size_hw).view(np.bool_)
+        mask = None if fr.mask is None else upscale_mask(fr.mask, image)
+        frames.append(replace(fr, image=image, xy=upscale_xy(fr.xy, scale), mask=mask, moving=moving))
+    return replace(window, frames=tuple(frames))

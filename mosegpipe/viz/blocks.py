@@ -51,11 +51,14 @@ def view_panels(timeline: bool) -> list[Any]:
 
 
 def side_column(k_scores: Mapping[int, float]) -> rrb.Vertical:
-    """Summary, K chart (when there are scores) and embedding, stacked."""
+    """Summary, legend, K chart (when there are scores) and embedding, stacked."""
     import rerun.blueprint as rrb
 
-    views: list[rrb.View] = [rrb.TextDocumentView(origin="summary", name="summary")]
-    shares = [SIDE_SHARES["summary"]]
+    views: list[rrb.View] = [
+        rrb.TextDocumentView(origin="summary", name="summary"),
+        rrb.TextDocumentView(origin="legend", name="legend"),
+    ]
+    shares = [SIDE_SHARES["summary"], SIDE_SHARES["legend"]]
     if k_scores:
         chart = k_chart(k_scores)
         bounds = rrb.VisualBounds2D(x_range=chart.x_range, y_range=chart.y_range)
@@ -196,6 +199,14 @@ def _log_k_chart(rec: rr.RecordingStream, k_scores: Mapping[int, float], k: int)
     ):
         points = rr.Points2D(xy, colors=colors, radii=rr.Radius.ui_points(0.5), labels=texts, show_labels=True)
         rec.log(entity, points, static=True)
+
+
+def log_legend(rec: rr.RecordingStream, legend: str, static: bool = True) -> None:
+    """The legend (viz.legend_markdown: value, colour, name and tracks per motion) as the markdown document
+    `legend` (static, or at the stream's current time)."""
+    import rerun as rr
+
+    rec.log("legend", rr.TextDocument(legend, media_type="text/markdown"), static=static)
 
 
 def log_embedding_and_scores(

@@ -19,12 +19,21 @@ from mosegpipe.viz.blocks import (
     log_annotation_contexts,
     log_embedding_and_scores,
     log_image_layers,
+    log_legend,
     log_trails,
     log_written,
     side_column,
     view_panels,
 )
-from mosegpipe.viz.common import MAIN_SHARES, MAX_CLASSES, TIMELINE, VizConfig, class_ids_of, class_names
+from mosegpipe.viz.common import (
+    MAIN_SHARES,
+    MAX_CLASSES,
+    TIMELINE,
+    VizConfig,
+    class_ids_of,
+    class_names,
+    legend_markdown,
+)
 
 if TYPE_CHECKING:
     import rerun.blueprint as rrb
@@ -129,6 +138,7 @@ def write_recording(
         try:
             log_annotation_contexts(rec, ["video"] if masks is not None else [], class_names(k))
             log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
+            log_legend(rec, legend_markdown(labels, masks))
             for t in range(frames.num_frames):
                 rec.set_time(TIMELINE, sequence=frames.start + t)
                 seen = visible[:, t]

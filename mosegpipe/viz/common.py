@@ -4,14 +4,22 @@ embedding's cube, the K chart's geometry and the one line on K (k_statement)."""
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.colours import UNKNOWN_RGB, mask_rgba, point_palette, value_names
+from mosegpipe.colours import (
+    MOVING_UNCLUSTERED,
+    UNKNOWN,
+    UNKNOWN_RGB,
+    legend_rows,
+    mask_rgba,
+    point_palette,
+    value_names,
+)
 from mosegpipe.errors import InputError
 from mosegpipe.settings import Check, check_fields
 
@@ -34,7 +42,7 @@ EYE_POSITION = (3.0, -3.5, 2.5)
 # Layout shares: the frame takes 3/4 of the width; the side column stacks summary, K chart and
 # embedding. In a 1600x900 window that leaves the summary ~170 px, room for 8 lines; it has 3-5.
 MAIN_SHARES = [3.0, 1.0]
-SIDE_SHARES = {"summary": 1.0, "k_scores": 1.0, "embedding": 1.6}
+SIDE_SHARES = {"summary": 1.0, "legend": 0.8, "k_scores": 1.0, "embedding": 1.6}
 
 CHOSEN_COLOR = (255, 190, 0)
 OTHER_COLOR = (150, 150, 150)
@@ -357,6 +365,26 @@ def k_statement(k: int, k_scores: Mapping[int, float], note: str = "", method: s
     if split:
         text += f", the rigid-motion check split off {split} group{'s' if split > 1 else ''}"
     return text
+
+
+def legend_markdown(
+    labels: npt.NDArray[np.int64],
+    masks: Sequence[npt.NDArray[np.uint8]] | npt.NDArray[np.uint8] | None = None,
+    unknown: str = "unknown",
+) -> str:
+    """The legend of a recording as a markdown table: per value its colour (hex, as the points and the mask
+    draw it; colours.legend_rows), name and track count, the rows the overlays' legend shows.
+
+    Args:
+        labels: (N,) int64 track labels (-1 = unlabelled, not counted).
+        masks: (H, W) uint8 masks: a row for 254 and 255 where one of them shows it.
+        unknown: the name of 255.
+    """
+    shown = [v for v in (MOVING_UNCLUSTERED, UNKNOWN) if masks is not None and any((m == v).any() for m in masks)]
+    rows = legend_rows(labels, np.array(shown, dtype=np.int64), unknown)
+    lines = ["| value | colour | what | tracks |", "|---|---|---|---|"]
+    lines += [f"| {v} | #{r:02x}{g:02x}{b:02x} | {name} | {n} |" for v, name, (r, g, b), n in rows]
+    return "\n".join(lines) + "\n"
 
 
 def summary_head(k: int, k_scores: Mapping[int, float], note: str, method: str) -> str:

@@ -18,11 +18,12 @@ from mosegpipe.viz.blocks import (
     log_annotation_contexts,
     log_embedding_and_scores,
     log_image_layers,
+    log_legend,
     log_written,
     side_column,
     view_panels,
 )
-from mosegpipe.viz.common import MAIN_SHARES, MAX_CLASSES, VizConfig, class_ids_of, class_names
+from mosegpipe.viz.common import MAIN_SHARES, MAX_CLASSES, VizConfig, class_ids_of, class_names, legend_markdown
 
 
 def _validate_pair(
@@ -116,6 +117,7 @@ def write_pair_recording(
             names = class_names(num_classes, unknown="unknown / outlier")
             log_annotation_contexts(rec, ["image1", "image2"] if masks is not None else [], names)
             log_embedding_and_scores(rec, class_ids, embeddings, k_scores, k, summary, cfg, k_note, k_method)
+            log_legend(rec, legend_markdown(labels, masks, unknown="unknown / outlier"))
             for i, xy in enumerate((matches.xy1, matches.xy2)):
                 mask = None if masks is None else masks[i]
                 log_image_layers(rec, f"image{i + 1}", images[i], mask, xy, class_ids, cfg, static=True)

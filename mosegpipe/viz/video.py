@@ -16,8 +16,25 @@ import numpy.typing as npt
 
 from mosegpipe.errors import InputError
 from mosegpipe.io.read import H264Encoder, atomic_write
-from mosegpipe.viz.blocks import Sink, log_annotation_contexts, log_image_layers, log_trails, log_written, view_panels
-from mosegpipe.viz.common import MAX_CLASSES, TIMELINE, VIDEO_VIZ, VizConfig, class_ids_of, class_names, score_lead
+from mosegpipe.viz.blocks import (
+    Sink,
+    log_annotation_contexts,
+    log_image_layers,
+    log_legend,
+    log_trails,
+    log_written,
+    view_panels,
+)
+from mosegpipe.viz.common import (
+    MAX_CLASSES,
+    TIMELINE,
+    VIDEO_VIZ,
+    VizConfig,
+    class_ids_of,
+    class_names,
+    legend_markdown,
+    score_lead,
+)
 
 if TYPE_CHECKING:
     # rerun is imported where it is used: it takes ~0.6 s, which `import mosegpipe` should not pay.
@@ -26,15 +43,16 @@ if TYPE_CHECKING:
 
 
 def video_blueprint(windows: bool, margins: bool) -> rrb.Blueprint:
-    """The frame with its mask and tracks above; K per window (and its score margin) under it."""
+    """The frame with its mask and tracks above; K per window (and its score margin) and the window's legend under it."""
     import rerun.blueprint as rrb
 
     frame = rrb.Spatial2DView(origin="video", name="frame, tracks and masks")
     if not windows:
         return rrb.Blueprint(frame, *view_panels(timeline=True))
-    series = [rrb.TimeSeriesView(origin="windows/k", name="K per window")]
+    series: list[Any] = [rrb.TimeSeriesView(origin="windows/k", name="K per window")]
     if margins:
         series.append(rrb.TimeSeriesView(origin="windows/k_margin", name="how clear K is (score lead)"))
+    series.append(rrb.TextDocumentView(origin="legend", name="legend (this window)"))
     return rrb.Blueprint(
         rrb.Vertical(frame, rrb.Horizontal(*series), row_shares=[5.0, 1.0]), *view_panels(timeline=True)
     )
@@ -103,14 +121,21 @@ class VideoRecorder:
             self._target.__exit__(type(exc), exc, exc.__traceback__)
             raise
 
-    def log_window(self, start: int, k: int, k_scores: Mapping[int, float] | None = None) -> None:
+    def log_window(
+        self,
+        start: int,
+        k: int,
+        k_scores: Mapping[int, float] | None = None,
+        labels: npt.NDArray[np.int64] | None = None,
+    ) -> None:
         """Log the K chosen in a window (and how clearly its scores chose it, `score_lead`), at the window's
-        first frame.
+        first frame; with `labels`, the window's legend (`legend`: value, colour, name, tracks).
 
         Args:
             start: frame index of the window's first frame (the "frame" timeline).
             k: motions found in the window, 0 = left unlabelled (too few tracks).
             k_scores: the window's score per candidate K (None or empty: no margin is logged).
+            labels: (N,) int64 global labels of the window's clustered tracks.
 
         Raises:
             InputError: the recorder is closed.
@@ -118,6 +143,8 @@ class VideoRecorder:
         if self._sink is None:
             raise InputError(f"{self.path}: recorder already closed")
         log_window_k(self._sink.rec, start, k, k_scores, first=self._num_windows == 0)
+        if labels is not None:
+            log_legend(self._sink.rec, legend_markdown(labels), static=False)
         self._num_windows += 1
 
     def log_frame(
