@@ -19,17 +19,14 @@ from mosegpipe.data.davis import (
     read_davis_clip,
 )
 from mosegpipe.errors import ConfigError, DatasetError, TooFewTracksError
-from mosegpipe.evaluation.davis import (
+from mosegpipe.evaluation.davis import MethodOutput, flow_homography_labels, format_table, run_davis, score_clip
+from mosegpipe.evaluation.davis_scores import (
     background_label,
     best_single_label,
     clip_statistics,
-    flow_homography_labels,
     foreground_from_labels,
-    format_table,
     majority_foreground,
     per_frame_scores,
-    run_davis,
-    score_clip,
     world_off_share,
 )
 
@@ -154,6 +151,33 @@ def test_foreground_is_the_masks_as_written_and_the_majority_reading_is_kept_bes
     assert np.array_equal(majority_foreground(labels), (labels == 0) | (labels == 1) | (labels == 4))
     assert not majority_foreground(np.full((1, 2, 2), 255, np.uint8)).any()
     assert background_label(np.full((1, 2, 2), 255, np.uint8)) is None
+
+
+def test_false_positive_and_miss_shares_and_background_tracks_labelled_moving(fake_davis: Path) -> None:
+    gt = np.zeros((2, 4, 4), bool)
+    gt[:, :2, :2] = True  # 4 object pixels a frame
+    labels = np.zeros((2, 4, 4), np.uint8)
+    labels[0, :2, :1] = 1  # frame 0: half the object found, nothing else
+    labels[1, :2, :2] = 2
+    labels[1, 3, :] = 2  # frame 1: the object and 4 background pixels
+    points = [
+        (np.array([[3.0, 3.0], [0.0, 0.0], [3.2, 2.9]], np.float32), np.array([1, 1, 0])),  # 1 of 2 bg moving
+        (np.array([[2.0, 3.0]], np.float32), np.array([-1])),  # unlabelled: not counted
+    ]
+    scores = score_clip(labels, gt, points)
+    assert scores["fp_share"] == pytest.approx((0.0 + 4 / 8) / 2)
+    assert scores["miss_share"] == pytest.approx((2 / 4 + 0.0) / 2)
+    assert scores["j_mean"] + scores["fp_share"] + scores["miss_share"] == pytest.approx(1.0)
+    assert scores["bg_tracks_moving"] == pytest.approx(0.5)
+    assert np.isnan(score_clip(labels, gt)["bg_tracks_moving"])
+
+    def with_points(clip: DavisClip, mode: str) -> MethodOutput:
+        xy = np.array([[0.0, 0.0], [W - 1.0, H - 1.0]], np.float32)  # both corners are background
+        return MethodOutput(_oracle(clip, mode), [(xy, np.array([0, 2]))] * clip.num_frames)
+
+    report = run_davis(fake_davis, mode="clip5", method=with_points, clips=["alpha"], threads=None)
+    assert report.rows[0].fp_share == 0.0 and report.rows[0].bg_tracks_moving == 0.5  # label 2 of the two
+    assert report.means["all"]["bg_tracks_moving"] == 0.5 and "bg trk mov" in format_table(report)
 
 
 def test_world_off_counts_frames_whose_true_background_is_mostly_not_0() -> None:

@@ -241,7 +241,8 @@ _JOINT_CHECKS: tuple[Check, ...] = (
 @dataclass(frozen=True)
 class WorldConfig:
     """How the world's motion is told from the others (`world_cluster`), one line each; how it was chosen and
-    measured is in docs/HISTORY.md ("The world is label 0 in every frame, and the masks are scored as written").
+    measured is in docs/HISTORY.md ("The world is label 0 in every frame, and the masks are scored as written");
+    the rigid_scene settings (`mosegpipe.masks.scene3d`) in docs/RESULTS.md ("Which pixels move").
 
     Attributes:
         enabled: tell the world by this evidence (False: the motion with the most tracks, as older summaries did).
@@ -253,6 +254,13 @@ class WorldConfig:
         parallax: a pixel nearest a world track is static when its flow lies on the world's epipolar line.
         parallax_sigma_px: the noise of a track's position, pixels (GRIC and RANSAC thresholds).
         parallax_min_points: fewest world tracks to fit a fundamental matrix from.
+        rigid_scene: pixels judged against the camera's 3D motion (F by GRIC; one depth along the epipolar lines is static).
+        rigid_scene_px: that fit's inlier distance to the epipolar line (twice for the homography), full-resolution px.
+        rigid_scene_world: least share of the world's tracks among the fit's inliers for the frame to be judged.
+        rigid_scene_scale: the pixels are judged at this share of the flow's resolution.
+        rigid_scene_gate: F over H by "gric" (`twoview.gric`) or "parallax" (rigid_scene_parallax of the tracks F's only).
+        rigid_scene_parallax: that share, for the "parallax" gate.
+        rigid_scene_region: pixels it may explain: "all", "world" (nearest track the world's), "faster" (flow >= the world's).
     """
 
     enabled: bool = True
@@ -264,6 +272,13 @@ class WorldConfig:
     parallax: bool = True
     parallax_sigma_px: float = 1.0
     parallax_min_points: int = 30
+    rigid_scene: bool = False
+    rigid_scene_px: float = 1.0
+    rigid_scene_world: float = 0.7
+    rigid_scene_scale: float = 0.5
+    rigid_scene_gate: str = "gric"
+    rigid_scene_parallax: float = 0.05
+    rigid_scene_region: str = "world"
 
     def __post_init__(self) -> None:
         check_fields(self, _WORLD_CHECKS)
@@ -273,6 +288,12 @@ _WORLD_CHECKS: tuple[Check, ...] = (
     ("grid", lambda v: 2 <= v <= 64, "lie in 2..64"),
     ("parallax_min_points", lambda v: v >= 8, "be >= 8"),
     ("parallax_sigma_px", lambda v: v > 0, "be > 0"),
+    ("rigid_scene_px", lambda v: v > 0, "be > 0"),
+    ("rigid_scene_world", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("rigid_scene_scale", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("rigid_scene_gate", lambda v: v in ("gric", "parallax"), "be 'gric' or 'parallax'"),
+    ("rigid_scene_parallax", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("rigid_scene_region", lambda v: v in ("all", "world", "faster"), "be 'all', 'world' or 'faster'"),
     *((name, lambda v: v >= 0, "be >= 0") for name in ("border_weight", "continuity", "static_px", "static_floor")),
 )
 """WorldConfig's checks: (field, test, what it must be)."""

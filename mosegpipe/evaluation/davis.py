@@ -56,10 +56,21 @@ from mosegpipe.apps.outputs import write_clip_outputs, write_video_outputs
 from mosegpipe.data.davis import DavisClip, davis_part, davis_split, list_davis_clips, read_davis_clip
 from mosegpipe.errors import MosegError, check_choice
 from mosegpipe.evaluation.composite import LABEL_SHARE
+from mosegpipe.evaluation.davis_scores import (
+    best_single_label,
+    clip_statistics,
+    foreground_from_labels,
+    majority_foreground,
+    per_frame_scores,
+    world_off_share,
+)
 from mosegpipe.evaluation.flow_baseline import FlowHomographyConfig as FlowHomographyConfig  # re-exported
 from mosegpipe.evaluation.flow_baseline import flow_homography_labels
 from mosegpipe.evaluation.identities import object_identities
-from mosegpipe.evaluation.metrics import BOUNDARY_TOLERANCE, boundary_f, jaccard
+from mosegpipe.evaluation.metrics import (
+    background_points_moving,
+    union_shares,
+)
 from mosegpipe.masks import UNKNOWN, WORLD
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.runtime import set_threads
@@ -72,149 +83,30 @@ MODES: dict[str, int | None] = {"clip5": 5, "whole": None}
 DAVIS_MODES = {"davis": "whole", "davis-clip5": "clip5"}
 """`moseg eval` protocol name -> mode."""
 
-MaskMethod = Callable[[DavisClip, str], npt.NDArray[np.uint8]]
-"""A mask method: (clip, mode) -> (T, H, W) uint8 labels for clip.images, k = motion k, 255 = unknown.
+TrackPoints = list[tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]]
+"""Per frame of a clip, the tracks' (xy (N, 2) float32 pixels, labels (N,) int64, -1 = unlabelled) as written."""
+
+
+@dataclass(frozen=True)
+class MethodOutput:
+    """What a mask method gives: labels, and the tracks' labelled points when it has tracks.
+
+    Attributes:
+        labels: (T, H, W) uint8 labels, k = motion k, 255 = unknown.
+        points: the tracks per frame (`TrackPoints`); None for a method without tracks.
+    """
+
+    labels: npt.NDArray[np.uint8]
+    points: TrackPoints | None = None
+
+
+MaskMethod = Callable[[DavisClip, str], "npt.NDArray[np.uint8] | MethodOutput"]
+"""A mask method: (clip, mode) -> (T, H, W) uint8 labels for clip.images, k = motion k, 255 = unknown
+(or a MethodOutput with them and the tracks' labelled points).
 
 The clip holds the frames to segment (images (T, H, W, 3) uint8 RGB, and frames_dir / start for
 methods that read the frames themselves); it must not look at clip.gt.
 """
-
-
-# ---------------------------------------------------------------------------------------------
-# Scores
-
-
-def clip_statistics(per_frame: npt.ArrayLike) -> tuple[float, float, float]:
-    """DAVIS's per-clip statistics of a per-frame score: mean, recall and decay.
-
-    Decay follows the DAVIS evaluation code (`db_statistics`): bin edges
-    ids = round(linspace(1, T, 5)) - 1 and bin i = frames ids[i] .. ids[i + 1] (inclusive, so
-    neighbouring bins share an edge frame); decay = mean(bin 0) - mean(bin 3). For T = 5 that is
-    mean(x0, x1) - mean(x3, x4); for T = 25, mean(x0..x6) - mean(x18..x24).
-
-    Args:
-        per_frame: (T,) scores in [0, 1], T >= 1.
-
-    Returns:
-        (mean, recall = fraction of frames scoring > 0.5, decay).
-
-    Raises:
-        ValueError: no scores.
-    """
-    x = np.asarray(per_frame, dtype=np.float64).ravel()
-    if x.size == 0:
-        raise ValueError("no per-frame scores")
-    ids = (np.round(np.linspace(1, x.size, 5) + 1e-10) - 1).astype(np.int64)
-    bins = [x[ids[i] : ids[i + 1] + 1] for i in range(4)]
-    return float(x.mean()), float(np.mean(x > 0.5)), float(bins[0].mean() - bins[3].mean())
-
-
-def background_label(labels: npt.ArrayLike) -> int | None:
-    """The label covering the most pixels over all frames (UNKNOWN excluded); None when all are UNKNOWN.
-
-    Args:
-        labels: (T, H, W) or (H, W) uint8 labels.
-    """
-    counts = np.bincount(np.asarray(labels, dtype=np.uint8).ravel(), minlength=256)[:UNKNOWN]
-    return int(np.argmax(counts)) if counts.any() else None
-
-
-def foreground_from_labels(labels: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-    """The foreground of label masks as written: every pixel that is neither the world (0) nor unknown (255).
-
-    Args:
-        labels: (T, H, W) or (H, W) uint8 labels.
-
-    Returns:
-        bool array of the same shape.
-    """
-    lab = np.asarray(labels, dtype=np.uint8)
-    return (lab != WORLD) & (lab != UNKNOWN)
-
-
-def majority_foreground(labels: npt.ArrayLike) -> npt.NDArray[np.bool_]:
-    """The earlier reading, chosen after the fact: every known pixel outside the label covering most pixels
-    of the clip (255 pixels are not candidates). For comparison only.
-
-    Args:
-        labels: (T, H, W) uint8 labels of one clip, 255 = unknown.
-
-    Returns:
-        (T, H, W) bool.
-    """
-    lab = np.asarray(labels, dtype=np.uint8)
-    bg = background_label(lab)
-    if bg is None:
-        return np.zeros(lab.shape, dtype=bool)
-    return (lab != bg) & (lab != UNKNOWN)
-
-
-def world_off_share(labels: npt.ArrayLike, gt: npt.ArrayLike) -> float:
-    """The share of frames in which the label covering most of the true background (255 excluded) is not 0.
-
-    Args:
-        labels: (T, H, W) uint8 labels.
-        gt: (T, H, W) bool ground-truth foreground.
-
-    Returns:
-        In [0, 1]; a frame whose true background is all unknown does not count as off.
-    """
-    lab = np.asarray(labels, dtype=np.uint8)
-    truth = np.asarray(gt, dtype=bool)
-    off = 0
-    for t in range(lab.shape[0]):
-        counts = np.bincount(lab[t][~truth[t]], minlength=256)[:UNKNOWN]
-        off += int(counts.any() and counts.argmax() != WORLD)
-    return off / max(lab.shape[0], 1)
-
-
-def per_frame_scores(
-    pred: npt.ArrayLike, gt: npt.ArrayLike, tolerance: float = BOUNDARY_TOLERANCE
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-    """J and boundary F of every frame.
-
-    Args:
-        pred: (T, H, W) bool predicted foreground.
-        gt: (T, H, W) bool ground truth.
-        tolerance: boundary tolerance (see e2e.boundary_f).
-
-    Returns:
-        (J, F), each (T,) float64.
-
-    Raises:
-        ValueError: shapes differ.
-    """
-    p, g = np.asarray(pred, dtype=bool), np.asarray(gt, dtype=bool)
-    if p.shape != g.shape or p.ndim != 3:
-        raise ValueError(f"pred has shape {p.shape} but gt has shape {g.shape} (need equal (T, H, W))")
-    j = np.array([jaccard(a, b) for a, b in zip(p, g)])
-    f = np.array([boundary_f(a, b, tolerance)[2] for a, b in zip(p, g)])
-    return j, f
-
-
-def best_single_label(labels: npt.ArrayLike, gt: npt.ArrayLike) -> tuple[int | None, float]:
-    """Oracle: the one label whose mask has the best mean J against the truth over the clip's frames.
-
-    Args:
-        labels: (T, H, W) uint8 labels, 255 = unknown (never chosen).
-        gt: (T, H, W) bool ground truth.
-
-    Returns:
-        (label, its mean J); (None, mean J of an empty prediction) when every pixel is unknown.
-    """
-    lab, g = np.asarray(labels, dtype=np.uint8), np.asarray(gt, dtype=bool)
-    best: tuple[int | None, float] = (None, float(np.mean([jaccard(np.zeros_like(f), f) for f in g])))
-    for k in np.unique(lab):
-        if k == UNKNOWN:
-            continue
-        j = float(np.mean([jaccard(a, b) for a, b in zip(lab == k, g)]))
-        if best[0] is None or j > best[1]:
-            best = (int(k), j)
-    return best
-
-
-# ---------------------------------------------------------------------------------------------
-# Methods (the flow-homography baseline: mosegpipe.evaluation.flow_baseline)
 
 
 def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | None = None) -> MaskMethod:
@@ -241,19 +133,32 @@ def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | 
             models[frames] = load_embedder(frames, checkpoint)
         return models[frames]
 
-    def run(clip: DavisClip, mode: str) -> npt.NDArray[np.uint8]:
+    def run(clip: DavisClip, mode: str) -> MethodOutput:
         with tempfile.TemporaryDirectory(prefix="moseg-davis-") as tmp:
             out = Path(tmp) / "out"
+            seen: dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.int64]]] = {}
             if mode == "clip5":
                 clip_cfg = replace(base, frames=clip.num_frames, start=clip.start)
                 result = segment_clip(clip.frames_dir, clip_cfg, model_for(clip.num_frames))
                 write_clip_outputs(result, out, clip_cfg, rrd=False)
+                ids = result.trajectories.track_ids
+                for t in range(clip.num_frames):
+                    on = result.tracks.visible[ids, t]
+                    seen[clip.start + t] = (result.tracks.xy[ids[on], t], result.clustering.labels[on])
             else:
                 video_cfg = replace(base, start=clip.start)
                 write_video_outputs(
-                    clip.frames_dir, out, video_cfg, model_for(base.frames), rrd=False, max_frames=clip.num_frames
+                    clip.frames_dir,
+                    out,
+                    video_cfg,
+                    model_for(base.frames),
+                    rrd=False,
+                    max_frames=clip.num_frames,
+                    on_frame=lambda fr, _mask: seen.__setitem__(fr.index, (fr.xy.copy(), fr.labels.copy())),
                 )
-            return read_written_masks(out, clip.start, clip.num_frames, clip.gt.shape[1:])
+            empty = (np.zeros((0, 2), np.float32), np.zeros(0, np.int64))
+            points = [seen.get(clip.start + t, empty) for t in range(clip.num_frames)]
+            return MethodOutput(read_written_masks(out, clip.start, clip.num_frames, clip.gt.shape[1:]), points)
 
     return run
 
@@ -317,6 +222,11 @@ class DavisRow:
         world_off: share of frames in which the label covering most of the true background is not 0.
         majority_j: mean J with the clip's most common label as background (the earlier, after-the-fact
             reading; for comparison).
+        fp_share: mean over frames of the union's share that is background written as moving (false positives).
+        miss_share: mean over frames of the union's share that is the object written as world (misses);
+            j_mean + fp_share + miss_share = 1.
+        bg_tracks_moving: the share of labelled track points on the true background labelled as a mover
+            (NaN for a method without tracks).
         k: labels found over the clip (255 excluded); 0 on failure.
         seconds: wall time of the method on the clip (reading and scoring excluded).
         error: the MosegError's message when the method failed ("" otherwise).
@@ -342,6 +252,9 @@ class DavisRow:
     majority_j: float = 0.0
     labels: int = 0
     switches: int = 0
+    fp_share: float = 0.0
+    miss_share: float = 0.0
+    bg_tracks_moving: float = math.nan
 
 
 SCORE_FIELDS = (
@@ -354,6 +267,9 @@ SCORE_FIELDS = (
     "best_label_j",
     "world_off",
     "majority_j",
+    "fp_share",
+    "miss_share",
+    "bg_tracks_moving",
     "k",
     "labels",
     "switches",
@@ -384,18 +300,22 @@ class DavisReport:
         return {"mode": self.mode, "method": self.method, "rows": [asdict(r) for r in self.rows], "means": self.means}
 
 
-def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
+def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike, points: TrackPoints | None = None) -> dict[str, float]:
     """The DavisRow scores of one clip's labels.
 
     Args:
         labels: (T, H, W) uint8 labels, 255 = unknown.
         gt: (T, H, W) bool ground truth.
+        points: the tracks' labelled points per frame (None: bg_tracks_moving is NaN).
 
     Returns:
-        dict with the j_*, f_*, best_label_j, world_off, majority_j, k, labels and switches fields of DavisRow.
+        dict with the j_*, f_*, best_label_j, world_off, majority_j, fp_share, miss_share,
+        bg_tracks_moving, k, labels and switches fields of DavisRow.
     """
     lab = np.asarray(labels, dtype=np.uint8)
-    j, f = per_frame_scores(foreground_from_labels(lab), gt)
+    fg = foreground_from_labels(lab)
+    j, f = per_frame_scores(fg, gt)
+    shares = np.array([union_shares(p, g) for p, g in zip(fg, np.asarray(gt, dtype=bool))]).reshape(-1, 2)
     j_majority, _ = per_frame_scores(majority_foreground(lab), gt)
     jm, jr, jd = clip_statistics(j)
     fm, fr, fd = clip_statistics(f)
@@ -412,6 +332,9 @@ def score_clip(labels: npt.ArrayLike, gt: npt.ArrayLike) -> dict[str, float]:
         "best_label_j": best_single_label(lab, gt)[1],
         "world_off": world_off_share(lab, gt),
         "majority_j": float(np.mean(j_majority)),
+        "fp_share": float(shares[:, 0].mean()),
+        "miss_share": float(shares[:, 1].mean()),
+        "bg_tracks_moving": math.nan if points is None else background_points_moving(points, gt, WORLD),
         "k": int(np.count_nonzero(present != UNKNOWN)),
         "labels": len(set(identities)),
         "switches": sum(a != b for a, b in zip(identities, identities[1:])),
@@ -422,6 +345,12 @@ WORLD_OFF_LIMIT = 0.1
 """A clip counts as "world off" in a report's means when more than this share of its frames is."""
 
 
+def _mean(values: Sequence[float]) -> float:
+    """The mean of the values that are not NaN (NaN when none is)."""
+    x = np.asarray(values, np.float64)
+    return float(x[~np.isnan(x)].mean()) if (~np.isnan(x)).any() else math.nan
+
+
 def summarize_rows(rows: Sequence[DavisRow]) -> dict[str, dict[str, float]]:
     """Means of SCORE_FIELDS per part ("dev", "val") and over all rows, with clip and failure counts and
     the number of clips with the world off label 0 in more than WORLD_OFF_LIMIT of their frames."""
@@ -429,7 +358,7 @@ def summarize_rows(rows: Sequence[DavisRow]) -> dict[str, dict[str, float]]:
     for part in ("dev", "val", "all"):
         chosen = [r for r in rows if part == "all" or r.part == part]
         if chosen:
-            means[part] = {name: float(np.mean([getattr(r, name) for r in chosen])) for name in SCORE_FIELDS}
+            means[part] = {name: _mean([getattr(r, name) for r in chosen]) for name in SCORE_FIELDS}
             found = [r.labels for r in chosen if r.labels > 0]  # labels per object: of the objects found
             means[part]["labels"] = float(np.mean(found)) if found else float("nan")
             means[part].update(
@@ -482,8 +411,11 @@ def run_davis(
         clip = read_davis_clip(root, clip_name, max_frames=max_frames)
         error = ""
         t0 = time.perf_counter()
+        points: TrackPoints | None = None
         try:
-            labels = run(clip, mode)
+            given = run(clip, mode)
+            labels = given.labels if isinstance(given, MethodOutput) else given
+            points = given.points if isinstance(given, MethodOutput) else None
         except MosegError as exc:
             error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             labels = np.full(clip.gt.shape, UNKNOWN, dtype=np.uint8)
@@ -491,7 +423,7 @@ def run_davis(
         seconds = time.perf_counter() - t0
         if labels.shape != clip.gt.shape:
             raise ValueError(f"method {name!r} gave labels {labels.shape} for {clip_name} {clip.gt.shape}")
-        scores = score_clip(labels, clip.gt)
+        scores = score_clip(labels, clip.gt, points)
         row = DavisRow(
             clip=clip_name,
             part=davis_part(clip_name),
@@ -510,6 +442,9 @@ def run_davis(
             majority_j=scores["majority_j"],
             labels=int(scores["labels"]),
             switches=int(scores["switches"]),
+            fp_share=scores["fp_share"],
+            miss_share=scores["miss_share"],
+            bg_tracks_moving=scores["bg_tracks_moving"],
         )
         log.info("%s: J %.3f F %.3f (%.1f s)", clip_name, row.j_mean, row.f_mean, seconds)
         rows.append(row)
@@ -524,24 +459,9 @@ def _fmt(value: float | int | str) -> str:
 
 def format_table(report: DavisReport) -> str:
     """A plain-text table: one line per clip, then the dev / val / all means; failures listed below."""
-    head = [
-        "clip",
-        "part",
-        "T",
-        "J",
-        "J rec",
-        "J dec",
-        "F",
-        "F rec",
-        "F dec",
-        "best-lbl J",
-        "world off",
-        "majority J",
-        "K",
-        "labels",
-        "switches",
-        "s",
-    ]
+    head = "clip|part|T|J|J rec|J dec|F|F rec|F dec|best-lbl J|world off|majority J|FP|miss|bg trk mov|K|labels|switches|s".split(
+        "|"
+    )
     lines = [[r.clip, r.part, str(r.frames)] + [_fmt(getattr(r, n)) for n in SCORE_FIELDS] for r in report.rows]
     for part, m in report.means.items():
         label = f"mean {part} ({int(m['clips'])}; world off {int(m['world_off_clips'])})"

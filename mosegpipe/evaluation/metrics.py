@@ -242,6 +242,54 @@ def jaccard(pred: npt.ArrayLike, gt: npt.ArrayLike) -> float:
     return float(np.count_nonzero(p & g) / union)
 
 
+def union_shares(pred: npt.ArrayLike, gt: npt.ArrayLike) -> tuple[float, float]:
+    """The false-positive and miss shares of the union of two binary masks.
+
+    With U = pred | gt: false positives |pred & ~gt| / |U| (background written as moving) and misses
+    |gt & ~pred| / |U| (the object written as background), so that J + both = 1; both 0 when U is empty
+    (J is then 1).
+
+    Args:
+        pred: (H, W) bool predicted foreground.
+        gt: (H, W) bool ground truth.
+
+    Returns:
+        (false-positive share, miss share), each in [0, 1].
+    """
+    p, g = np.asarray(pred, dtype=bool), np.asarray(gt, dtype=bool)
+    union = int(np.count_nonzero(p | g))
+    if union == 0:
+        return 0.0, 0.0
+    return np.count_nonzero(p & ~g) / union, np.count_nonzero(g & ~p) / union
+
+
+def background_points_moving(
+    points: Sequence[tuple[npt.ArrayLike, npt.ArrayLike]], gt: npt.ArrayLike, world: int = 0
+) -> float:
+    """The share of labelled points on the true background whose label is a mover's (not `world`).
+
+    Args:
+        points: per frame t, (xy (N, 2) float pixels, labels (N,) int; -1 = unlabelled, not counted).
+        gt: (T, H, W) bool ground-truth foreground; a point outside the frame is not counted.
+        world: the world's label.
+
+    Returns:
+        In [0, 1]; NaN when no labelled point lies on the true background.
+    """
+    truth = np.asarray(gt, dtype=bool)
+    on_background = moving = 0
+    for t, (xy, labels) in enumerate(points):
+        ij = np.round(np.asarray(xy, np.float64).reshape(-1, 2)).astype(np.int64)
+        lab = np.asarray(labels, np.int64).reshape(-1)
+        h, w = truth.shape[1:]
+        ok = (lab >= 0) & (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        bg = ok.copy()
+        bg[ok] = ~truth[t][ij[ok, 1], ij[ok, 0]]
+        on_background += int(bg.sum())
+        moving += int(np.count_nonzero(bg & (lab != world)))
+    return moving / on_background if on_background else math.nan
+
+
 def boundary_map(mask: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     """One-pixel inner boundary of a binary mask.
 

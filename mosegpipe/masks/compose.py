@@ -21,6 +21,7 @@ from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, labe
 from mosegpipe.masks.learned.probability import learned_moving
 from mosegpipe.masks.learned.which import which_motion, window_features
 from mosegpipe.masks.moving_pixels import Anchors, ColourMemory, moving_from_motion, moving_masks, stack_motion
+from mosegpipe.masks.scene3d import explain_rigid_scene
 from mosegpipe.points.flow import FrameMotion
 from mosegpipe.types import Tracks
 
@@ -64,6 +65,49 @@ def label_moving_pixels(
         return out
     nearest = nearest_labels(pts[inside], labels[keep][inside].astype(np.uint8), (height, width), np.inf)
     out[moving] = nearest[moving]
+    return out
+
+
+def world_held(
+    moving: npt.NDArray[np.bool_],
+    xy: npt.NDArray[np.float32],
+    labels: npt.NDArray[np.int64],
+    background: int,
+    share: float,
+    min_tracks: int,
+) -> npt.NDArray[np.bool_]:
+    """`moving` less its regions that the world's tracks hold: the tracks' grouping has the last word on a
+    moving region full of tracks it calls static (parallax, a texture the flow gets wrong), in a frame where it
+    found a mover of its own (at least `min_tracks` tracks of moving motions; else `moving` as it is).
+
+    Args:
+        moving: (H, W) bool moving pixels.
+        xy: (N, 2) float32 the frame's track positions, pixels.
+        labels: (N,) int64 their labels (-1 = unlabelled, not counted).
+        background: the world's label.
+        share: least share of a region's labelled tracks that are the world's.
+        min_tracks: least number of labelled tracks in the region.
+
+    Returns:
+        (H, W) bool (`moving` itself when nothing changes).
+    """
+    height, width = moving.shape
+    ij = np.round(xy).astype(np.int64)
+    ok = (labels >= 0) & (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
+    ok[ok] = moving[ij[ok, 1], ij[ok, 0]]
+    movers = (labels >= 0) & (labels != background)
+    # a frame whose clustering found no mover of its own is left to the flow (a mover merged into the world)
+    if ok.sum() < min_tracks or not (labels[ok] == background).any() or movers.sum() < min_tracks:
+        return moving
+    num, regions = cv2.connectedComponents(moving.astype(np.uint8), connectivity=8)
+    where = regions[ij[ok, 1], ij[ok, 0]]
+    total = np.bincount(where, minlength=num)
+    world = np.bincount(where[labels[ok] == background], minlength=num)
+    held = (total >= min_tracks) & (world >= share * np.maximum(total, 1))
+    held[0] = False
+    if not held.any():
+        return moving
+    out: npt.NDArray[np.bool_] = moving & ~held[regions]
     return out
 
 
@@ -138,6 +182,8 @@ def moving_to_labels(
     """
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     xy = np.asarray(xy, np.float32).reshape(-1, 2)
+    if cfg.world_regions > 0:
+        moving = world_held(moving, xy, labels, background, cfg.world_regions, cfg.world_region_tracks)
     out = label_moving_pixels(moving, xy, labels, background, MOVING_UNCLUSTERED)
     keep = labels >= 0
     # The flood only decides between two or more moving motions: with one, every moving pixel has its
@@ -169,7 +215,7 @@ class MaskSequence:
     """The one mask sequence of clips, whole videos and live, and the state a video carries between frames.
 
     The steps, in order: the world's parallax explained in the flow evidence ("motion" masks,
-    `explain_parallax`) -> the moving pixels (the motion-mask chain `moving_from_motion`, or the mask network
+    `explain_parallax`, and with WorldConfig.rigid_scene the camera's 3D motion, `explain_rigid_scene`) -> the moving pixels (the motion-mask chain `moving_from_motion`, or the mask network
     `learned_moving`) -> labelled by the tracks (`moving_to_labels`, by the caller, which also makes the other
     methods' masks) -> `finish`: the per-motion network's choice (`which_motion`), each moving pixel given the
     motion whose step explains its flow (`reassign_by_flow`), then in clips the regions no motion explains split
@@ -221,6 +267,7 @@ class MaskSequence:
         """
         if parallax is not None and self.cfg.method == "motion":
             motion = explain_parallax(motion, *parallax)
+            motion = explain_rigid_scene(motion, *parallax)
         if self.cfg.method == "learned":
             return learned_moving(images, motion, self.cfg.learned, first=first), motion
         moving = moving_from_motion(images, motion, self.cfg.motion, first=first, colour=self.colour, anchors=anchors)
