@@ -28,7 +28,7 @@ SEGMENT_METHODS: tuple[SegmentMethod, ...] = get_args(SegmentMethod)
 
 PointSource = Literal["klt", "flow", "klt+flow"]
 """Where a clip's points come from (PipelineConfig.tracker): KLT corners (`mosegpipe.points.klt`), a grid
-carried along the dense flow (`flow_tracks.track_flow`), or both (`flow_tracks.combine_tracks`)."""
+carried along the dense flow (`flow_grid.track_flow`), or both (`flow_grid.combine_tracks`)."""
 TRACKERS: tuple[PointSource, ...] = get_args(PointSource)
 
 MaskMethod = Literal["motion", "watershed", "nearest", "vote", "learned"]

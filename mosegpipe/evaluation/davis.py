@@ -115,7 +115,7 @@ def pipeline_method(cfg: PipelineConfig | None = None, checkpoint: str | Path | 
     written as `moseg run` writes it (no recording) and its mask files read back: what is scored is
     what a user gets.
 
-    The model is loaded once per method (as the CLI does: `inference.load_embedder`), so a row's
+    The model is loaded once per method (as the CLI does: `numpy_net.load_embedder`), so a row's
     seconds are the segmentation's, not the model loading's.
 
     Args:

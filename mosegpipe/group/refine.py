@@ -148,7 +148,7 @@ def search_k(
     K-means on the embeddings `emb` (N, E) with automatic K (`clustering`, whose own labels stand for it) and with
     each K up to cfg.joint.k_search more (at most cfg.cluster.k_max and N), each grouping through the rigid-motion
     check (cfg.joint.rigid_first) and the model selection's split and merge; the one of the lowest summed GRIC is
-    kept (`geometry_select.choose_partition`: a group must save cfg.joint.group_cost per frame pair). The embedding
+    kept (`joint.choose_partition`: a group must save cfg.joint.group_cost per frame pair). The embedding
     underestimates K where movers look alike to it (docs/results/41-diagnosis.md); the models see them apart.
     K is never lowered: fewer groups than automatic K's gave cars to the world's fundamental matrix on kt3d-video
     (error 3.4 -> 8.3 %, docs/results/41-geometry.md). The note says which K was kept when it is not automatic K's.
@@ -244,7 +244,7 @@ def split_movers(
     all tracks often puts every mover in one group (docs/results/41-diagnosis.md). The tracks of the groups
     other than 0 are clustered again, K from 1 to cfg.cluster.movers_k_max by the silhouette (K = 1 unless the
     best exceeds cfg.cluster.movers_silhouette); two of the new groups that one rigid motion explains
-    (`geometry_select.one_rigid_motion`, cfg.joint's thresholds) are one again. They replace the moving
+    (`joint.one_rigid_motion`, cfg.joint's thresholds) are one again. They replace the moving
     groups when there are more of them, each of at least cfg.cluster.movers_min_group tracks. Unchanged when K
     was given, with cfg.cluster.movers_k_max 1, or with fewer than twice movers_min_group moving tracks. The world
     stays 0; the new groups follow it, by decreasing size.

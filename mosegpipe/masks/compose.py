@@ -170,7 +170,7 @@ def moving_to_labels(
     moving motion's, else the label of the nearest point of a moving motion, else MOVING_UNCLUSTERED.
 
     Args:
-        moving: (H, W) bool moving pixels (`motion.moving_masks`).
+        moving: (H, W) bool moving pixels (`moving_pixels.moving_masks`).
         xy: (N, 2) float32 positions of the frame's points, pixels.
         labels: (N,) int64 their labels (-1 = unlabelled, ignored).
         background: the world's label (static pixels take it).

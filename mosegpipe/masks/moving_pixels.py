@@ -1,46 +1,30 @@
 """Dense masks of what moves, from the flow the camera's motion does not explain.
 
 Per frame, the camera residual (`mosegpipe.points.flow`) says how far each pixel's flow is from the camera's
-motion. The steps, each measured on the 20 dev clips of DAVIS-2016 train (docs/RESULTS.md, "Real
-video"; the 10 val clips were not used to choose anything):
+motion. The steps:
 
-1. log(residual + eps) minus a weight times the local log forward-backward error (flow that does not
-   hold up both ways: water, smoke, occlusions; dev J 0.58 -> 0.62), split in two by Otsu's threshold
-   per frame: moving objects are slow in some clips and fast in others, so a fixed threshold in pixels
-   fits few of them (J 0.39 at the best fixed threshold, 0.46 with Otsu, half-resolution flow).
-2. Carried along the flow: each frame's score is averaged with its neighbours' scores at the pixels
-   the flow leads to, twice (so two frames either side count): a mover that one frame's flow misses
-   keeps its evidence (dev J 0.617 -> 0.640, all 25 frames pooled).
-3. A colour model of the clip: RGB histograms of the confidently moving and confidently static pixels
-   of all frames (in whole-video mode, of the shot's windows before too, decayed: `ColourMemory`);
-   their log ratio is added to the motion score (the object's colours pull in its untextured parts;
-   the background's push out the flow's spill over the border). And a local one: a pixel nearer the
-   mean colour of the moving pixels around it than of the static ones gains, else loses (a cast
-   shadow or the ground under a wheel has the colours of the ground beside it, although those colours
-   move elsewhere in the frame; DAVIS dev J 0.761 -> 0.767).
-4. Optionally (off by default), superpixels (SLIC, scikit-image): the score is averaged over each.
-   They helped with half-resolution flow; with full-resolution flow carried along the flow they
-   cost J (dev 0.661 without, 0.646 with 600 superpixels; F 0.605 vs 0.568) and 15 % of the CPU.
-   What is kept instead: the flow's local spread counts against the score in step 1 (flow that varies
-   from pixel to pixel is not one object's motion), and a guided filter with the grey frame as guide
-   (OpenCV ximgproc) moves the score's edges onto the image's (dev J 0.717 -> 0.740, F 0.697 -> 0.705),
-   then a fast global smoother with the colour frame as guide spreads it within regions of like colour
-   (dev J 0.774 -> 0.779).
-5. Components weaker than a share of the strongest are dropped (specks of flow noise, ripples, a
-   stream in the background). A component's strength is its area times the square of its mean
-   residual, so a small fast mover outweighs a large slowly drifting texture (by area alone the
-   water behind a walking duck outweighed the duck). The share is 0.3 so that two objects moving at
-   different speeds both stay (a mover 1.8x as fast as another is 3.3x as strong). Pooled dev J
-   0.712 -> 0.729 (mallard-fly 0.00 -> 0.29). Other settings tried: share 0.5 0.732 (but the slower
-   of two movers is lost); the median residual instead of the mean 0.732; at share 0.5 the median's
-   first power 0.716, its third 0.735.
-   A pixel is never moving when its residual is under 3 times the frame's median residual (the
-   background's own noise, large under parallax). In whole videos a motion the frame before showed
-   keeps its weaker regions where its tracks are (`MotionMaskConfig.anchor_tracks`).
-Steps 3-5 together took the dev clips from J 0.46 to 0.53 (0.57 with full-resolution flow).
+1. The score: log(residual + eps) minus a weight times the local log forward-backward error (flow that does
+   not hold up both ways: water, smoke, occlusions) and the flow's local spread (flow that varies from pixel
+   to pixel is not one object's motion).
+2. Carried along the flow: each frame's score is averaged with its neighbours' at the pixels the flow leads
+   to, twice (two frames either side count), so a mover that one frame's flow misses keeps its evidence.
+3. Colour: RGB histograms of the confidently moving and confidently static pixels of the clip (in whole
+   videos also of the shot's earlier windows, decayed: `ColourMemory`) add their log ratio to the score; and
+   a pixel nearer the mean colour of the moving pixels around it than of the static ones gains, else loses
+   (a cast shadow has the colours of the ground beside it).
+4. Edges: a guided filter with the grey frame as guide moves the score's edges onto the image's, then a fast
+   global smoother with the colour frame as guide spreads it within regions of like colour (OpenCV
+   ximgproc). Superpixels (SLIC, scikit-image) are an option, off.
+5. The split: Otsu's threshold per frame (movers are slow in some clips and fast in others); components
+   weaker than a share (0.3) of the strongest are dropped, a component's strength being its area times the
+   square of its mean residual (a small fast mover outweighs a large slowly drifting texture, and two
+   movers at different speeds both stay); a pixel whose residual is under 3 times the frame's median is
+   never moving (the background's own noise). In whole videos a motion the frame before showed keeps its
+   weaker regions where its tracks are (`MotionMaskConfig.anchor_tracks`).
 
-`mosegpipe.masks` (`motion_masks`, `moving_to_labels`) then gives the moving pixels the labels of the
-tracks' motions, so that a pipeline's masks carry motion labels as the other mask methods' do.
+Each step and the values above were chosen on the 20 dev clips of DAVIS-2016 train; the measurements are in
+docs/RESULTS.md ("Real video") and docs/HISTORY.md. `mosegpipe.masks.compose` then gives the moving pixels the
+labels of the tracks' motions.
 """
 
 from __future__ import annotations

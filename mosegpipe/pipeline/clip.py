@@ -245,7 +245,7 @@ def clip_masks(
         cfg: mask settings (and the rigid-motion settings that label the extra tracks).
         before, after: the source's frames next to the clip (Frames.before / after), evidence for the
             motion masks only.
-        motion: the motion masks' flow evidence of the clip (`motion.stack_motion`), if already computed.
+        motion: the motion masks' flow evidence of the clip (`moving_pixels.stack_motion`), if already computed.
 
     Returns:
         (T, H, W) uint8 masks, 255 = unknown.

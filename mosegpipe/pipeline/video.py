@@ -395,7 +395,7 @@ def _cluster_window(
 def small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
     """Method "joint" with cfg.joint.new_rigid_tracks: the moving clusters (not 0) smaller than the label matching's
     guard, of at least that many tracks, that geometry shows to be a rigid motion of their own
-    (`geometry_select.geometry_supported`); match_labels labels them whatever their size. Else none."""
+    (`joint.geometry_supported`); match_labels labels them whatever their size. Else none."""
     least = cfg.joint.new_rigid_tracks
     if cfg.method != "joint" or least is None or labels.size == 0:
         return []

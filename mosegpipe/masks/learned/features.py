@@ -98,7 +98,7 @@ def clip_features(
 
     Args:
         images: (T, H, W, 3) uint8 RGB, T >= 2.
-        motion: the stack's flow evidence (`motion.stack_motion` or a `FlowStream`'s), with its flows.
+        motion: the stack's flow evidence (`moving_pixels.stack_motion` or a `FlowStream`'s), with its flows.
         scale: the network's input scale (`LearnedMaskConfig.scale`).
         first: features of frames first..T-1 only (the frames before serve as neighbours).
         flows: `net_flows(motion, net_size(...))` when the caller has them already (they are computed otherwise).

@@ -1,6 +1,6 @@
 """ "learned" masks' moving pixels: the mask network's probability of "not the world", thresholded.
 
-The drop-in for `motion.moving_from_motion` (same inputs, same output): `masks.motion_masks` and the whole
+The drop-in for `moving_pixels.moving_from_motion` (same inputs, same output): `masks.motion_masks` and the whole
 video's windows call this instead when `MaskConfig.method` is "learned"; the moving pixels then get the
 tracks' labels exactly as the "motion" masks' do. Torch is imported on the first call only.
 
@@ -63,7 +63,7 @@ def learned_probability(
 
     Args:
         images: (T, H, W, 3) uint8 RGB, T >= 2.
-        motion: the frames' flow evidence with its flows (`motion.stack_motion`, a `FlowStream`'s).
+        motion: the frames' flow evidence with its flows (`moving_pixels.stack_motion`, a `FlowStream`'s).
         cfg: the network's settings (its weights, input scale, `temporal_weight`).
         first: frames first..T-1 only (the frames before are the first one's neighbours; with
             `temporal_weight`, their probability is carried into the first one's too).

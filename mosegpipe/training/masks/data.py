@@ -1,7 +1,7 @@
 """The mask network's training data: frames with exact "not the world" truth, as network inputs.
 
 Three sources, each turned into (features, truth) per frame with the pipeline's own flow code
-(`motion.stack_motion`'s evidence, `features.clip_features`), cut into 5-frame stacks as a clip run
+(`moving_pixels.stack_motion`'s evidence, `features.clip_features`), cut into 5-frame stacks as a clip run
 cuts them (each stack with the frames next to it as flow evidence, as `Frames.before / after` give it):
 
 - "rendered": photo-textured rendered clips (`synth.render`: depth, a ground plane, a moving camera,
