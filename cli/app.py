@@ -287,7 +287,7 @@ def exit_with_error(message: str, code: int = 1) -> None:
     raise typer.Exit(code=code)
 
 
-def _shown_path(name: object) -> str:
+def shown_path(name: object) -> str:
     """A path as the user knows it: `OUT/file`, not the temporary `.OUT.partial/.file.1a2b3c4d.tmp`."""
     text = re.sub(r"(^|/)\.([^/]+)\.partial(?=/|$)", r"\1\2", os.fsdecode(name))  # type: ignore[arg-type]
     return re.sub(r"(^|/)\.([^/]+)\.[0-9a-f]{8}\.tmp(\.[^/.]*)?$", r"\1\2\3", text)
@@ -409,7 +409,7 @@ def friendly(fn: F) -> F:
                     raise
                 exit_with_error("Broken pipe")
             except OSError as exc:
-                where = f"{_shown_path(exc.filename)}: " if exc.filename else ""
+                where = f"{shown_path(exc.filename)}: " if exc.filename else ""
                 exit_with_error(f"{where}{exc.strerror or exc}")
             except KeyboardInterrupt as exc:
                 report_stopped(exc)

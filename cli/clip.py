@@ -13,8 +13,9 @@ import typer
 from mosegpipe.cli.app import friendly, setup_run
 from mosegpipe.cli.common import (
     check_model_path,
-    default_out,
+    default_out_here,
     frames_progress,
+    lock_out,
     print_summary,
     print_total,
     print_tracks_summary,
@@ -76,7 +77,7 @@ def run(
     start: Start = 0,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder (default: beside the clip, named after it + '_moseg')."),
+        typer.Option("--out", "-o", help="Output folder (default: in the current folder, the clip's name + '_moseg')."),
     ] = None,
     whole: Annotated[
         bool,
@@ -123,10 +124,10 @@ def run(
 ) -> None:
     """Segment the motions in --frames frames of CLIP from --start (or the whole video with --whole).
 
-    Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ and recording.rrd into the
-    output folder (--outputs masks: the masks only); see docs/OUTPUTS.md; `moseg export` turns the masks
-    into per-object PNGs, alpha mattes or a cut-out video. With --whole a progress bar with the time left is drawn on
-    stderr when it is a terminal. Exit code 1 with one 'moseg: error:' line on failure.
+    Writes summary.json, labels.npz, masks/ (palette PNGs), overlay/ (--whole: overlay.mp4) and
+    recording.rrd into the output folder (--outputs masks: the masks only); see docs/OUTPUTS.md; `moseg
+    export` turns the masks into per-object PNGs, alpha mattes or a cut-out video. With --whole a progress
+    bar with the time left is drawn on stderr when it is a terminal. Exit code 1 with one 'moseg: error:' line on failure.
     """
     started = time.perf_counter()
     # Paths and option combinations first: the libraries take a second to import.
@@ -163,7 +164,8 @@ def run(
     )
     views = outputs == RunOutputs.all
     rrd = views and not no_rrd
-    out = out or default_out(clip, "_moseg")
+    out = out or default_out_here(clip, "_moseg")
+    lock_out(out)
     check_output_dir(out, overwrite)
     _import_ahead(cfg, whole=whole, rrd=rrd)
     net = load_embedder(frames, model)
@@ -207,7 +209,9 @@ def pair(
     img2: Annotated[Path, typer.Argument(help="Second image (may differ in size).")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder (default: beside IMG1, named after it + '_pair_moseg')."),
+        typer.Option(
+            "--out", "-o", help="Output folder (default: in the current folder, IMG1's name + '_pair_moseg')."
+        ),
     ] = None,
     clustering: ClusterOptions = ClusterOptions(),
     masks: MaskOptions = MaskOptions(),
@@ -230,7 +234,8 @@ def pair(
     from mosegpipe.pipeline import segment_pair
 
     cfg = pipeline_cfg(2, clustering, masks=masks)
-    out = out or default_out(img1, "_pair_moseg")
+    out = out or default_out_here(img1, "_pair_moseg")
+    lock_out(out)
     check_output_dir(out, overwrite)
     result = segment_pair(img1, img2, cfg, load_embedder(2, model))
     summary = write_pair_outputs(result, out, cfg, overwrite=overwrite, sources=(str(img1), str(img2)), rrd=not no_rrd)
@@ -284,7 +289,7 @@ def tracks(
     file: Annotated[Path, typer.Argument(help="A .npz of point tracks from another tracker (layouts: docs/CLI.md).")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder (default: beside FILE, named after it + '_moseg')."),
+        typer.Option("--out", "-o", help="Output folder (default: in the current folder, FILE's name + '_moseg')."),
     ] = None,
     start: Start = 0,
     frames: Annotated[
@@ -335,7 +340,8 @@ def tracks(
     xy, visible = read_tracks_file(file)
     window = frames if frames is not None else (xy.shape[1] - start if getattr(xy, "ndim", 0) == 3 else 2)
     cfg = pipeline_cfg(max(2, window), clustering, segment_method=method, start=start, rigid_check=rigid_check)
-    out = out or default_out(file, "_moseg")
+    out = out or default_out_here(file, "_moseg")
+    lock_out(out)
     check_output_dir(out, overwrite)
     net = load_embedder(max(2, window), model)
     try:

@@ -16,9 +16,26 @@ from mosegpipe.errors import InputError
 
 
 def default_out(path: Path, suffix: str) -> Path:
-    """<name><suffix> beside the input (resolved, so that "." or "clip/" still have a name)."""
+    """<name><suffix> beside `path` (resolved, so that "." or "clip/" still have a name): replay's folder beside
+    the run's."""
     path = path.resolve()
     return path.with_name(f"{path.stem}{suffix}")
+
+
+def default_out_here(path: Path, suffix: str) -> Path:
+    """<name><suffix> in the current folder, named after the input (resolved, so that "." or "clip/" still have
+    a name): run's, pair's and tracks' folder without --out. Not beside the input, whose folder may be shared,
+    read-only or a folder of clips that a later `moseg batch` reads."""
+    return Path(f"{path.resolve().stem}{suffix}")
+
+
+def lock_out(out: Path) -> None:
+    """Holds the lock of output folder `out` until the command ends (mosegpipe.io.locks.output_lock): a second
+    command writing there is refused in one line, and never removes the first one's work."""
+    from mosegpipe.cli.app import click_api
+    from mosegpipe.io.locks import output_lock
+
+    click_api.globals.get_current_context().with_resource(output_lock(out))
 
 
 def check_model_path(model: Path | None) -> None:

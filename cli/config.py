@@ -53,6 +53,30 @@ def _toml_value(value: Any, kind: Any, where: str, folder: Path) -> Any:
     return value
 
 
+def _options_of(command: Any) -> dict[str, Any]:
+    """A command's options by name without '--' (`k-method`), --config and --help left out."""
+    return {
+        opt[2:]: param
+        for param in command.params
+        if param.name not in ("config", "help")
+        for opt in param.opts
+        if opt.startswith("--")
+    }
+
+
+def _other_commands_options(ctx: Any, command: str) -> set[str]:
+    """The option names of the other commands that take --config (CONFIG_COMMANDS): a top-level key of theirs
+    is not an error for this one."""
+    group = ctx.parent.command if ctx.parent is not None else None
+    if group is None or not hasattr(group, "get_command"):
+        return set()
+    names: set[str] = set()
+    for other in CONFIG_COMMANDS:
+        cmd = group.get_command(ctx.parent, other) if other != command else None
+        names |= set(_options_of(cmd)) if cmd is not None else set()
+    return names
+
+
 def _config_defaults(path: Path, ctx: Any) -> dict[str, Any]:
     """Option values from a TOML file, checked as the command line would check them, keyed by parameter name."""
     import tomllib
@@ -66,13 +90,8 @@ def _config_defaults(path: Path, ctx: Any) -> dict[str, Any]:
         raise _ConfigError(f"{path}: cannot read the config file ({getattr(exc, 'strerror', None) or exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise _ConfigError(f"{path}: not valid TOML ({one_line(str(exc))})") from None
-    options = {
-        opt[2:]: param
-        for param in ctx.command.params
-        if param.name not in ("config", "help")
-        for opt in param.opts
-        if opt.startswith("--")
-    }
+    options = _options_of(ctx.command)
+    elsewhere = _other_commands_options(ctx, command)
     for key, value in data.items():
         if isinstance(value, dict) and key not in CONFIG_COMMANDS:
             raise _ConfigError(f"{path}: unknown table [{key}] (tables: {', '.join(CONFIG_COMMANDS)})")
@@ -91,6 +110,8 @@ def _config_defaults(path: Path, ctx: Any) -> dict[str, Any]:
             first = spelled[(table_name, name.replace("_", "-"))]
             raise _ConfigError(f"{path}: {first!r} and {key!r} set the same option; keep one of them")
         spelled[(table_name, name.replace("_", "-"))] = key
+        if param is None and not table_name and name.replace("_", "-") in elsewhere:
+            continue  # a top-level key for the other commands that read the file (docs/CLI.md)
         if param is None:
             import difflib
 

@@ -3,7 +3,9 @@ study of the paper), with the choices they offer, built from the library's regis
 
 from __future__ import annotations
 
+import os
 import sys
+import tempfile
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, get_args
@@ -20,14 +22,17 @@ from mosegpipe.cli.options import (
     Device,
     KMax,
     KMethod,
+    LearningRate,
     MaskMethodChoice,
     MethodChoice,
     ModelOpt,
     PointsChoice,
     RigidCheck,
+    Seed,
     Verbose,
     choice_type,
     enum_value,
+    learning_rate,
     resolve_data_root,
 )
 from mosegpipe.cli.options import PresetChoice as PipelinePresetChoice
@@ -78,7 +83,7 @@ def train(
     batch_size: Annotated[
         int | None, typer.Option("--batch-size", min=1, help="Override the recipe's clips per training step.")
     ] = None,
-    lr: Annotated[float | None, typer.Option("--lr", help="Override the recipe's learning rate.")] = None,
+    lr: LearningRate = None,
     loss: Annotated[
         LossChoice | None,
         typer.Option(
@@ -90,7 +95,7 @@ def train(
             "mimi-mean (with the widest group's mean squared spread).",
         ),
     ] = None,
-    seed: Annotated[int | None, typer.Option("--seed", help="Override the recipe's random seed.")] = None,
+    seed: Seed = None,
     init: Annotated[Path | None, typer.Option("--init", help="Fine-tune from this checkpoint.")] = None,
     exclude: Annotated[
         str | None, typer.Option("--exclude", help="Comma-separated source names to leave out (leave-one-dataset-out).")
@@ -106,17 +111,18 @@ def train(
     Without --init a recipe starts from its own starting recipe (clip-f5 from base-f5, pair-f2 from
     synthetic-f2), trained first into the --out folder when its checkpoint is not there yet.
     """
+    _check_checkpoint_out(out)
     setup_run(threads, verbose)
-    if enum_value(preset) in (MASKNET_PRESET, WHICHNET_PRESET):
-        overrides = {"steps": steps, "batch_size": batch_size, "lr": lr, "seed": seed}
-        _train_mask_networks(
-            enum_value(preset), out, resolve_data_root(data_root), overrides, (loss, init, exclude, time_budget)
-        )
-        return
     from mosegpipe.training.loop import resolve_device
-    from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
 
     where = resolve_device(device or "cpu")
+    if enum_value(preset) in (MASKNET_PRESET, WHICHNET_PRESET):
+        overrides = {"steps": steps, "batch_size": batch_size, "lr": lr, "seed": seed}
+        unused = (loss, init, exclude, time_budget)
+        _train_mask_networks(enum_value(preset), out, resolve_data_root(data_root), overrides, unused, where)
+        return
+    from mosegpipe.training.run import TrainOverrides, needs_data, train_recipe
+
     preset = enum_value(preset)
     dropped = {s.strip() for s in exclude.split(",")} if exclude else set()
     root = resolve_data_root(data_root) if needs_data(preset, dropped) else data_root
@@ -141,11 +147,35 @@ def train(
     typer.echo(f"wrote {out} ({result.steps_done} steps, {result.seconds:.0f} s)")
 
 
+def _check_checkpoint_out(out: Path) -> None:
+    """train --out, before any data is read: a file name (not a folder) whose folder exists or can be made,
+    and can be written."""
+    if out.is_dir():
+        raise InputError(f"--out {out}: a folder; give the checkpoint's file name (e.g. {out / 'model.pt'})")
+    folder = out.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        raise InputError(f"--out {out}: {folder} is not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK) or (out.exists() and not os.access(out, os.W_OK)):
+        raise InputError(f"--out {out}: cannot write there ({folder} is read-only)")
+    try:  # what access(2) cannot tell: a read-only file system, or /proc, for root
+        os.rmdir(tempfile.mkdtemp(prefix=".moseg-train-", dir=folder))
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot write there ({folder}: {exc.strerror})") from None
+
+
 def _train_mask_networks(
-    preset: str, out: Path, root: Path, overrides: dict[str, int | float | None], unused: tuple[object, ...]
+    preset: str,
+    out: Path,
+    root: Path,
+    overrides: dict[str, int | float | None],
+    unused: tuple[object, ...],
+    device: str,
 ) -> None:
-    """train --preset masknet / whichnet: the mask network's recipe (mosegpipe.training.masks.masknet) or the per-motion
-    network's (mosegpipe.training.masks.whichnet), with the overrides given (--steps, --batch-size, --lr, --seed)."""
+    """train --preset masknet / whichnet: the mask network's recipe (mosegpipe.training.masks.masknet) or the
+    per-motion network's (mosegpipe.training.masks.whichnet), with the overrides given (--steps, --batch-size,
+    --lr, --seed), on `device` (resolved)."""
     if any(u is not None for u in unused):
         raise InputError(f"train --preset {preset}: --loss, --init, --exclude and --time-budget do not apply")
     from dataclasses import replace
@@ -173,6 +203,7 @@ def _train_mask_networks(
         root,
         cfg,
         command,
+        device=device,
         on_log=lambda e: typer.echo(
             f"step {int(e['step']):>6}  loss {e['loss']:.4f}  {score.format(**e)}  {e['cpu_s']:.0f} CPU s"
         ),
@@ -214,7 +245,9 @@ def eval_(
     batch_size: Annotated[
         int | None, typer.Option("--batch-size", min=1, help="Clips per training step of each fold.")
     ] = None,
-    lr: Annotated[float | None, typer.Option("--lr", help="Learning rate of each fold.")] = None,
+    lr: Annotated[
+        float | None, typer.Option("--lr", callback=learning_rate, help="Learning rate of each fold (> 0).")
+    ] = None,
     loss: Annotated[
         LossChoice | None,
         typer.Option(
@@ -302,7 +335,7 @@ def eval_(
         loss=enum_value(loss),
         synthetic_weight=synthetic_weight,
         baselines=tuple(b for b in baselines.split(",") if b),
-        folds=tuple(folds.split(",")) if folds else None,
+        folds=_names(folds),
         k_method=k_method,
         k_max=k_max,
         rigid_check=rigid_check,
@@ -317,6 +350,13 @@ def eval_(
     result = proto.run(proto, request)
     typer.echo(result.table)
     typer.echo(f"wrote {out}/results.md, results.csv, results.json")
+
+
+def _names(text: str | None) -> tuple[str, ...] | None:
+    """--folds: the comma-separated names, each once (a name given twice would be run and counted twice) and
+    without the spaces around it (None: none given)."""
+    names = tuple(dict.fromkeys(n.strip() for n in (text or "").split(",") if n.strip()))
+    return names or None
 
 
 def _study_help() -> str:

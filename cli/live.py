@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import typer
 
 from mosegpipe.cli.app import STOP_SIGNALS, Terminated, click_api, friendly, report_stopped, setup_run
-from mosegpipe.cli.common import check_model_path, print_total, print_video_summary, stop_child
+from mosegpipe.cli.common import check_model_path, lock_out, print_total, print_video_summary, stop_child
 from mosegpipe.cli.options import (
     RIGID_CHECK,
     ClusterOptions,
@@ -115,8 +115,8 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
     """The Rerun sinks of --viewer, --connect and --serve (a list; empty when none was asked for).
 
     --viewer spawns the native viewer (or finds one already listening on port 9876); --serve runs
-    the web viewer and its gRPC server on 127.0.0.1, free ports, as a child of this process, ended
-    with it. A --connect URL where nothing listens is an error before any work.
+    the web viewer and its gRPC server on 127.0.0.1, free ports, as a child of this process in a
+    session of its own (a Ctrl-C does not reach it), ended with it. A --connect URL where nothing listens is an error before any work.
     """
     import subprocess
 
@@ -156,8 +156,14 @@ def _sinks(viewer: bool, connect: str | None, serve: bool) -> Any:
             web_port, grpc_port = reserve_ports("127.0.0.1", [("--serve", 0, 0), ("--serve", 0, 0)])
             args = [exe, "--web-viewer", "--bind", "127.0.0.1", "--port", str(grpc_port)]
             args += ["--web-viewer-port", str(web_port), "--server-memory-limit", SERVER_MEMORY]
+            # A session of its own: Ctrl-C (SIGINT to the terminal's whole process group) must not end the server
+            # before the last frames are flushed to it; Rerun's client printed two ERROR lines when it did.
             child = subprocess.Popen(
-                args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+                args,
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                start_new_session=True,
             )
             if not _wait_listening("127.0.0.1", grpc_port, VIEWER_START_S, child):
                 raise InputError(f"--serve: the Rerun web viewer did not start listening in {VIEWER_START_S:.0f} s")
@@ -366,6 +372,7 @@ def live(
         max_side=max_side,
     )
     if out is not None:
+        lock_out(out)
         check_output_dir(out, overwrite)
     net = load_embedder(frames, model)
     status = sys.stderr.isatty() and not quiet

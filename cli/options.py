@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import math
 import os
 import re
 import typing
@@ -28,7 +29,7 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeAlias, cast
 
 import typer
 
-from mosegpipe.cli.app import F
+from mosegpipe.cli.app import F, click_api
 from mosegpipe.configs import ClusterConfig, MaskConfig, RigidCheckConfig, TrackConfig
 from mosegpipe.errors import InputError
 from mosegpipe.settings import (
@@ -45,7 +46,15 @@ from mosegpipe.settings import (
     MIN_MAX_SIDE_PX,
     SettingError,
 )
-from mosegpipe.types import K_METHODS, MASK_METHODS, PRESET_NAMES, SEGMENT_METHODS, TRACKERS
+from mosegpipe.types import (
+    DEVICE_CHOICES,
+    K_METHODS,
+    MASK_METHODS,
+    PRESET_NAMES,
+    SEGMENT_METHODS,
+    TRACKERS,
+    is_device_name,
+)
 
 # The upper bounds of the numeric options are the library's (mosegpipe.settings), checked before any work
 # (a usage error naming the option): past them OpenCV crashes, overflows or runs for minutes.
@@ -386,7 +395,23 @@ RIGID_CHECK: bool = _default(RigidCheckConfig, "enabled")
 
 
 def _config_fields(block: TrackerOptions | MaskOptions) -> dict[str, Any]:
-    return {f.metadata["config"]: enum_value(getattr(block, f.name)) for f in dataclasses.fields(block)}
+    given = _given()
+    return {
+        f.metadata["config"]: enum_value(getattr(block, f.name))
+        for f in dataclasses.fields(block)
+        if given is None or f.name in given
+    }
+
+
+def _given() -> set[str] | None:
+    """The parameters of the running command that were given (on its command line or in its --config file), not
+    left at their defaults: only those are passed on, so that a --preset's settings stay where no option was
+    given (None: outside a command, where every value counts as given)."""
+    ctx = click_api.globals.get_current_context(silent=True)
+    if ctx is None:
+        return None
+    default = click_api.core.ParameterSource.DEFAULT
+    return {name for name in ctx.params if ctx.get_parameter_source(name) not in (None, default)}
 
 
 OPTION_BLOCKS: tuple[type, ...] = (ClusterOptions, TrackerOptions, MaskOptions)
@@ -469,14 +494,17 @@ def pipeline_cfg(
 ) -> Any:
     """The PipelineConfig of a command's options (`PipelineConfig.from_options`; tracker / masks None: the
     library's defaults; mask_extra_tracks None: not an option of the command; preset None: "best"; max_side
-    None: frames segmented at their size)."""
+    None: frames segmented at their size). The preset applies first, then the tracker and mask options that were
+    given (`_given`): an option typed or set in a --config file wins over the preset, one left at its default does
+    not undo it."""
     from dataclasses import replace
 
     from mosegpipe.pipeline import PipelineConfig
 
     track = tracker.config_fields() if tracker is not None else {}
     mask = masks.config_fields() if masks is not None else {}
-    if mask_extra_tracks is not None:
+    given = _given()
+    if mask_extra_tracks is not None and (given is None or "mask_extra_tracks" in given):
         mask["extra_tracks"] = mask_extra_tracks
     try:
         config = PipelineConfig.from_options(
@@ -512,10 +540,40 @@ DataRoot = Annotated[
 ]
 
 
+def _device_name(value: str | None) -> str | None:
+    """--device's callback: a name that is none of DEVICE_CHOICES is a usage error (whether this machine has
+    the device is asked where it is used: training.loop.resolve_device)."""
+    if value is not None and not is_device_name(value):
+        raise typer.BadParameter(f"choose {', '.join(DEVICE_CHOICES)}")
+    return value
+
+
+def learning_rate(value: float | None) -> float | None:
+    """--lr's callback: a finite number above 0."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter("a learning rate is a finite number above 0")
+    return value
+
+
+LearningRate = Annotated[
+    float | None, typer.Option("--lr", callback=learning_rate, help="Override the recipe's learning rate (> 0).")
+]
+
+
+MAX_SEED = 2**32 - 1
+"""The largest --seed (NumPy's and torch's seeds are 32-bit where they meet)."""
+
+
+Seed = Annotated[
+    int | None, typer.Option("--seed", min=0, max=MAX_SEED, help=f"Override the recipe's random seed, 0..{MAX_SEED}.")
+]
+
+
 Device = Annotated[
     str | None,
     typer.Option(
         "--device",
+        callback=_device_name,
         help="Where models train: cpu (the default; lce-curve --budget full: cuda when there is one), cuda, "
         "cuda:N or auto (cuda when torch sees one).",
     ),

@@ -20,6 +20,7 @@ from mosegpipe.cli.clip import read_tracks_file
 from mosegpipe.cli.common import (
     default_out,
     frames_progress,
+    lock_out,
     print_summary,
     print_total,
     print_tracks_summary,
@@ -188,6 +189,7 @@ def replay(
     kind, source = recorded["kind"], recorded["source"]
     cfg = PipelineConfig.from_dict(recorded.get("config", {}), f"{summary}: config")
     out = out or default_out(summary.parent, "_replay")
+    lock_out(out)
     check_output_dir(out, overwrite)
     net = load_embedder(recorded["model"]["model_frames"], recorded["model"].get("checkpoint"))
     _check_same_model(net, recorded["model"], summary)

@@ -98,6 +98,17 @@ BatchEngine = Literal["process", "ray", "inline"]
 """Where `run_batch` runs its clips (mosegpipe.apps.batch.run): a local process pool, Ray tasks, or this process."""
 ENGINES: tuple[BatchEngine, ...] = get_args(BatchEngine)
 
+DEVICE_CHOICES = ("cpu", "cuda", "cuda:N", "auto")
+"""--device values: "cpu" (the default everywhere), "cuda" / "cuda:N" (a GPU), "auto" (cuda when there is one);
+which of them this machine has is `training.loop.resolve_device`'s question."""
+
+
+def is_device_name(name: str) -> bool:
+    """Whether `name` is one of DEVICE_CHOICES (N: a device index), in any case and with spaces around it."""
+    value = name.strip().lower()
+    index = value.removeprefix("cuda:")
+    return value in ("cpu", "cuda", "auto") or (value.startswith("cuda:") and index.isdigit())
+
 
 @dataclass(frozen=True)
 class Frames:

@@ -105,11 +105,15 @@ def test_run_writes_every_output(tmp_path: Path, clip_avi: Path, models: dict[in
     assert read_rrd(out / "recording.rrd")["/video/mask"] == 5
 
 
-def test_default_output_folder_and_overwrite(tmp_path: Path, scene: RenderedClip, models: dict[int, Path]) -> None:
-    clip = write_frames(tmp_path / "walk", scene.frames[:5])
+def test_default_output_folder_and_overwrite(
+    tmp_path: Path, scene: RenderedClip, models: dict[int, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    clip = write_frames(tmp_path / "shots" / "walk", scene.frames[:5])
+    monkeypatch.chdir(tmp_path)  # the default folder is the current one's, not the input's
     code, stdout, _ = moseg("run", clip, "--model", models[5], "--k", "3", "--no-rrd")
-    out = tmp_path / "walk_moseg"
+    out = Path("walk_moseg")
     assert code == 0 and (out / "summary.json").exists() and not (out / "recording.rrd").exists()
+    assert "wrote walk_moseg/ (" in stdout and not (tmp_path / "shots" / "walk_moseg").exists()
     assert "moseg view" not in stdout  # no recording, no hint
     (out / "stale.txt").write_text("old")
     code, _, stderr = moseg("run", clip, "--model", models[5], "--k", "3", "--no-rrd")
@@ -118,7 +122,7 @@ def test_default_output_folder_and_overwrite(tmp_path: Path, scene: RenderedClip
     code, _, _ = moseg("run", clip, "--model", models[5], "--k", "2", "--no-rrd", "--overwrite")
     assert code == 0 and not (out / "stale.txt").exists()
     assert json.loads((out / "summary.json").read_text())["k"] == 2
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk", "walk_moseg"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shots", "walk_moseg"]
 
 
 def test_pair_of_images_of_different_sizes(tmp_path: Path, models: dict[int, Path]) -> None:

@@ -131,9 +131,9 @@ def test_bad_config_file_is_one_error_line(case: str, tmp_path: Path, long_avi: 
 def test_config_file_that_is_missing_or_for_another_command(tmp_path: Path) -> None:
     code, _, stderr = moseg("run", tmp_path, "--config", tmp_path / "nope.toml")
     assert code == 1 and one_error_line(stderr).endswith("nope.toml: no such config file (--config)")
-    (tmp_path / "run.toml").write_text("whole = true\n")
+    (tmp_path / "run.toml").write_text("[pair]\nwhole = true\n")  # at the top level, pair leaves run's key alone
     code, _, stderr = moseg("pair", tmp_path / "a.png", tmp_path / "b.png", "--config", tmp_path / "run.toml")
-    assert code == 1 and "run.toml: unknown key 'whole' for 'moseg pair'" in one_error_line(stderr)
+    assert code == 1 and "run.toml: unknown key 'pair.whole' for 'moseg pair'" in one_error_line(stderr)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -642,7 +642,7 @@ def test_presets_are_settings_applied_through_from_options() -> None:
         cfg = PipelineConfig.from_options(5, preset=name)
         assert cfg == PipelineConfig().with_settings(PRESETS[name]), name
         assert (cfg != PipelineConfig()) == bool(PRESETS[name]), name
-    # The options apply before the preset, --set after it.
+    # The preset applies first, the options after it (an option given wins), --set last.
     fast = PipelineConfig.from_options(
         5, preset="fast", mask={"method": "motion"}, settings=["mask.motion.work_scale=1"]
     )

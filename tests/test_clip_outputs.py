@@ -114,8 +114,9 @@ def test_tracks_with_their_video_get_masks_overlays_and_a_recording(
 
 
 def test_tracks_of_another_video_are_one_error_line(
-    tmp_path: Path, clip_avi: Path, tracks_npz: Path, model5: Path, scene: RenderedClip
+    tmp_path: Path, clip_avi: Path, tracks_npz: Path, model5: Path, scene: RenderedClip, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.chdir(tmp_path)  # where the default output folder would go
     saved = np.load(tracks_npz)
     np.savez(tmp_path / "big.npz", xy=saved["xy"] * 4, visible=saved["visible"])
     code, out, stderr = moseg("tracks", tmp_path / "big.npz", "--video", clip_avi, "--model", model5, "-f", "5")

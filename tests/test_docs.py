@@ -181,14 +181,14 @@ def test_the_parser_rejects_what_moseg_rejects() -> None:
 
 
 def default_out(name: str, ctx: Any) -> str | None:
-    """The folder a documented run/pair/tracks/replay writes (cli.common.default_out), or None."""
+    """The folder a documented run/pair/tracks/replay writes (cli.common.default_out_here, default_out), or None."""
     p = ctx.params
     if p.get("out") is not None:
         return str(p["out"])
     source = {"run": "clip", "pair": "img1", "tracks": "file"}.get(name)
     if source is not None and p.get(source) is not None:
         path = Path(str(p[source]))
-        return str(path.with_name(path.stem + ("_pair_moseg" if name == "pair" else "_moseg")))
+        return path.stem + ("_pair_moseg" if name == "pair" else "_moseg")  # in the current folder
     if name == "replay" and p.get("summary") is not None:
         run = Path(str(p["summary"])).parent
         return str(run.with_name(run.name + "_replay"))

@@ -56,4 +56,6 @@ def test_without_a_sink_the_loop_still_gives_every_frame_its_mask() -> None:
     windows = segment_video(VIDEO, CFG, load_embedder(CFG.frames), masks=False)
     feed_windows(windows, CFG, None, on_frame=lambda fr, mask: masks.setdefault(fr.index, mask))
     assert sorted(masks) == list(range(8))
-    assert all(m.shape == (288, 384) and m.dtype == np.uint8 and (m == 0).any() and (m == 1).any() for m in masks.values())
+    assert all(
+        m.shape == (288, 384) and m.dtype == np.uint8 and (m == 0).any() and (m == 1).any() for m in masks.values()
+    )

@@ -60,10 +60,10 @@ def check_output_dir(out_dir: str | Path, overwrite: bool) -> None:
         raise InputError(f"{out}: exists and is not a folder; choose another --out")
     if not any(out.iterdir()):
         return
+    if not (out / "summary.json").is_file():  # first: --overwrite would not replace it either
+        raise InputError(f"{out}: holds files but no summary.json, so it is not a moseg output; refusing to replace it")
     if not overwrite:
         raise OutputExistsError(f"{out}: already holds results; pass --overwrite to replace them")
-    if not (out / "summary.json").is_file():
-        raise InputError(f"{out}: holds files but no summary.json, so it is not a moseg output; refusing to replace it")
 
 
 class OutputDir:

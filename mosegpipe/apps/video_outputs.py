@@ -267,7 +267,9 @@ def write_video_outputs(
     fps = float(info.get("fps") or 0.0)
     with VideoOutputs(out_dir, cfg, fps, overwrite, rrd, viz, overlays) as sink:
         segmented = segment_video(path, cfg, model, max_frames, masks=False, frames=frames)
-        feed_windows(run_ahead(segmented, WINDOWS_AHEAD, "moseg-segment"), cfg, sink, on_frame, on_window)
+        # closed here, not when collected: a second Ctrl-C while its threads are joined is then an exception
+        with contextlib.closing(run_ahead(segmented, WINDOWS_AHEAD, "moseg-segment")) as windows:
+            feed_windows(windows, cfg, sink, on_frame, on_window)
         sink.finish()
         summary = video_summary(path, info, sink.windows, cfg, model, time.perf_counter() - t_start)
         if summary_extra is not None:

@@ -461,6 +461,7 @@ def run_composite(name: str, req: EvalRequest, cfg: PipelineConfig) -> EvalResul
         "points": cfg.tracker,
         "model": str(req.model or "shipped default"),
         "folds": list(req.folds) if req.folds else ["dev"],
+        **({"preset": req.preset} if req.preset is not None else {}),
         **({"settings": list(req.settings)} if req.settings else {}),
     }
     table = format_table(rows, summary, f"{name} ({mode})")

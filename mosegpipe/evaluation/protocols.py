@@ -88,10 +88,12 @@ def run_benchmark(protocol: Protocol, req: EvalRequest) -> EvalResult:
 
 
 def pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
-    """The pipeline settings an end-to-end protocol runs with: F frames, the request's options and settings."""
+    """The pipeline settings an end-to-end protocol runs with: F frames, the request's options and settings; the mask
+    networks they ask for loaded before any clip (`check_mask_networks`: one error, not a zero per clip)."""
+    from mosegpipe.masks.learned.probability import check_mask_networks
     from mosegpipe.pipeline import PipelineConfig
 
-    return PipelineConfig.from_options(
+    cfg = PipelineConfig.from_options(
         frames,
         k_method=req.k_method,
         k_max=req.k_max,
@@ -102,6 +104,8 @@ def pipeline_config(req: EvalRequest, frames: int) -> PipelineConfig:
         preset=req.preset,
         settings=req.settings,
     )
+    check_mask_networks(cfg.mask)
+    return cfg
 
 
 def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
@@ -111,6 +115,8 @@ def run_end_to_end(protocol: Protocol, req: EvalRequest) -> EvalResult:
     from mosegpipe.evaluation.report import format_rows, summarize_rows, write_results
 
     assert protocol.end_to_end is not None, f"{protocol.name} has no end_to_end function"
+    if req.folds:
+        raise ConfigError(f"--folds {','.join(req.folds)}: {protocol.name} has no folds (it runs every clip)")
     f = req.frames or protocol.default_frames
     cfg = pipeline_config(req, f)
     net = load_model(f, req.model)
@@ -140,13 +146,15 @@ def run_davis_protocol(protocol: Protocol, req: EvalRequest) -> EvalResult:
     """
     from dataclasses import asdict
 
-    from mosegpipe.evaluation.davis import DAVIS_MODES, format_table, pipeline_method, run_davis
+    from mosegpipe.embed.numpy_net import load_embedder
+    from mosegpipe.evaluation.davis import DAVIS_MODES, MODES, format_table, pipeline_method, run_davis
     from mosegpipe.evaluation.report import write_results
 
     if req.data_root is None:
         raise ConfigError(f"{protocol.name} needs the benchmark data (--data-root)")
     mode = DAVIS_MODES[protocol.name]
     cfg = pipeline_config(req, req.frames or protocol.default_frames)
+    load_embedder(MODES[mode] or cfg.frames, req.model)  # a checkpoint that cannot be used: refused before any clip
     methods: list[tuple[str, Any]] = [("pipeline", pipeline_method(cfg, req.model))]
     if req.baselines:
         methods.append(("flow-homography", "flow-homography"))

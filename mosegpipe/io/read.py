@@ -210,6 +210,8 @@ def _iter_single_frames(path: Path, start: int, max_frames: int | None) -> Itera
     """Yield (index, (H, W, 3) RGB frame) from a folder, an image file or a video file."""
     if not path.exists():
         raise InputError(f"{path}: no such file or folder")
+    if not (path.is_dir() or path.is_file()):  # before any open(): a FIFO's blocks until a writer comes
+        raise InputError(f"{path}: not a regular file or folder (a FIFO, socket or device is not read as a video)")
     stop = None if max_frames is None else start + max_frames
     if path.is_dir():
         files = _list_images(path)

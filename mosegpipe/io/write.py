@@ -47,6 +47,8 @@ def atomic_write(path: str | os.PathLike[str]) -> Iterator[Path]:
 
     Raises:
         FileNotFoundError: the body finished without creating the temporary file.
+        OSError: the body's or the rename's, named by the final path when it named no file (a full disk shows
+            when a file is closed, and Python's error then names none).
     """
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -56,9 +58,11 @@ def atomic_write(path: str | os.PathLike[str]) -> Iterator[Path]:
         if not tmp.exists():
             raise FileNotFoundError(f"{final}: nothing was written to the temporary file {tmp.name}")
         os.replace(tmp, final)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+            raise type(exc)(exc.errno, exc.strerror, str(final)) from exc
         raise
 
 

@@ -17,6 +17,7 @@ from mosegpipe.group.refine import group_window
 from mosegpipe.group.rigid import label_by_rigid_motion
 from mosegpipe.io.read import check_images, read_video, video_info
 from mosegpipe.masks import labels_to_masks, motion_masks
+from mosegpipe.masks.learned.probability import check_mask_networks
 from mosegpipe.masks.moving_pixels import stack_motion
 from mosegpipe.pipeline.common import (
     check_k,
@@ -126,7 +127,8 @@ def segment_frames(frames: Frames, cfg: PipelineConfig = PipelineConfig(), model
     Raises:
         TooFewTracksError: fewer than cfg.min_tracks tracks live through all frames.
         InputError: cfg.k larger than the number of tracks.
-        CheckpointError: no model given and no shipped weights.
+        CheckpointError: no model given and no shipped weights, or a mask network the settings ask for cannot
+            be used (`check_mask_networks`).
 
     One frame shows no motion: unless cfg.k says otherwise, its tracks are one motion (K = 1, with a
     note saying why).
@@ -172,6 +174,7 @@ def _segment_frames(frames: Frames, cfg: PipelineConfig, model: Embedder | None)
     """segment_frames at the frames' own size."""
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
+    check_mask_networks(cfg.mask)
     model = model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()
     # Flow points, the world's camera evidence and the motion masks share the clip's flows: computed once, here.

@@ -44,8 +44,8 @@ PRESETS: dict[str, tuple[str, ...]] = {
     "fast": ("mask.motion.flow.scale=0.5", "mask.motion.work_scale=0.5", "track.win_size_px=11"),
 }
 """The settings each named preset (types.PRESET_NAMES, `--preset`) changes, as `with_settings` takes them; the
-options and --set of a command apply after them. The dense flow is half of a frame's CPU and the mask steps a
-fifth (`benchmarks/profile_video.py`), so the presets trade those:
+options given to a command and its --set apply after them (PipelineConfig.from_options). The dense flow is half
+of a frame's CPU and the mask steps a fifth (`benchmarks/profile_video.py`), so the presets trade those:
 
 - best: the defaults: DIS medium (patch stride 4, 1 refinement iteration) at full resolution, the mask steps
   at 0.75 of the frame size.
@@ -170,20 +170,23 @@ class PipelineConfig:
             shot_cuts: whole videos: detect shot cuts (video_cut_survival; False = None).
             track: TrackConfig fields to change.
             mask: MaskConfig fields to change.
-            preset: a named preset (PRESETS): its settings apply after the options above, before `settings`
-                (None = "best", the defaults).
+            preset: a named preset (PRESETS): its settings apply first, the options above after them (an option
+                given wins over the preset), then `settings` (None = "best", the defaults).
             settings: then settings changed by dotted path (`with_settings`).
 
         Raises:
             ConfigError: a value that is not allowed, named.
         """
         defaults = cls()
+        if preset is not None:
+            defaults = defaults.with_settings(PRESETS[check_choice("preset", preset, PRESET_NAMES)])
         given = {"method": k_method, "k_max": k_max}
         cluster = _changed("cluster", defaults.cluster, **{key: v for key, v in given.items() if v is not None})
         geometric = _changed("geometric", defaults.geometric, **({"k_max": k_max} if k_max is not None else {}))
         track_cfg = _changed("track", defaults.track, **(track or {}))
         mask_cfg = _changed("mask", defaults.mask, **(mask or {}))
-        config = cls(
+        config = replace(
+            defaults,
             frames=frames,
             start=start,
             k=k,
@@ -196,8 +199,6 @@ class PipelineConfig:
             mask=mask_cfg,
             video_cut_survival=defaults.video_cut_survival if shot_cuts else None,
         )
-        if preset is not None:
-            settings = (*PRESETS[check_choice("preset", preset, PRESET_NAMES)], *settings)
         return config.with_settings(settings) if settings else config
 
     def with_settings(self, settings: Sequence[str]) -> PipelineConfig:

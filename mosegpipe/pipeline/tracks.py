@@ -102,6 +102,8 @@ def segment_tracks(
         if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))):
             raise InputError(f"{name}={value!r} must be an integer")
     window = num_frames - start if frames is None else frames
+    if num_frames < 2:
+        raise InputError(f"the tracks span {num_frames} frame; segmenting needs tracks over 2 or more frames")
     if start < 0 or start > num_frames - 2:
         raise InputError(f"start={start}: must lie in 0..{num_frames - 2} (the tracks span {num_frames} frames)")
     if window < 2 or start + window > num_frames:

@@ -40,6 +40,7 @@ from mosegpipe.masks import (
     MaskConfig,
 )
 from mosegpipe.masks.compose import MaskSequence
+from mosegpipe.masks.learned.probability import check_mask_networks
 from mosegpipe.masks.learned.which import window_features
 from mosegpipe.masks.moving_pixels import ColourMemory
 from mosegpipe.pipeline.common import (
@@ -67,11 +68,13 @@ def check_video_settings(cfg: PipelineConfig, max_frames: int | None) -> None:
 
     Raises:
         InputError: cfg.frames < 2 or max_frames < 1.
+        CheckpointError: a mask network the settings ask for cannot be used (`check_mask_networks`).
     """
     if cfg.frames < 2:
         raise InputError(f"--frames {cfg.frames}: whole-video mode needs windows of at least 2 frames")
     if max_frames is not None and max_frames < 1:
         raise InputError(f"--max-frames {max_frames} must be >= 1")
+    check_mask_networks(cfg.mask)
 
 
 def video_frames_to_read(path: str | Path, cfg: PipelineConfig, max_frames: int | None = None) -> int | None:

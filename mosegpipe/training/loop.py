@@ -20,7 +20,7 @@ import torch
 from mosegpipe.embed.model import ModelConfig, SubspaceNet, pad_batch
 from mosegpipe.errors import ConfigError
 from mosegpipe.training.losses import LOSSES
-from mosegpipe.types import LabeledClip
+from mosegpipe.types import DEVICE_CHOICES, LabeledClip, is_device_name
 
 log = logging.getLogger(__name__)
 
@@ -129,10 +129,6 @@ def _to_cpu(obj: Any) -> Any:
     return obj
 
 
-DEVICE_CHOICES = ("cpu", "cuda", "cuda:N", "auto")
-"""--device values: "cpu" (the default everywhere), "cuda" / "cuda:N" (a GPU), "auto" (cuda when there is one)."""
-
-
 def resolve_device(name: str) -> str:
     """The torch device a `--device` value names, checked: "cpu", "cuda", "cuda:N" or "auto".
 
@@ -147,7 +143,7 @@ def resolve_device(name: str) -> str:
     if value == "cpu":
         return "cpu"
     index = value.removeprefix("cuda:") if value.startswith("cuda:") else None
-    if value != "cuda" and not (index is not None and index.isdigit()):
+    if not is_device_name(value):
         raise ConfigError(f"--device {name!r}: choose {', '.join(DEVICE_CHOICES)}")
     if not torch.cuda.is_available():
         raise ConfigError(f"--device {name!r}: torch sees no CUDA device here (use cpu or auto)")

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mosegpipe.apps.outputs import write_clip_outputs
+from mosegpipe.apps.outputs import SUMMARY_SCHEMA, write_clip_outputs
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError, MosegError
 from mosegpipe.io.read import IMAGE_SUFFIXES
@@ -51,8 +51,9 @@ def find_clips(root: str | Path, exclude: tuple[Path, ...] = ()) -> list[Path]:
     """Video files and frame folders (folders holding at least one image) under `root`, sorted.
 
     A frame folder's sub-folders are searched too; a video inside a frame folder is listed as well.
-    Hidden entries (names starting with ".") and the folders in `exclude` (e.g. the batch output
-    folder, when it lies under root) are skipped. Symbolic links are followed, but each folder is
+    Hidden entries (names starting with "."), the folders in `exclude` (e.g. the batch output
+    folder, when it lies under root) and moseg's own output folders (`moseg_output`: their masks/,
+    overlay/ and overlay.mp4 are no clips) are skipped. Symbolic links are followed, but each folder is
     searched once (by its real path): a link back to a folder above it (a loop) or to one searched
     already is skipped with a warning, as is a link that points nowhere.
 
@@ -64,15 +65,20 @@ def find_clips(root: str | Path, exclude: tuple[Path, ...] = ()) -> list[Path]:
         Paths of video files and frame folders, in sorted walk order.
 
     Raises:
-        InputError: root is not a folder.
+        InputError: root is not a folder, or is an output folder of moseg.
     """
     root = Path(root)
     if not root.is_dir():
         raise InputError(f"{root}: not a folder")
+    if moseg_output(root):
+        raise InputError(f"{root}: an output folder of moseg, not a folder of clips")
     skip = {p.resolve() for p in exclude}
     searched: dict[Path, Path] = {root.resolve(): root}  # real path -> the path it was searched under
 
     def walk(folder: Path) -> Iterator[Path]:
+        if moseg_output(folder):
+            log.warning("%s: an output folder of moseg, not a clip; skipped", folder)
+            return
         entries = sorted(folder.iterdir())
         if any(e.is_file() and e.suffix.lower() in IMAGE_EXTENSIONS for e in entries):
             yield folder
@@ -94,6 +100,19 @@ def find_clips(root: str | Path, exclude: tuple[Path, ...] = ()) -> list[Path]:
                 yield from walk(e)
 
     return list(walk(root))
+
+
+def moseg_output(folder: Path) -> bool:
+    """Whether `folder` is an output folder of moseg: a run's (summary.json of our schema) or a batch's
+    (batch_summary.json)."""
+    if (folder / SUMMARY_FILES[1]).is_file():
+        return True
+    try:
+        with open(folder / "summary.json", encoding="utf-8", errors="replace") as fh:
+            head = fh.read(4096)  # "schema" is the first key
+    except OSError:  # none there (or unreadable: then not ours to tell)
+        return False
+    return f'"schema": "{SUMMARY_SCHEMA.split("/")[0]}/' in head
 
 
 def _clean_part(part: str) -> bool:

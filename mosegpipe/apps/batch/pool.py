@@ -77,6 +77,31 @@ def worker_clip(item: BatchItem, job: Job, model: SubspaceNet) -> dict[str, Any]
     return row
 
 
+def inline_clip(item: BatchItem, job: Job, model: SubspaceNet) -> dict[str, Any]:
+    """process_clip in this process (engine "inline"), its warnings carried in the row as a worker's are, so
+    that they are logged under the clip's name too; meanwhile the handlers of this process take the rest."""
+    caught = _WorkerLog()
+    root = logging.getLogger()
+    handlers = list(root.handlers)
+
+    def not_a_warning(record: logging.LogRecord) -> bool:
+        return record.levelno < logging.WARNING
+
+    for handler in handlers:
+        handler.addFilter(not_a_warning)
+    root.addHandler(caught)
+    try:
+        row = process_clip(item, job, model)
+    finally:
+        root.removeHandler(caught)
+        for handler in handlers:
+            handler.removeFilter(not_a_warning)
+    warnings = caught.take()
+    if warnings:
+        row["_warnings"] = warnings
+    return row
+
+
 def _watch_parent(lifeline: Any) -> None:
     """Ends this worker when the batch process is gone (its end of the lifeline pipe closes).
 
@@ -111,7 +136,7 @@ def _ping() -> int:
     return os.getpid()
 
 
-def _mp_context() -> Any:
+def mp_context() -> Any:
     import multiprocessing as mp
 
     if "forkserver" in mp.get_all_start_methods():
@@ -159,22 +184,68 @@ def _hangup_blocked() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
-class _Pool:
+def _start_forkserver(ctx: Any) -> None:
+    """Starts multiprocessing's forkserver (once per process; nothing for another start method) with Ctrl-C
+    ignored, which it passes to every worker it forks from birth. Ctrl-C reaches the terminal's whole process
+    group: a worker it reached before `_init_worker` set it aside printed its traceback after the batch's
+    error line (a mask of blocked signals would not do: the forkserver unblocks SIGINT for its children).
+    A Ctrl-C in the milliseconds of the start is lost."""
+    if ctx.get_start_method() != "forkserver":
+        return
+    from multiprocessing import forkserver
+
+    if threading.current_thread() is not threading.main_thread():  # signal handlers are the main thread's
+        forkserver.ensure_running()
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def stops_deferred() -> Iterator[None]:
+    """Ctrl-C and SIGTERM held back while the pool's processes start, then delivered (to the command's own
+    handlers). Interrupted half way through a worker's start, the batch went away with that worker unrecorded
+    (not killed), and the worker printed a traceback when it could not find the queue the batch had removed.
+    Only in the main thread, where Python runs signal handlers; elsewhere nothing is held back."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        received.append(signum)
+
+    previous = {signum: signal.signal(signum, hold) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if received:
+            signal.raise_signal(received[0])
+
+
+class WorkerPool:
     """A ProcessPoolExecutor whose workers are all started and ready (so deadlines count clip time)."""
 
     def __init__(self, workers: int, model: SubspaceNet, job: Job, startup_timeout: float = 600.0) -> None:
-        ctx = _mp_context()
-        with _hangup_blocked():  # the queue's lock starts the resource tracker, the pings the workers
-            self.ready = ctx.Queue()
-            # Only this process holds the sending end: when it dies, however it dies, the workers see EOF and exit.
-            lifeline, self.lifeline = ctx.Pipe(duplex=False)
-            self.executor = cf.ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
-            )
-            self.pids: set[int] = set()
-            pings = [self.executor.submit(_ping) for _ in range(workers)]  # one submit starts one worker
-        deadline = time.monotonic() + startup_timeout
+        ctx = mp_context()
+        self.pids: set[int] = set()
         try:
+            # The queue's lock starts the resource tracker, the pings the workers.
+            with _hangup_blocked(), stops_deferred():
+                _start_forkserver(ctx)
+                self.ready = ctx.Queue()
+                # Only this process holds the sending end: when it dies, however it dies, the workers see EOF.
+                lifeline, self.lifeline = ctx.Pipe(duplex=False)
+                self.executor = cf.ProcessPoolExecutor(
+                    workers, mp_context=ctx, initializer=_init_worker, initargs=(model, job, self.ready, lifeline)
+                )
+                pings = [self.executor.submit(_ping) for _ in range(workers)]  # one submit starts one worker
+            deadline = time.monotonic() + startup_timeout
             while len(self.pids) < workers:
                 try:
                     self.pids.add(self.ready.get(timeout=0.2))
@@ -200,7 +271,12 @@ class _Pool:
         return [p.exitcode for p in list(procs.values()) if p.exitcode]
 
     def kill(self) -> None:
-        """Kills every worker (a hung one included) and shuts the executor down without waiting."""
+        """Kills every worker (a hung one included) and shuts the executor down without waiting (also a pool
+        whose start failed half way)."""
+        if not hasattr(self, "executor"):
+            with contextlib.suppress(Exception):
+                self.lifeline.close()
+            return
         procs = list((getattr(self.executor, "_processes", None) or {}).values())
         for p in procs:
             with contextlib.suppress(Exception):
@@ -235,7 +311,7 @@ def run_process(
     pending = collections.deque(todo)
     suspects: collections.deque[tuple[int, BatchItem]] = collections.deque()
     while pending or suspects:
-        pool = _Pool(max(1, min(jobs, len(pending) + len(suspects))), model, job)
+        pool = WorkerPool(max(1, min(jobs, len(pending) + len(suspects))), model, job)
         inflight: _InFlight = {}
         try:
             while True:
@@ -283,7 +359,7 @@ def run_process(
 
 
 def _judge_broken_pool(
-    pool: _Pool,
+    pool: WorkerPool,
     inflight: _InFlight,
     suspects: collections.deque[tuple[int, BatchItem]],
     emit: Callable[[int, dict[str, Any]], None],

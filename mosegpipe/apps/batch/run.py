@@ -52,10 +52,11 @@ from mosegpipe.apps.batch.plan import (
     summary_row,
     usable_cores,
 )
-from mosegpipe.apps.batch.pool import MAX_WORKER_WARNINGS, run_process
+from mosegpipe.apps.batch.pool import MAX_WORKER_WARNINGS, inline_clip, run_process
 from mosegpipe.apps.batch.ray_engine import check_ray, run_ray
 from mosegpipe.embed.model import SubspaceNet
 from mosegpipe.errors import InputError
+from mosegpipe.io.locks import exclusive_lock
 from mosegpipe.io.read import atomic_write, write_json
 from mosegpipe.pipeline import PipelineConfig, segment_clip
 from mosegpipe.settings import MAX_CLIP_TIMEOUT_S
@@ -90,22 +91,10 @@ LOCK_FILE = ".moseg-batch.lock"
 @contextlib.contextmanager
 def _locked(out: Path) -> Iterator[None]:
     """Holds out/.moseg-batch.lock: two batches writing into one folder would undo each other's work."""
-    try:
-        import fcntl
-    except ImportError:  # not POSIX: no lock
+    with exclusive_lock(
+        out / LOCK_FILE, f"{out}: another moseg batch is writing into this folder (it holds {LOCK_FILE})"
+    ):
         yield
-        return
-    with open(out / LOCK_FILE, "a+") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise InputError(f"{out}: another moseg batch is writing into this folder (it holds {LOCK_FILE})") from None
-        try:
-            yield
-        finally:
-            with contextlib.suppress(OSError):
-                (out / LOCK_FILE).unlink()
-            fcntl.flock(fh, fcntl.LOCK_UN)
 
 
 def _sweep(out: Path) -> None:
@@ -307,7 +296,7 @@ def _run_items(
         try:
             if todo and engine == "inline":
                 for index, item in todo:
-                    emit(index, process_clip(item, job, model))
+                    emit(index, inline_clip(item, job, model))
             elif todo and engine == "process":
                 run_process(todo, workers, model, job, clip_timeout, emit)
             elif todo:

@@ -29,6 +29,7 @@ size given beside it (`parse_source(stdin_size=...)`).
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import threading
 import time
@@ -54,7 +55,7 @@ from mosegpipe.apps.live.source import (
     parse_source,
     stdin_size_suspect,
 )
-from mosegpipe.errors import InputError, MosegError
+from mosegpipe.errors import InputError, MosegError, TooFewTracksError
 from mosegpipe.pipeline import PipelineConfig, VideoFrame, WindowResult, segment_video
 from mosegpipe.pipeline.video import MIN_VIDEO_SIDE_PX
 from mosegpipe.runtime import run_ahead
@@ -325,11 +326,14 @@ def run_live(
             MIN_VIDEO_SIDE_PX, or it ended before a window's worth of frames.
         TooFewTracksError: no window had enough tracks.
         OutputExistsError: out_dir holds results and overwrite is False.
+        CheckpointError: a mask network the settings ask for cannot be used (`check_mask_networks`).
     """
     from mosegpipe.apps.outputs import check_output_dir
+    from mosegpipe.masks.learned.probability import check_mask_networks
 
     if out_dir is not None:
         check_output_dir(out_dir, overwrite)
+    check_mask_networks(cfg.mask)
     stop = stop or threading.Event()
     capture = open_source(source, timeout_s=stall_timeout_s, stdin=stdin)
     fps = source.fps or capture.fps or DEFAULT_FPS
@@ -400,6 +404,32 @@ def _warn_dropped(name: str, stats: LiveStats) -> None:
         )
 
 
+def _stdin_size_hint(source: LiveSource, exc: MosegError, width: int, height: int) -> str:
+    """What to check when raw stdin frames gave no tracks ("" for another source or failure): a width wrong by a
+    pixel or two shears the frames too little for `stdin_size_suspect` to tell, and leaves nothing to track."""
+    if source.kind == "stdin" and isinstance(exc, TooFewTracksError):
+        return f"raw frames read as {width}x{height}: is --stdin-size right?"
+    return ""
+
+
+def _show_only(
+    name: str,
+    cfg: PipelineConfig,
+    model: Embedder,
+    frames: LiveFrames,
+    on_frame: Callable[[VideoFrame, npt.NDArray[np.uint8]], None],
+    on_window: Callable[[WindowResult], None],
+) -> None:
+    """A run without an output folder: each window's frames and masks, then the window, to the callbacks."""
+    from mosegpipe.apps.video_outputs import feed_windows
+
+    # closed here, not when collected: a second Ctrl-C while its threads are joined is then an exception
+    with contextlib.closing(
+        run_ahead(segment_video(name, cfg, model, masks=False, frames=frames), WINDOWS_AHEAD, "moseg-segment")
+    ) as windows:
+        feed_windows(windows, cfg, None, on_frame, on_window)
+
+
 def _run_live(
     source: LiveSource,
     cfg: PipelineConfig,
@@ -414,7 +444,7 @@ def _run_live(
     on_status: Callable[[LiveStats], None] | None,
     status_every_s: float,
 ) -> LiveResult:
-    from mosegpipe.apps.video_outputs import feed_windows, write_video_outputs
+    from mosegpipe.apps.video_outputs import write_video_outputs
 
     buffer, capture = reader.buffer, reader.capture
     height, width, suspect = _check_first_frame(source, _first_frame(reader, stall_timeout_s))
@@ -453,24 +483,14 @@ def _run_live(
         if out_dir is not None:
             info = {"kind": "stream", "num_frames": None, "fps": fps, "size_hw": (height, width)}
             summary = write_video_outputs(
-                source.name,
-                out_dir,
-                cfg,
-                model,
-                overwrite=overwrite,
-                rrd=rrd,
-                frames=frames,
-                info=info,
-                on_window=on_window,
-                on_frame=on_frame,
-                summary_extra=counts,
+                source.name, out_dir, cfg, model, overwrite, rrd, None, on_window, None, frames, info, on_frame, counts
             )
         else:
-            segmented = segment_video(source.name, cfg, model, masks=False, frames=frames)
-            feed_windows(run_ahead(segmented, WINDOWS_AHEAD, "moseg-segment"), cfg, None, on_frame, on_window)
+            _show_only(source.name, cfg, model, frames, on_frame, on_window)
     except MosegError as exc:
-        if suspect:  # the likely cause of a failure on such frames (no tracks, too few frames)
-            raise type(exc)(f"{exc} ({suspect})") from exc
+        hint = suspect or _stdin_size_hint(source, exc, width, height)
+        if hint:  # the likely cause of a failure on such frames (no tracks, too few frames)
+            raise type(exc)(f"{exc} ({hint})") from exc
         raise
     finally:
         reader.finish()  # the reader stops at its next frame

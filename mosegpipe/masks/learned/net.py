@@ -25,6 +25,7 @@ from torch import nn
 
 from mosegpipe.embed.architecture import weights_dir
 from mosegpipe.errors import CheckpointError
+from mosegpipe.io.read import atomic_write
 from mosegpipe.masks.learned.features import NUM_CHANNELS
 
 WIDTHS = (8, 16, 24, 32)
@@ -110,11 +111,8 @@ class MaskNet(nn.Module):
         }
 
     def save(self, path: str | Path, recipe: dict[str, Any] | None = None) -> None:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        torch.save(self.checkpoint(recipe), tmp)
-        tmp.replace(path)
+        with atomic_write(path) as tmp:  # a failed write (a full disk) leaves no temporary file
+            torch.save(self.checkpoint(recipe), tmp)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, output: str = "moving") -> MaskNet:
@@ -135,7 +133,13 @@ class MaskNet(nn.Module):
         if ckpt.get("output", "moving") != output:
             raise CheckpointError(f"{path}: a mask network of output {ckpt.get('output')!r}, not {output!r}")
         try:
-            net = cls(int(ckpt["in_channels"]), tuple(int(w) for w in ckpt["widths"]), output)
+            widths = tuple(int(w) for w in ckpt["widths"])
+            if not 1 <= len(widths) <= len(CONVS) or min(widths) < 1:  # the levels the network is built of
+                raise CheckpointError(
+                    f"{path}: a mask network checkpoint with widths {list(widths)}; expected 1 to {len(CONVS)} "
+                    "channel counts, each at least 1"
+                )
+            net = cls(int(ckpt["in_channels"]), widths, output)
             net.load_state_dict(ckpt["state_dict"])
         except (KeyError, RuntimeError, TypeError, ValueError) as exc:
             raise CheckpointError(f"{path}: mask network checkpoint does not fit ({exc})") from exc

@@ -20,8 +20,16 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from mosegpipe.configs.masks import MotionMaskConfig
-from mosegpipe.masks.learned.features import LearnedMaskConfig, clip_features, neighbours_along, net_flows, net_size
+from mosegpipe.configs.masks import MaskConfig, MotionMaskConfig
+from mosegpipe.errors import CheckpointError
+from mosegpipe.masks.learned.features import (
+    NUM_CHANNELS,
+    LearnedMaskConfig,
+    clip_features,
+    neighbours_along,
+    net_flows,
+    net_size,
+)
 from mosegpipe.masks.moving_pixels import keep_strong, refined_scores
 from mosegpipe.points.flow import FrameMotion
 
@@ -112,3 +120,37 @@ def learned_moving(
             small = cv2.resize(small.astype(np.uint8), (width, height), interpolation=cv2.INTER_NEAREST) > 0
         out[t] = small
     return out
+
+
+MASK_NETWORK_SETTINGS = {"moving": "mask.learned.weights", "which": "mask.learned.which_weights"}
+"""The setting (`--set`) that names each output's checkpoint."""
+
+
+def check_mask_networks(cfg: MaskConfig) -> None:
+    """Loads the mask networks that settings `cfg` use (`load_masknet`, once per process): the mask network of
+    method "learned", the per-motion network of `which` "learned" (with the "motion" and "learned" masks), so
+    that a checkpoint that cannot be used is refused before any work, not only when a frame needs it.
+
+    Raises:
+        CheckpointError: a checkpoint that is missing, unreadable, of another kind or does not fit, named by
+            its setting (`mask.learned.weights: PATH: no mask network checkpoint there`).
+    """
+    asked = {"moving": cfg.learned.weights} if cfg.method == "learned" else {}
+    if cfg.which == "learned" and cfg.method in ("motion", "learned"):
+        asked["which"] = cfg.learned.which_weights
+    if not asked:
+        return
+    from mosegpipe.masks.learned.net import load_masknet, shipped_path  # torch: only when a network is asked for
+    from mosegpipe.masks.learned.which import QUERY_CHANNELS
+
+    inputs = {"moving": NUM_CHANNELS, "which": NUM_CHANNELS + QUERY_CHANNELS}
+    for output, path in asked.items():
+        try:
+            net = load_masknet(path, output)
+            if net.in_channels != inputs[output]:
+                raise CheckpointError(
+                    f"{path or shipped_path(output)}: a mask network of {net.in_channels} input channels, "
+                    f"not {inputs[output]}"
+                )
+        except CheckpointError as exc:
+            raise CheckpointError(f"{MASK_NETWORK_SETTINGS[output]}: {exc}") from exc

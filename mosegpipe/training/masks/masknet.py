@@ -143,14 +143,19 @@ def train_masknet(
     cfg: MaskTrainConfig = MaskTrainConfig(),
     command: str = "",
     on_log: Callable[[dict[str, float]], None] | None = None,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Trains the mask network by recipe `cfg` and writes the held-out-best checkpoint to `out`.
+
+    Args:
+        device: the torch device the steps run on (checked by the caller: `training.loop.resolve_device`);
+            the held-out scores and the checkpoint are the CPU's.
 
     Returns:
         The recipe record stored in the checkpoint (settings, chosen step and threshold, scores).
     """
     with one_thread():
-        return run_training(out, data_root, cfg, command, on_log)
+        return run_training(out, data_root, cfg, command, on_log, device)
 
 
 @contextlib.contextmanager
@@ -175,9 +180,11 @@ def fit(
     loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     score: Callable[[MaskNet], npt.NDArray[np.float64]],
     on_log: Callable[[dict[str, float]], None] | None = None,
+    device: str = "cpu",
 ) -> tuple[int, int, float, list[dict[str, Any]], float]:
     """AdamW (5 % warm-up, cosine decay to 2 %) on `batch()`es by `loss_fn`; every `eval_every` steps `score(net)`
     gives a score per choice (thresholds, ...), and the weights of the best (step, choice) are loaded into `net`.
+    The steps run on `device`; `score` and the network returned are on the CPU.
 
     Returns:
         (best step, index of the best choice, its score, the table of scores per evaluation, CPU seconds).
@@ -190,19 +197,18 @@ def fit(
     best: tuple[float, int, int, dict[str, torch.Tensor]] | None = None
     table = []
     start, running = time.process_time(), 0.0
-    net.train()
+    net.to(device).train()
     for step in range(1, steps + 1):
         x, t = batch()
-        loss = loss_fn(net(x), t)
+        loss = loss_fn(net(x.to(device)), t.to(device))
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
         running += loss.item()
         if step % eval_every == 0 or step == steps:
-            net.eval()
-            scores = score(net)
-            net.train()
+            scores = score(net.cpu().eval())
+            net.to(device).train()
             k = int(np.argmax(scores))
             table.append({"step": step, "j": [round(float(s), 4) for s in scores]})
             entry = {"step": float(step), "loss": running / eval_every, "held_out_j": float(scores[k])}
@@ -214,7 +220,7 @@ def fit(
             if best is None or scores[k] > best[0]:
                 best = (float(scores[k]), step, k, copy.deepcopy(net.state_dict()))
     assert best is not None
-    net.load_state_dict(best[3])
+    net.cpu().load_state_dict(best[3])
     return best[1], best[2], best[0], table, time.process_time() - start
 
 
@@ -224,6 +230,7 @@ def run_training(
     cfg: MaskTrainConfig,
     command: str,
     on_log: Callable[[dict[str, float]], None] | None,
+    device: str,
 ) -> dict[str, Any]:
     rng = np.random.default_rng(cfg.seed)
     torch.manual_seed(cfg.seed)
@@ -247,6 +254,7 @@ def run_training(
         lambda logits, t: mask_loss(logits, t, cfg.dice_weight),
         lambda n: held_out_scores(n, held, cfg.thresholds),
         logged,
+        device,
     )
     record = {
         "name": "masknet",

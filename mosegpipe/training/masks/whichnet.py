@@ -275,8 +275,10 @@ def train_whichnet(
     cfg: WhichTrainConfig = WhichTrainConfig(),
     command: str = "",
     on_log: Callable[[dict[str, float]], None] | None = None,
+    device: str = "cpu",
 ) -> dict[str, Any]:
-    """Trains the per-motion network by recipe `cfg` and writes the held-out-best checkpoint to `out`."""
+    """Trains the per-motion network by recipe `cfg` and writes the held-out-best checkpoint to `out`; the steps
+    run on `device` (as `train.fit`)."""
     with one_thread():
         rng = np.random.default_rng(cfg.seed)
         torch.manual_seed(cfg.seed)
@@ -298,6 +300,7 @@ def train_whichnet(
             which_loss,
             lambda n: held_out_accuracy(n, held, cfg)[:1],
             on_log,
+            device,
         )
     record = {
         "name": WHICHNET_PRESET,
