@@ -266,7 +266,7 @@ def test_a_new_small_rigid_cluster_is_labelled_under_joint_only() -> None:
     clusters = np.repeat([0, 1], [600, 12]).astype(np.int64)
     ids = np.arange(612, dtype=np.int64)
     joint = PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=8))
-    assert small_rigid(clusters, points, PipelineConfig()) == []  # the default: the size guard alone
+    assert small_rigid(clusters, points, PipelineConfig(method="subspacenet")) == []  # the size guard alone
     assert small_rigid(clusters, points, PipelineConfig(method="joint", joint=JointConfig(new_rigid_tracks=None))) == []
     assert small_rigid(clusters, points, PipelineConfig(method="joint")) == [1]  # joint's default: 8 tracks
     assert small_rigid(clusters, points, joint) == [1]
