@@ -134,10 +134,11 @@ Method = Annotated[
     MethodChoice,
     typer.Option(
         "--method",
-        help="How tracks become motions: subspacenet (default: the learned embedding, automatic K, the rigid-motion "
-        "check), geometric (homographies / fundamental matrices fitted one after another, automatic K; "
-        "no model needed) or joint (the embedding's groups, then a model per group chosen by GRIC that merges, "
-        "splits and moves tracks). moseg pair always uses the embedding.",
+        help="How tracks become motions: joint (default: the learned embedding's groups, automatic K, the "
+        "rigid-motion check, then a model per group chosen by GRIC that merges, splits and moves tracks), "
+        "subspacenet (the embedding, automatic K and the rigid-motion check alone) or geometric (homographies / "
+        "fundamental matrices fitted one after another, automatic K; no model needed). moseg pair always uses "
+        "the embedding.",
     ),
 ]
 

@@ -19,11 +19,11 @@ KMethodName = Literal["silhouette", "residual"]
 """Automatic-K rules of cluster.cluster_auto_k: the silhouette, or the elbow of the K-means residual."""
 K_METHODS: tuple[KMethodName, ...] = get_args(KMethodName)
 
-SegmentMethod = Literal["subspacenet", "geometric", "joint"]
-"""How tracks become motions (PipelineConfig.method): "subspacenet" (the learned embedding, automatic K by
-K-means, the rigid-motion check) or "geometric" (sequential homography / fundamental-matrix fitting,
-mosegpipe.group.geometric) or "joint" (the embedding's groups, then per group a model chosen by GRIC over the
-window that merges, splits and moves tracks, mosegpipe.group.joint)."""
+SegmentMethod = Literal["joint", "subspacenet", "geometric"]
+"""How tracks become motions (PipelineConfig.method): "joint" (the embedding's groups, then per group a model
+chosen by GRIC over the window that merges, splits and moves tracks, mosegpipe.group.joint), "subspacenet" (the
+learned embedding, automatic K by K-means, the rigid-motion check) or "geometric" (sequential homography /
+fundamental-matrix fitting, mosegpipe.group.geometric)."""
 SEGMENT_METHODS: tuple[SegmentMethod, ...] = get_args(SegmentMethod)
 
 PointSource = Literal["klt", "flow", "klt+flow"]

@@ -81,8 +81,9 @@ def test_tracks_with_their_video_get_masks_overlays_and_a_recording(
     tmp_path: Path, clip_avi: Path, tracks_npz: Path, model5: Path
 ) -> None:
     out = tmp_path / "t"
+    # The embedding's grouping, pinned: the outputs are what is tested here, with the test model's K (3).
     args = ("tracks", tracks_npz, "--video", clip_avi, "--start", "1", "--frames", "5", "--model", model5)
-    code, stdout, stderr = moseg(*args, "-o", out)
+    code, stdout, stderr = moseg(*args, "--method", "subspacenet", "-o", out)
     assert code == 0, stderr
     assert f"wrote {out}/ (summary.json, labels.npz, masks/, overlay/, overlay.mp4, recording.rrd)" in stdout
     assert f"open it with `moseg view {out / 'recording.rrd'}`" in stdout

@@ -134,7 +134,17 @@ def test_bad_inputs_are_named() -> None:
 
 
 def test_pipeline_config_method_and_older_summaries() -> None:
+    from dataclasses import asdict
+
+    assert PipelineConfig().method == "joint"
+    assert PipelineConfig.from_dict(asdict(PipelineConfig())).method == "joint"
+    old = asdict(PipelineConfig())
+    del old["method"]  # a summary written before the methods existed: the embedding alone, as it ran
+    assert PipelineConfig.from_dict(old) == PipelineConfig(method="subspacenet")
     assert PipelineConfig.from_dict({}).method == "subspacenet"
+    del old["joint"]["merge_most_pairs"]  # a joint run before merges counted a track in most frame pairs
+    assert not PipelineConfig.from_dict(old).joint.merge_most_pairs
+    assert PipelineConfig().joint.merge_most_pairs
     assert PipelineConfig.from_dict({"method": "geometric"}).method == "geometric"
     cfg = PipelineConfig.from_dict({"method": "geometric", "geometric": {"residual_px": 2.0}})
     assert cfg.geometric.residual_px == 2.0
@@ -152,6 +162,21 @@ def test_run_records_the_method_in_summary(tmp_path: Path) -> None:
     assert summary["k_method"] == "geometric"
     assert summary["k"] >= 2
     assert PipelineConfig.from_dict(summary["config"]).method == "geometric"
+
+
+def test_a_default_run_records_joint_and_an_older_summary_replays_as_subspacenet(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    clip = ROOT / "samples" / "rendered" / "frames"
+    code, _, stderr = moseg("run", clip, "--frames", "5", "--no-rrd", "-o", out)
+    assert code == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["config"]["method"] == "joint"
+    del summary["config"]["method"]  # as a summary written before the key was
+    older = tmp_path / "older.json"
+    older.write_text(json.dumps(summary))
+    code, _, stderr = moseg("replay", older, "--no-rrd", "-o", tmp_path / "again")
+    assert code == 0, stderr
+    assert json.loads((tmp_path / "again" / "summary.json").read_text())["config"]["method"] == "subspacenet"
 
 
 def test_geometric_segment_frames_gives_displacements_for_embeddings() -> None:

@@ -237,17 +237,19 @@ def test_check_rigid_in_the_pipeline() -> None:
     points, truth = scene("static")
     data = points.astype(np.float32)
     merged = Clustering(np.zeros(len(points), np.int64), 1, {1: 1.0}, "silhouette", "")
-    checked = check_rigid(merged, data, SIZE_HW, PipelineConfig())
+    checked = check_rigid(merged, data, SIZE_HW, PipelineConfig(method="subspacenet"))
     assert checked.k == 2
     assert checked.note == "the rigid-motion check split off 1 group (K = 1 -> 2)"
     assert checked.scores == merged.scores  # the sweep's evidence is kept as it was
     assert np.array_equal(checked.labels == 1, truth == 1)
     # K given, or the check off: the clustering is what automatic K (or the user) said.
-    assert check_rigid(merged, data, SIZE_HW, PipelineConfig(k=1)) is merged
-    off = PipelineConfig(rigid=RigidCheckConfig(enabled=False))
+    assert check_rigid(merged, data, SIZE_HW, PipelineConfig(method="subspacenet", k=1)) is merged
+    off = PipelineConfig(method="subspacenet", rigid=RigidCheckConfig(enabled=False))
     assert check_rigid(merged, data, SIZE_HW, off) is merged
     noted = replace(merged, note="the K choice is ambiguous")
-    assert check_rigid(noted, data, SIZE_HW, PipelineConfig()).note.startswith("the K choice is ambiguous; the rigid")
+    assert check_rigid(noted, data, SIZE_HW, PipelineConfig(method="subspacenet")).note.startswith(
+        "the K choice is ambiguous; the rigid"
+    )
 
 
 def test_the_config_round_trips_through_summary_json_form() -> None:

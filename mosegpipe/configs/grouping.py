@@ -186,6 +186,7 @@ class JointConfig:
         rigid_share: a group is one rigid motion when its model explains this share of it.
         planar_share: a split's second part must be one motion: a homography explains this share of it.
         merge_share: two groups merge only when the union's model explains this share of each.
+        merge_most_pairs: ... a track is explained when within residual_px in most frame pairs, not in every one.
         reassign: a track its group's model does not explain may go to a group whose model does.
         leave_out: a track that no model explains is left out (-1); else it keeps its group.
         merge_3d: two groups that both need a fundamental matrix may merge under one.
@@ -207,6 +208,7 @@ class JointConfig:
     rigid_share: float = 0.5
     planar_share: float = 0.8  # as the geometric fit: one plane explaining 4/5 of the rest is an object
     merge_share: float = 0.8  # as the rigid-motion check's merge_consistency
+    merge_most_pairs: bool = True  # one slipped frame is a tracking glitch (rendered correct K 50 -> 60 %)
     reassign: bool = True
     leave_out: bool = False  # True: composites J +0.03, kt3d-video +1.5 points of error (left out = wrong)
     merge_3d: bool = False  # KT3D (kt3d-video): cars driving with the camera fit the world's matrix

@@ -21,7 +21,9 @@ penalised criterion over the frames of the window (at most `max_pairs` frame pai
    not when both parts need a fundamental matrix (the depth of one scene). Repeated until no group
    splits or K reaches `k_max`.
 3. Merge. Two rigid groups are merged when one planar model of their union explains `merge_share`
-   of each and has a lower GRIC than their two models: K-means cut one motion in two (a turning
+   of each (a track within `residual_px` in most frame pairs, `merge_most_pairs`, as step 4 counts it: a
+   track that slips in one frame is a tracking glitch, not a motion of its own; else in every frame pair)
+   and has a lower GRIC than their two models: K-means cut one motion in two (a turning
    object, a plane of the world). A fundamental matrix is the union's model only with `merge_3d` and
    when both groups need one: beside a part that one homography explains (a still or rotating camera,
    a plane) it is degenerate and explains an object that translates too, and even between two 3D
@@ -254,12 +256,17 @@ def _union_model(
     share: float,
 ) -> GroupModel | None:
     """The best model of the rows a and b of xy together (a fundamental matrix allowed only with `three_d`), when
-    it explains at least `share` of each within cfg.residual_px over every frame pair; else None."""
+    it explains at least `share` of each within cfg.residual_px in most frame pairs (cfg.merge_most_pairs; else in
+    every frame pair); else None."""
     rows = np.concatenate([a, b])
     model = best_model(xy[rows], cfg) if three_d else best_planar(xy[rows], cfg)
     if model is None:
         return None
-    fits = model.residuals(xy[rows]).max(axis=1) <= cfg.residual_px
+    res = model.residuals(xy[rows])
+    if cfg.merge_most_pairs:
+        fits = (res <= cfg.residual_px).sum(axis=1) * 2 > res.shape[1]
+    else:
+        fits = res.max(axis=1) <= cfg.residual_px
     return model if min(fits[: a.size].mean(), fits[a.size :].mean()) >= share else None
 
 

@@ -58,6 +58,7 @@ Speed and J of each, measured on the DAVIS dev clips: docs/RESULTS.md, "Speed".
 
 
 OLDER_SUMMARIES: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("method", {"method": "subspacenet"}),  # before "geometric" and "joint": the embedding alone
     ("rigid", {"rigid.enabled": False}),  # before the rigid-motion check
     ("world", {"world.enabled": False, "world.parallax": False}),  # before the world was told by where its tracks are
     ("video_cut_survival", {"video_cut_survival": None}),  # before the shot-cut test
@@ -71,6 +72,7 @@ OLDER_SUMMARIES: tuple[tuple[str, dict[str, Any]], ...] = (
     ("mask.motion.local_colour_weight", {"mask.motion.local_colour_weight": 0.0}),  # before their local colour contrast
     ("mask.motion.smooth_lambda", {"mask.motion.smooth_lambda": 0.0}),  # before their global smoother
     ("mask.motion.flow.camera_fit", {"mask.motion.flow.camera_fit": "magsac"}),  # before the camera's fit by RANSAC
+    ("joint.merge_most_pairs", {"joint.merge_most_pairs": False}),  # before merges counted tracks in most pairs
 )
 """The compatibility of `PipelineConfig.from_dict` with summaries written before a step existed, in one table:
 (a field whose absence marks such a summary, the settings it then replays with: the step off, or the choice of
@@ -108,7 +110,7 @@ class PipelineConfig:
     frames: int = 5
     start: int = 0
     k: int | None = None
-    method: str = "subspacenet"  # a summary without it was made before "geometric" existed
+    method: str = "joint"  # a summary without it replays as "subspacenet" (OLDER_SUMMARIES)
     min_tracks: int = 10
     tracker: str = "klt"
     track: TrackConfig = field(default_factory=TrackConfig)
