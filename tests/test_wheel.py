@@ -49,10 +49,12 @@ def test_the_wheel_installs_offline_and_runs(tmp_path: Path) -> None:
     site = Path(
         _run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], tmp_path, env).strip()
     )
-    # The dependencies come from this environment, after the fresh one's own site-packages (where the wheel goes).
+    _run([*pip, "--python", str(python), "install", "--no-deps", "-q", str(wheel)], tmp_path, env)
+    # The dependencies come from this environment, after the fresh one's own site-packages (where the wheel went).
+    # Only after the install: where this environment holds an installed (not editable) mosegpipe, pip would
+    # otherwise see it and install nothing.
     here = dict.fromkeys([sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]])
     (site / "_moseg_test_deps.pth").write_text("\n".join(here) + "\n", encoding="utf-8")
-    _run([*pip, "--python", str(python), "install", "--no-deps", "-q", str(wheel)], tmp_path, env)
 
     where = _run([str(python), "-c", "import mosegpipe; print(mosegpipe.__file__)"], tmp_path, env).strip()
     assert Path(where).is_relative_to(site), where  # the wheel's copy, not this checkout's
