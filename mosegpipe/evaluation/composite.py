@@ -52,7 +52,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import ConfigError, MosegError
-from mosegpipe.evaluation.identities import identity_switches, match_objects_video, object_j
+from mosegpipe.evaluation.identities import identity_switches, labels_on_object, match_objects_video, object_j
 from mosegpipe.evaluation.metrics import jaccard, misclassification_error
 from mosegpipe.masks import UNKNOWN, WORLD
 
@@ -142,12 +142,7 @@ def labels_per_object(
     out = {}
     for oid in object_ids:
         seen: set[int] = set()
-        for pf, gf in zip(p, g):
-            on = gf == oid
-            n = int(np.count_nonzero(on))
-            if n == 0 or n < min_px:
-                continue
-            vals, counts = np.unique(pf[on], return_counts=True)
+        for vals, counts, n in labels_on_object(p, g, oid, min_px):
             seen.update(int(v) for v, c in zip(vals, counts) if v not in (WORLD, UNKNOWN) and c > share * n)
         out[int(oid)] = len(seen)
     return out

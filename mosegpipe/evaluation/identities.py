@@ -5,7 +5,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -142,17 +142,30 @@ def object_identities(
     out: dict[int, list[int]] = {}
     for oid in object_ids:
         seq = []
-        for pf, gf in zip(p, g):
-            on = gf == oid
-            n = int(np.count_nonzero(on))
-            if n == 0 or n < min_px:
-                continue
-            vals, counts = np.unique(pf[on], return_counts=True)
+        for vals, counts, n in labels_on_object(p, g, oid, min_px):
             keep = ~np.isin(vals, list(ignore))
             if keep.any() and counts[keep].max() >= share * n:
                 seq.append(int(vals[keep][int(np.argmax(counts[keep]))]))
         out[int(oid)] = seq
     return out
+
+
+def labels_on_object(
+    pred: npt.NDArray[np.integer], gt: npt.NDArray[np.integer], oid: int, min_px: float = 1
+) -> Iterator[tuple[npt.NDArray[np.integer], npt.NDArray[np.intp], int]]:
+    """Per frame where true object `oid` shows at least `min_px` pixels (and one at least): the predicted labels
+    on its pixels, how many pixels each covers, and the object's pixel count.
+
+    Args:
+        pred, gt: (T, H, W) predicted labels and true ids.
+    """
+    for pf, gf in zip(pred, gt):
+        on = gf == oid
+        n = int(np.count_nonzero(on))
+        if n == 0 or n < min_px:
+            continue
+        vals, counts = np.unique(pf[on], return_counts=True)
+        yield vals, counts, n
 
 
 def identity_switches(
