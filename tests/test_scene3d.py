@@ -4,6 +4,8 @@ region the world's tracks hold stays with the world."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from mosegpipe.colours import WORLD
@@ -87,3 +89,32 @@ def test_a_moving_region_full_of_world_tracks_stays_with_the_world() -> None:
     mask = moving_to_labels(moving, xy, labels, WORLD, cfg=MaskConfig(world_regions=0.95, world_region_tracks=10))
     assert (mask[2:12, 2:20] == WORLD).all() and (mask[20:35, 30:50] == 3).all()
     assert (moving_to_labels(moving, xy, labels, WORLD)[2:12, 2:20] == 3).all()  # off: the nearest mover's
+
+
+def test_a_world_without_depth_leaves_a_mover_along_the_epipolar_lines_alone() -> None:
+    # a far, planar world (0.5 px a frame) and a block sliding along the rows 3 px a frame: one F holds both
+    # (any epipole on the rows' line), so judged over every pixel the block would be explained as near structure
+    block = (slice(8, 40), slice(40, 100))
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[..., 0] = -0.5
+    flow[block] = (-3.0, 0.0)
+    forward = np.repeat(flow[None], T - 1, axis=0)
+    residual = np.stack([camera_residual(flow, fit_camera(flow, None))] * T)
+    motion = FrameMotion(residual, np.zeros((T, H, W), np.float32), 1.0, forward, -forward)
+    ys, xs = np.mgrid[2:H:6, 2:W:6].reshape(2, -1).astype(np.float32)
+    inside = (ys >= 8) & (ys < 40) & (xs >= 40) & (xs < 100)
+    xy = np.zeros((ys.size, T, 2), np.float32)
+    for t in range(T):
+        xy[:, t, 0] = xs + t * np.where(inside, -3.0, -0.5)
+        xy[:, t, 1] = ys
+    xy += np.random.default_rng(0).normal(0, 0.05, xy.shape).astype(np.float32)
+    labels = inside.astype(np.int64)
+    base = WorldConfig(rigid_scene=True, rigid_scene_gate="parallax", rigid_scene_region="all")
+    swallowed = explain_rigid_scene(motion, xy, labels, base)
+    assert np.median(swallowed.residual[2][block]) < 1.0  # without the world's own depth: taken for the world
+    gated = explain_rigid_scene(motion, xy, labels, replace(base, rigid_scene_world_depth=0.05))
+    assert np.array_equal(gated.residual, motion.residual)
+    # a world with depth passes the same gate
+    motion3d, xy3d, labels3d = _scene(near_px=4.0)
+    out = explain_rigid_scene(motion3d, xy3d, labels3d, replace(base, rigid_scene_world_depth=0.05))
+    assert np.percentile(_static(out.residual[2]), 75) < 0.3

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -190,3 +191,29 @@ def test_photo_texture_needs_rgb_photographs() -> None:
         render_clip(RenderConfig(texture="photo"))
     with pytest.raises(InputError, match="RGB uint8"):
         render_clip(RenderConfig(texture="photo"), [np.zeros((10, 10), np.uint8)])
+
+
+def test_near_static_boxes_are_the_static_world_in_front_of_the_rest() -> None:
+    base = RenderConfig(size_hw=(60, 80), frames=6, seed=3, camera_motion="truck", ground=True, num_objects=1)
+    plain = render_clip(base)
+    near = render_clip(replace(base, near_static=3))
+    # the same scene (the boxes are drawn from the generator after everything else) with boxes in front of it
+    changed = np.any(plain.frames != near.frames, axis=-1)
+    assert changed.mean() > 0.02
+    assert (near.masks[changed] == 0).mean() > 0.9  # where the boxes are, the static world (up to edge pixels)
+    assert set(np.unique(near.masks)) <= {0, 1}
+
+
+def test_a_followed_object_moves_with_the_camera() -> None:
+    base = RenderConfig(
+        size_hw=(120, 160), frames=8, seed=1, camera_motion="truck", num_objects=1, object_speed_px=(0, 0)
+    )
+    still = render_clip(base)  # the object stands still: the trucking camera sweeps it across the image
+    followed = render_clip(replace(base, follow=True))
+
+    def travel(clip) -> float:
+        ys, xs = np.nonzero(clip.masks[0] == 1)
+        ye, xe = np.nonzero(clip.masks[-1] == 1)
+        return float(np.hypot(xe.mean() - xs.mean(), ye.mean() - ys.mean()))
+
+    assert travel(followed) < 0.3 * travel(still)

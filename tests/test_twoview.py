@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -92,3 +93,17 @@ def test_fits_refuse_too_few_points_and_gric_caps_outliers() -> None:
     assert not twoview.fit_with_inliers("fundamental", p, p, 1.0)[1].any()
     # GRIC's robust cost caps each outlier: one wild residual costs as much as a merely bad one
     assert twoview.gric(np.square([100.0]), 1.0, 2, 8) == twoview.gric(np.square([10.0]), 1.0, 2, 8)
+
+
+def test_a_fit_that_opencv_refuses_with_an_assertion_is_no_fit(monkeypatch: pytest.MonkeyPatch) -> None:
+    # USAC asserts (cv2.error) on some degenerate samples; a caller gets "no model", as for any failed fit
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise cv2.error("!model.empty()")
+
+    monkeypatch.setattr(cv2, "findFundamentalMat", refuse)
+    monkeypatch.setattr(cv2, "findHomography", refuse)
+    p = np.random.default_rng(0).uniform(0, 100, (30, 2))
+    for kind in ("fundamental", "homography"):
+        assert twoview.robust_fit(kind, p, p + 1, "magsac", 1.0) == (None, None)
+        model, inliers = twoview.fit_with_inliers(kind, p, p + 1, 1.0)
+        assert model is None and not inliers.any()

@@ -263,6 +263,8 @@ class WorldConfig:
         rigid_scene_gate: F over H by "gric" (`twoview.gric`) or "parallax" (rigid_scene_parallax of the tracks F's only).
         rigid_scene_parallax: that share, for the "parallax" gate.
         rigid_scene_region: pixels it may explain: "all", "world" (nearest track the world's), "faster" (flow >= the world's).
+        rigid_scene_fit: the tracks F and H are fitted to and gated on: "all" or "world" (those labelled the world).
+        rigid_scene_world_depth: least share of the world's own tracks off its homography and on its F (0 = no test).
     """
 
     enabled: bool = True
@@ -281,6 +283,8 @@ class WorldConfig:
     rigid_scene_gate: str = "gric"
     rigid_scene_parallax: float = 0.05
     rigid_scene_region: str = "world"
+    rigid_scene_fit: str = "all"
+    rigid_scene_world_depth: float = 0.0
 
     def __post_init__(self) -> None:
         check_fields(self, _WORLD_CHECKS)
@@ -296,6 +300,8 @@ _WORLD_CHECKS: tuple[Check, ...] = (
     ("rigid_scene_gate", lambda v: v in ("gric", "parallax"), "be 'gric' or 'parallax'"),
     ("rigid_scene_parallax", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
     ("rigid_scene_region", lambda v: v in ("all", "world", "faster"), "be 'all', 'world' or 'faster'"),
+    ("rigid_scene_world_depth", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("rigid_scene_fit", lambda v: v in ("all", "world"), "be 'all' or 'world'"),
     *((name, lambda v: v >= 0, "be >= 0") for name in ("border_weight", "continuity", "static_px", "static_floor")),
 )
 """WorldConfig's checks: (field, test, what it must be)."""

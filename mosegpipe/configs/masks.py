@@ -149,6 +149,59 @@ WHICH_METHODS = ("tracks", "learned")
 
 
 @dataclass(frozen=True)
+class RigidTracksConfig:
+    """Whole videos, "motion" masks: moving regions that tracks of the static world hold over a long span stay the
+    world's (`mosegpipe.masks.rigid_tracks`), one line each.
+
+    Attributes:
+        enabled: judge the tracks (whole videos; the verdict serves `hold` and `guard`).
+        hold: moving regions that the static world's tracks hold stay the world's (`rigid_tracks.static_held`).
+        guard: with WorldConfig.rigid_scene, a pixel whose nearest judged track moves is not explained by the camera's
+            3D motion, and a window without a verdict is not judged in 3D at all.
+        span: the longest partner frame's distance back from the window's last frame (tracks seen there are known).
+        partners: partner frames, evenly spaced back to `span` (`gaps`).
+        residual_px: a static track's parallax stays within this of its one depth, per 4 frames of gap, full-resolution px.
+        world_depth: least share of the world's tracks off the camera's homography and on its F at the longest gap.
+        min_tracks: fewest tracks a fit needs.
+        share: least share of a region's known tracks that must be static for it to stay the world's.
+        region_tracks: fewest known tracks in such a region.
+    """
+
+    enabled: bool = False
+    hold: bool = True
+    guard: bool = True
+    span: int = 12
+    partners: int = 3
+    residual_px: float = 1.0
+    world_depth: float = 0.05
+    min_tracks: int = 30
+    share: float = 0.9
+    region_tracks: int = 10
+
+    def __post_init__(self) -> None:
+        check_fields(self, _RIGID_TRACKS_CHECKS)
+        if self.partners > self.span:
+            raise SettingError("partners", f"{self.partners} must be at most span ({self.span})")
+
+    @property
+    def gaps(self) -> tuple[int, ...]:
+        """The partner frames' distances back, ascending (the last is `span`)."""
+        return tuple(sorted({round(self.span * (k + 1) / self.partners) for k in range(self.partners)}))
+
+
+_RIGID_TRACKS_CHECKS: tuple[Check, ...] = (
+    ("span", lambda v: 2 <= v <= 60, "lie in 2..60"),
+    ("partners", lambda v: v >= 1, "be >= 1"),
+    ("residual_px", lambda v: v > 0, "be > 0"),
+    ("world_depth", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("min_tracks", lambda v: v >= 8, "be >= 8"),
+    ("share", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("region_tracks", lambda v: v >= 1, "be >= 1"),
+)
+"""RigidTracksConfig's checks: (field, test, what it must be)."""
+
+
+@dataclass(frozen=True)
 class MaskConfig:
     """Settings of densifying track labels, one line each (the methods: mosegpipe.masks); how the values were
     chosen is in docs/HISTORY.md ("Dense masks: densifiers compared", "Moving regions that no clustered motion
@@ -173,6 +226,7 @@ class MaskConfig:
         which: "motion"/"learned" masks, frames with 2+ moving motions: "tracks" (nearest track, watershed) or "learned" (the per-motion network).
         motion: "motion": the flow and mask settings (mosegpipe.masks.moving_pixels); "learned": its flow settings.
         learned: "learned": the mask network's settings (mosegpipe.masks.learned).
+        rigid: whole videos, "motion": regions held by tracks of the static world over a long span (RigidTracksConfig).
     """
 
     max_distance_px: float = 40.0
@@ -193,6 +247,7 @@ class MaskConfig:
     which: str = "tracks"
     motion: MotionMaskConfig = field(default_factory=MotionMaskConfig)
     learned: LearnedMaskConfig = field(default_factory=LearnedMaskConfig)
+    rigid: RigidTracksConfig = field(default_factory=RigidTracksConfig)
 
     def __post_init__(self) -> None:
         check_fields(self, _MASK_CHECKS)

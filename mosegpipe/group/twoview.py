@@ -78,12 +78,15 @@ def robust_fit(
         ((3, 3) float64 model or None, (n,) bool inliers or None): None where no model was found.
     """
     flag = _ROBUST[method][kind]
-    if kind == "homography":  # OpenCV's defaults: 2000 iterations, confidence 0.995
-        iters, conf = 2000 if max_iters is None else max_iters, 0.995 if confidence is None else confidence
-        mat, mask = cv2.findHomography(a, b, flag, threshold_px, maxIters=iters, confidence=conf)
-    else:  # OpenCV's defaults: confidence 0.99, 1000 iterations
-        conf, iters = 0.99 if confidence is None else confidence, 1000 if max_iters is None else max_iters
-        mat, mask = cv2.findFundamentalMat(a, b, flag, threshold_px, conf, iters)
+    try:
+        if kind == "homography":  # OpenCV's defaults: 2000 iterations, confidence 0.995
+            iters, conf = 2000 if max_iters is None else max_iters, 0.995 if confidence is None else confidence
+            mat, mask = cv2.findHomography(a, b, flag, threshold_px, maxIters=iters, confidence=conf)
+        else:  # OpenCV's defaults: confidence 0.99, 1000 iterations
+            conf, iters = 0.99 if confidence is None else confidence, 1000 if max_iters is None else max_iters
+            mat, mask = cv2.findFundamentalMat(a, b, flag, threshold_px, conf, iters)
+    except cv2.error:  # USAC asserts on some degenerate samples (every point on a line, or nearly still)
+        return None, None
     if mat is None or mat.shape != (3, 3):
         return None, None
     inliers = None if mask is None or len(mask) != len(a) else np.asarray(mask.ravel().astype(bool))

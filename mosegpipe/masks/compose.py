@@ -21,6 +21,7 @@ from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, labe
 from mosegpipe.masks.learned.probability import learned_moving
 from mosegpipe.masks.learned.which import which_motion, window_features
 from mosegpipe.masks.moving_pixels import Anchors, ColourMemory, moving_from_motion, moving_masks, stack_motion
+from mosegpipe.masks.rigid_tracks import RigidTracks, Seen, TrackHistory, WindowTracks, rigid_tracks, static_held
 from mosegpipe.masks.scene3d import explain_rigid_scene
 from mosegpipe.points.flow import FrameMotion
 from mosegpipe.types import Tracks
@@ -197,10 +198,6 @@ def moving_to_labels(
     return out
 
 
-Seen = tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]
-"""One frame's labelled tracks: (M,) int64 ids and (M, 2) float32 positions, pixels."""
-
-
 def common_step(
     seen: Seen, near: Seen
 ) -> tuple[npt.NDArray[np.intp], tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]:
@@ -230,18 +227,26 @@ class MaskSequence:
         video: whole-video mode (the frame before's mask is carried).
         colour: the motion masks' colour model of the shot's windows so far (None = each stack alone).
         last_mask: the last finished frame's mask (None at the start of a shot).
+        history: whole videos with MaskConfig.rigid: the tracks of the shot's last frames (`rigid_tracks`).
     """
 
     cfg: MaskConfig
     video: bool = False
     colour: ColourMemory | None = None
     last_mask: npt.NDArray[np.uint8] | None = None
+    history: TrackHistory | None = None
+
+    def __post_init__(self) -> None:
+        if self.video and self.cfg.rigid.enabled and self.history is None:
+            self.history = TrackHistory(max(self.cfg.rigid.gaps) + 1)
 
     def new_shot(self) -> None:
-        """A shot starts: no mask to carry over, its colours are new."""
+        """A shot starts: no mask to carry over, its colours are new, no track goes back beyond it."""
         self.last_mask = None
         if self.colour is not None:
             self.colour.reset()
+        if self.history is not None:
+            self.history.reset()
 
     def moving(
         self,
@@ -250,6 +255,7 @@ class MaskSequence:
         first: int = 0,
         parallax: tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], WorldConfig] | None = None,
         anchors: list[Anchors] | None = None,
+        tracks: WindowTracks | None = None,
     ) -> tuple[npt.NDArray[np.bool_], FrameMotion]:
         """The moving pixels of frames first..T-1 of a stack, and the flow evidence they were judged on.
 
@@ -261,17 +267,41 @@ class MaskSequence:
                 masks the world's 3D structure is explained first (the mask network takes the camera residual
                 it was trained on). None: not explained.
             anchors: whole videos: per masked frame, the tracks that keep a motion the frame before showed.
+            tracks: whole videos: the window's tracks for MaskConfig.rigid (`rigid_tracks`); None: not judged.
 
         Returns:
             ((T - first, H, W) bool moving, the FrameMotion used).
         """
+        rigid = self.cfg.rigid
+        verdict = None
+        if tracks is not None and self.history is not None:
+            for index, frame in zip(tracks.indices, tracks.seen):
+                self.history.add(index, frame)
+            verdict = rigid_tracks(self.history, tracks.indices[-1], tracks.last_labels, rigid)
         if parallax is not None and self.cfg.method == "motion":
             motion = explain_parallax(motion, *parallax)
-            motion = explain_rigid_scene(motion, *parallax)
+            if not (self.history is not None and rigid.guard):
+                motion = explain_rigid_scene(motion, *parallax)
+            elif verdict is not None and tracks is not None:  # guarded: judged in 3D only with a verdict
+                motion = explain_rigid_scene(motion, *parallax, long_span=verdict.of(tracks.clustered))
         if self.cfg.method == "learned":
             return learned_moving(images, motion, self.cfg.learned, first=first), motion
         moving = moving_from_motion(images, motion, self.cfg.motion, first=first, colour=self.colour, anchors=anchors)
+        if tracks is not None and verdict is not None and rigid.hold:
+            moving = self._rigid_held(moving, first, tracks.seen, verdict)
         return moving, motion
+
+    def _rigid_held(
+        self, moving: npt.NDArray[np.bool_], first: int, seen: Sequence[Seen], verdict: RigidTracks
+    ) -> npt.NDArray[np.bool_]:
+        """The masked frames' moving pixels without the regions that tracks of the static world hold over a long
+        span (MaskConfig.rigid.hold, `rigid_tracks`)."""
+        rigid = self.cfg.rigid
+        out = moving.copy()
+        for f in range(first, len(seen)):
+            known, static = verdict.of(seen[f][0])
+            out[f - first] = static_held(moving[f - first], seen[f][1], known, static, rigid.share, rigid.region_tracks)
+        return out
 
     def finish(
         self,

@@ -54,7 +54,12 @@ def partners(t: int, num: int) -> list[int]:
     return [far] if second in (t, far) else [far, second]
 
 
-def _view(p: npt.NDArray[np.float64], q: npt.NDArray[np.float64], gap: int, cfg: WorldConfig) -> _View | None:
+def _view(
+    p: npt.NDArray[np.float64], q: npt.NDArray[np.float64], gap: int, cfg: WorldConfig, fit: npt.NDArray[np.bool_]
+) -> _View | None:
+    """The view from p to q with F and H fitted to and gated on the tracks `fit`; its inliers among all tracks."""
+    every_p, every_q = p, q
+    p, q = p[fit], q[fit]
     fun, f_in = twoview.fit_with_inliers("fundamental", p, q, cfg.rigid_scene_px)
     hom, h_in = twoview.fit_with_inliers("homography", p, q, 2.0 * cfg.rigid_scene_px)
     if fun is None or hom is None or h_in.sum() < 8:
@@ -66,7 +71,19 @@ def _view(p: npt.NDArray[np.float64], q: npt.NDArray[np.float64], gap: int, cfg:
     else:  # "parallax": a share of the tracks that F holds and H does not
         prefers_f = bool(np.mean(f_in & ~h_in) >= cfg.rigid_scene_parallax and f_in.sum() >= h_in.sum())
     plane = twoview.compatible_homography(fun, hom, p[h_in & f_in], q[h_in & f_in])
-    return _View(gap, plane, twoview.epipole(fun), f_in, prefers_f)
+    inliers = f_in if fit.all() else twoview.sampson_px(fun, every_p, every_q) <= cfg.rigid_scene_px
+    return _View(gap, plane, twoview.epipole(fun), inliers, prefers_f)
+
+
+def world_depth_share(p: npt.NDArray[np.float64], q: npt.NDArray[np.float64], cfg: WorldConfig) -> float:
+    """The share of the world's tracks p -> q that their own fundamental matrix holds and their own homography
+    does not (0 without both fits): the world's own parallax. A world with none (a distant or planar scene, a
+    rotating camera) leaves F free to take in any one mover along its epipolar lines."""
+    fun, f_in = twoview.fit_with_inliers("fundamental", p, q, cfg.rigid_scene_px)
+    hom, h_in = twoview.fit_with_inliers("homography", p, q, 2.0 * cfg.rigid_scene_px)
+    if fun is None or hom is None:
+        return 0.0
+    return float(np.mean(f_in & ~h_in))
 
 
 def _chained(
@@ -90,18 +107,25 @@ def _world_side(
     xy: npt.NDArray[np.float32], labels: npt.NDArray[np.int64], hw: tuple[int, int], to_judge: float
 ) -> npt.NDArray[np.bool_]:
     """(h, w) bool at the judging scale: the pixels whose nearest labelled track is the world's."""
+    return _nearest_side(xy, labels == WORLD, hw, to_judge)
+
+
+def _nearest_side(
+    xy: npt.NDArray[np.float32], side: npt.NDArray[np.bool_], hw: tuple[int, int], to_judge: float
+) -> npt.NDArray[np.bool_]:
+    """(h, w) bool at the judging scale: the pixels whose nearest track (of `xy`) is one of `side`'s."""
     h, w = hw
     seeds = np.zeros((h, w), np.uint8)
     pts = np.clip(np.round(xy * to_judge).astype(np.int64), 0, [w - 1, h - 1])
-    seeds[pts[:, 1], pts[:, 0]] = np.where(labels == WORLD, 1, 2).astype(np.uint8)
+    seeds[pts[:, 1], pts[:, 0]] = np.where(side, 1, 2).astype(np.uint8)
     _, nearest = cv2.distanceTransformWithLabels(
         (seeds == 0).astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL
     )
     owner = np.zeros(int(nearest.max()) + 1, np.uint8)
     ys, xs = np.nonzero(seeds)
     owner[nearest[ys, xs]] = seeds[ys, xs]
-    side: npt.NDArray[np.bool_] = owner[nearest] == 1
-    return side
+    held: npt.NDArray[np.bool_] = owner[nearest] == 1
+    return held
 
 
 def _depth_sign(depths: npt.NDArray[np.float64]) -> float:
@@ -118,6 +142,7 @@ def rigid_residual(
     t: int,
     cfg: WorldConfig = WorldConfig(),
     flows: tuple[list[npt.NDArray[np.float32]], list[npt.NDArray[np.float32]]] | None = None,
+    long_span: tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]] | None = None,
 ) -> npt.NDArray[np.float32] | None:
     """Frame t's residual to the camera's 3D motion, per frame of gap (full-resolution pixels, at the flow's
     scale), or None where a homography suffices or the world's tracks are not the 3D motion's consensus.
@@ -129,33 +154,26 @@ def rigid_residual(
         t: the frame.
         cfg: rigid_scene_px, rigid_scene_world, rigid_scene_scale, rigid_scene_region.
         flows: the window's forward and backward flows at the judging scale, in its pixels (None = made here).
+        long_span: (known, static) per track from the long-span test (`mosegpipe.masks.rigid_tracks`): a pixel whose
+            nearest known track is not the static world's is not explained (None = no such guard).
     """
     num, h, w = motion.residual.shape
     world = labels == WORLD
     pts = xy.astype(np.float64)
     others = partners(t, num)
-    views = [_view(pts[:, t], pts[:, u], abs(u - t), cfg) for u in others]
+    fit = world if cfg.rigid_scene_fit == "world" else np.ones(len(labels), bool)
+    views = [_view(pts[:, t], pts[:, u], abs(u - t), cfg, fit) for u in others]
     if not views or any(v is None for v in views):
         return None
     chosen = [v for v in views if v is not None]
     far = chosen[0]
     if not far.prefers_f or far.inliers[world].mean() < cfg.rigid_scene_world:
         return None
-    # the tracks' depths: the partners' scales c_u, and the world's depth range
-    par, bas = [], []
-    for u, v in zip(others, chosen):
-        mapped, basis = twoview.parallax_basis(v.plane, v.epipole, pts[:, t])
-        par.append(pts[:, u] - mapped)
-        bas.append(basis)
-    ref = np.sum(par[0] * bas[0], axis=1) / np.maximum(np.sum(bas[0] ** 2, axis=1), 1e-12)
-    scales = [1.0] + [
-        twoview.depth_scale(r[far.inliers], b[far.inliers], ref[far.inliers]) for r, b in zip(par[1:], bas[1:])
-    ]
-    depth, _ = twoview.shared_depth_residual(par, bas, scales)
-    sign = _depth_sign(depth[far.inliers])
-    static = sign * depth[world & far.inliers]
-    # beyond the world's farthest depth (its 2nd percentile, less a tenth of its spread): not the world's
-    farthest = float(np.percentile(static, 2) - 0.1 * np.ptp(static)) if static.size else -np.inf
+    if cfg.rigid_scene_world_depth > 0 and world_depth_share(pts[world, t], pts[world, others[0]], cfg) < (
+        cfg.rigid_scene_world_depth
+    ):
+        return None  # the world's own tracks show no depth: F would be fitted to a mover
+    scales, sign, farthest = _track_depths(pts, t, others, chosen, world)
     # every pixel, at the judging scale
     js = cfg.rigid_scene_scale
     jh, jw = max(1, round(h * js)), max(1, round(w * js))
@@ -181,9 +199,37 @@ def rigid_residual(
         # nearer static structure sweeps past at least as fast as the world; a mover the camera follows lags
         world_step = float(np.median(np.linalg.norm(pts[world, others[0]] - pts[world, t], axis=1)))
         res[np.linalg.norm(far_at[0] - p, axis=1) < world_step] = np.inf
+    if long_span is not None:
+        known, still = long_span
+        if known.any():
+            moves = ~_nearest_side(xy[known, t], still[known], (jh, jw), motion.scale * js)
+            res[moves.ravel()] = np.inf
     small = (res * motion.scale).reshape(jh, jw).astype(np.float32)
     out: npt.NDArray[np.float32] = cv2.resize(np.minimum(small, 1e6), (w, h), interpolation=cv2.INTER_LINEAR)
     return out
+
+
+def _track_depths(
+    pts: npt.NDArray[np.float64], t: int, others: list[int], chosen: list[_View], world: npt.NDArray[np.bool_]
+) -> tuple[list[float], float, float]:
+    """The tracks' depths from frame t to its partners: the partners' depth scales c_u (the first 1), the sign of
+    the near side, and the world's farthest depth (its 2nd percentile less a tenth of its spread; farther is not
+    the world's)."""
+    far = chosen[0]
+    par, bas = [], []
+    for u, v in zip(others, chosen):
+        mapped, basis = twoview.parallax_basis(v.plane, v.epipole, pts[:, t])
+        par.append(pts[:, u] - mapped)
+        bas.append(basis)
+    ref = np.sum(par[0] * bas[0], axis=1) / np.maximum(np.sum(bas[0] ** 2, axis=1), 1e-12)
+    scales = [1.0] + [
+        twoview.depth_scale(r[far.inliers], b[far.inliers], ref[far.inliers]) for r, b in zip(par[1:], bas[1:])
+    ]
+    depth, _ = twoview.shared_depth_residual(par, bas, scales)
+    sign = _depth_sign(depth[far.inliers])
+    static = sign * depth[world & far.inliers]
+    farthest = float(np.percentile(static, 2) - 0.1 * np.ptp(static)) if static.size else -np.inf
+    return scales, sign, farthest
 
 
 def judging_flows(
@@ -206,6 +252,7 @@ def explain_rigid_scene(
     xy: npt.NDArray[np.float32],
     labels: npt.NDArray[np.int64],
     cfg: WorldConfig = WorldConfig(),
+    long_span: tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]] | None = None,
 ) -> FrameMotion:
     """`motion` with each frame's camera residual the smaller of it and the residual to the camera's 3D
     motion (`rigid_residual`) where that motion needs depth (cfg.rigid_scene; the module's docstring).
@@ -215,6 +262,7 @@ def explain_rigid_scene(
         xy: (N, T, 2) float32 positions of the window's labelled tracks, pixels.
         labels: (N,) int64 their motions (WORLD = the world; -1 ignored).
         cfg: the rigid_scene settings.
+        long_span: (known, static) per track of the long-span test, a guard (`rigid_residual`); None = none.
 
     Returns:
         A FrameMotion with a new residual (the same object when nothing changes).
@@ -226,12 +274,14 @@ def explain_rigid_scene(
     if keep.sum() < max(cfg.parallax_min_points, 8) or (labels[keep] == WORLD).sum() < 8:
         return motion
     xy, labels = xy[keep], labels[keep]
+    if long_span is not None:
+        long_span = (long_span[0][keep], long_span[1][keep])
     residual = motion.residual
     h, w = residual.shape[1:]
     js = cfg.rigid_scene_scale
     flows = judging_flows(motion, (max(1, round(h * js)), max(1, round(w * js))), js)
     for t in range(num):
-        rigid = rigid_residual(motion, xy, labels, t, cfg, flows)
+        rigid = rigid_residual(motion, xy, labels, t, cfg, flows, long_span)
         if rigid is None:
             continue
         if residual is motion.residual:

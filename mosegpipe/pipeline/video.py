@@ -43,6 +43,7 @@ from mosegpipe.masks.compose import MaskSequence
 from mosegpipe.masks.learned.probability import check_mask_networks
 from mosegpipe.masks.learned.which import window_features
 from mosegpipe.masks.moving_pixels import ColourMemory
+from mosegpipe.masks.rigid_tracks import WindowTracks
 from mosegpipe.pipeline.common import (
     decode_errors,
     frames_text,
@@ -497,7 +498,9 @@ def _window_pixels(
     anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
     # the world's 3D structure: its parallax is not motion
     parallax = (found.xy, found.labels, cfg.world) if found.track_ids.size else None
-    moving, motion = run.masks.moving(images, motion, first=skip, parallax=parallax, anchors=anchors)
+    seen = [(ids, xy) for _, _, ids, xy in window]
+    tracks = WindowTracks(indices, seen, labs[-1], found.track_ids) if labs else None
+    moving, motion = run.masks.moving(images, motion, first=skip, parallax=parallax, anchors=anchors, tracks=tracks)
     stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
     run.frame_before = indices[-2]
     which = window_features(images, motion, cfg.mask, labs, skip)

@@ -25,7 +25,12 @@ import numpy.typing as npt
 from mosegpipe.errors import InputError
 
 VIDEO_MOTIONS: tuple[str, ...] = ("static", "pan", "forward", "handheld")
-"""Camera motions of rendered clips (render.RenderConfig.camera_motion)."""
+"""Camera motions of rendered clips (render.RenderConfig.camera_motion) that the rendered protocols cycle through."""
+
+PARALLAX_MOTIONS: tuple[str, ...] = ("truck",)
+"""Camera motions with strong parallax that no protocol cycles through (so the protocols' clips stay as they
+are): "truck" moves sideways 4-10 cm a frame (at most 2.5 m in all) while turning slowly back towards the
+scene, as a camera following something along a wall does."""
 
 TRAJECTORY_MOTIONS: tuple[str, ...] = ("driving", "handheld", "static", "pan")
 """Camera ego-motions of synthetic trajectories (trajectories.SyntheticConfig.camera_motions)."""
@@ -121,7 +126,7 @@ def video_camera_poses(
 
     Args:
         rng: the clip's random generator (its draws are part of the clip's seed).
-        kind: one of VIDEO_MOTIONS.
+        kind: one of VIDEO_MOTIONS or PARALLAX_MOTIONS.
         frames: T.
     """
     t = np.arange(frames, dtype=np.float64)[:, None]
@@ -139,6 +144,13 @@ def video_camera_poses(
         speed = min(rng.uniform(0.05, 0.15), 1.5 / span)
         rotvec = np.zeros((frames, 3))
         centre = t * np.array([0.0, 0.0, speed])
+    elif kind == "truck":
+        speed = min(rng.uniform(0.04, 0.10), 2.5 / span) * random_sign(rng)
+        # turning back towards the scene 10 m ahead by a share of the angle the translation sweeps
+        rate = -rng.uniform(0.2, 0.6) * math.atan(speed / 10.0)
+        rotvec = t * np.array([0.0, rate, 0.0])
+        centre = t * np.array([speed, 0.0, 0.0]) + rng.normal(0, 0.005, (frames, 3)).cumsum(axis=0)
+        centre -= centre[0]
     else:  # handheld
         step = min(1.0, 10.0 / span)
         rotvec = (rng.normal(0, 0.2 * deg * step, (frames, 3))).cumsum(axis=0)

@@ -14,6 +14,7 @@ moves), i = object i (1..num_objects, ordered as RenderConfig.objects or as samp
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import Sequence
@@ -25,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.errors import InputError
-from mosegpipe.synth.camera import VIDEO_MOTIONS, rotation_matrix, video_camera_poses
+from mosegpipe.synth.camera import PARALLAX_MOTIONS, VIDEO_MOTIONS, rotation_matrix, video_camera_poses
 from mosegpipe.types import Frames
 
 __all__ = [
@@ -41,8 +42,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-CAMERA_MOTIONS = VIDEO_MOTIONS  # the names RenderConfig.camera_motion accepts (see synth.camera)
-"""Camera motions render_clip knows."""
+CAMERA_MOTIONS = VIDEO_MOTIONS  # the motions the rendered protocols cycle through (see synth.camera)
+"""Camera motions render_clip knows (and PARALLAX_MOTIONS: "truck")."""
 
 TEXTURES: tuple[str, ...] = ("blobs", "checker", "mixed", "photo")
 """Texture kinds: quantised smooth noise (blobs), random-colour grids (checker), either per
@@ -105,6 +106,10 @@ class RenderConfig:
         noise_std: standard deviation of Gaussian pixel noise added to every frame, grey levels.
         fov_deg: horizontal field of view, degrees.
         objects: explicit objects; None samples num_objects of them.
+        near_static: still boxes (label 0, part of the static world) standing 1.5-3 m from the first camera,
+            pillars and rocks whose parallax against the wall 10 m away is large when the camera translates.
+        follow: the first object also moves with the camera's mean translation per frame (a mover the
+            camera follows: nearly still in the image while the world sweeps past).
     """
 
     size_hw: tuple[int, int] = (240, 320)
@@ -119,6 +124,8 @@ class RenderConfig:
     noise_std: float = 0.0
     fov_deg: float = 60.0
     objects: tuple[ObjectSpec, ...] | None = None
+    near_static: int = 0
+    follow: bool = False
 
     def __post_init__(self) -> None:
         h, w = self.size_hw
@@ -130,8 +137,12 @@ class RenderConfig:
             raise InputError(f"RenderConfig.num_objects={self.num_objects}: need 0..254")
         if self.objects is not None and len(self.objects) > 254:
             raise InputError(f"RenderConfig.objects: {len(self.objects)} objects, at most 254")
-        if self.camera_motion not in CAMERA_MOTIONS:
-            raise InputError(f"RenderConfig.camera_motion={self.camera_motion!r}: choose from {CAMERA_MOTIONS}")
+        if self.camera_motion not in CAMERA_MOTIONS + PARALLAX_MOTIONS:
+            raise InputError(
+                f"RenderConfig.camera_motion={self.camera_motion!r}: choose from {CAMERA_MOTIONS + PARALLAX_MOTIONS}"
+            )
+        if not 0 <= self.near_static <= 16:
+            raise InputError(f"RenderConfig.near_static={self.near_static}: need 0..16")
         if self.texture not in TEXTURES:
             raise InputError(f"RenderConfig.texture={self.texture!r}: choose from {TEXTURES}")
         if not self.shapes or set(self.shapes) - set(SHAPES):
@@ -397,9 +408,15 @@ def render_clip(cfg: RenderConfig = RenderConfig(), photos: Sequence[npt.NDArray
     intrinsics = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
     cam_rot, cam_centre = video_camera_poses(rng, cfg.camera_motion, frames)
     specs = list(cfg.objects) if cfg.objects is not None else _sample_objects(rng, cfg, f, cx, cy)
+    if cfg.follow and specs:
+        step = (cam_centre[-1] - cam_centre[0]) / max(frames - 1, 1)
+        lead = specs[0]
+        specs[0] = dataclasses.replace(lead, velocity_m=tuple(np.asarray(lead.velocity_m) + step))
 
     background = _background_bodies(rng, cfg, photos)
     bodies = _object_bodies(rng, cfg, specs, f, photos)
+    if cfg.near_static:  # drawn with the objects, in depth order (they stand in front of them)
+        bodies += _near_static_bodies(rng, cfg, cam_centre, f, cx, photos)
 
     images = np.empty((frames, h, w, 3), dtype=np.uint8)
     masks = np.zeros((frames, h, w), dtype=np.uint8)
@@ -464,6 +481,32 @@ def _background_bodies(
         tex = _texture(rng, cfg.texture, (wall_texels, wall_texels // 2), photos)
         background.append(Body(0, [_Quad(corners, np.array([0.0, -1.0, 0.0]), tex)], still_rot, still_pos, cull=False))
     return background
+
+
+def _near_static_bodies(
+    rng: np.random.Generator,
+    cfg: RenderConfig,
+    cam_centre: npt.NDArray[np.float64],
+    f: float,
+    cx: float,
+    photos: Sequence[npt.NDArray[np.uint8]],
+) -> list[Body]:
+    """cfg.near_static still boxes (label 0) 1.5-3 m away, standing on the ground's level, spread over the
+    stretch the camera's translation sweeps so that some are in view in most frames."""
+    frames = cfg.frames
+    travel = cam_centre[:, 0]
+    lo, hi = float(travel.min()), float(travel.max())
+    bodies = []
+    for _ in range(cfg.near_static):
+        z = rng.uniform(1.5, 3.0)
+        half_view = z * cx / f
+        x = rng.uniform(lo - half_view, hi + half_view)
+        size = np.array([rng.uniform(0.2, 0.6), rng.uniform(1.0, 2.5), rng.uniform(0.2, 0.6)])
+        centre = np.array([x, _CAMERA_HEIGHT_M - 0.5 * size[1], z])
+        quads = _box_quads(rng, size, cfg.texture, f / z, photos)
+        spin = rotation_matrix(np.array([0.0, rng.uniform(-0.5, 0.5), 0.0]))
+        bodies.append(Body(0, quads, np.broadcast_to(spin, (frames, 3, 3)).copy(), np.tile(centre, (frames, 1)), True))
+    return bodies
 
 
 def _object_bodies(
