@@ -287,3 +287,91 @@ def test_reassignment_along_matches_the_tracks_by_id() -> None:
     assert (out[30:70, 82:140] == 2).all()
     none = reassign_along(mask, (ids, xy, ids[:0], xy_next[:0]), labels, flow, 1.0, 0.5)
     assert none is mask  # no track seen in both frames: nothing to fit
+
+
+def _slow_mover() -> tuple:
+    """A 120x160 frame of a static camera: motion 1 (x 100..139, +3 px in x) is moving in the mask; motion 2
+    (x 20..59, -0.8 px in y: slower than the frame's threshold) is not, its 20 tracks lie on world pixels; 40
+    still world tracks; the camera residual is each pixel's flow (a little noise elsewhere)."""
+    h, w = 120, 160
+    mask = np.zeros((h, w), np.uint8)
+    mask[30:70, 100:140] = 1
+    flow = np.zeros((h, w, 2), np.float32)
+    flow[30:70, 100:140] = (3.0, 0.0)
+    flow[30:70, 20:60] = (0.0, -0.8)
+    residual = np.linalg.norm(flow, axis=2) + np.float32(0.05)
+    rng = np.random.default_rng(3)
+    one = np.stack([rng.uniform(102, 138, 20), rng.uniform(32, 68, 20)], axis=1).astype(np.float32)
+    two = np.stack([rng.uniform(22, 58, 20), rng.uniform(32, 68, 20)], axis=1).astype(np.float32)
+    still = np.stack([rng.uniform(0, 160, 40), rng.uniform(80, 120, 40)], axis=1).astype(np.float32)
+    xy = np.concatenate([one, two, still])
+    xy_next = np.concatenate([one + np.float32([3, 0]), two + np.float32([0, -0.8]), still])
+    labels = np.array([1] * 20 + [2] * 20 + [0] * 40, np.int64)
+    return mask, (xy, xy_next), labels, flow, residual
+
+
+def test_a_mover_the_moving_pixels_missed_takes_its_tracks_motion() -> None:
+    from mosegpipe.masks import missed_movers
+
+    mask, step, labels, flow, residual = _slow_mover()
+    out = missed_movers(mask, step, labels, flow, residual, 1.0)
+    assert (out[31:69, 21:59] == 2).all()  # the slow mover, written as the world before
+    assert (out[30:70, 100:140] == 1).all() and (out[:, 60:100] == 0).all() and (out[75:, :] == 0).all()
+    assert (mask[30:70, 20:60] == 0).all()  # the input is left as it was
+    # the same at half the flow's resolution (flows and residuals in half-resolution pixels)
+    half = missed_movers(mask, step, labels, flow[::2, ::2] / 2, residual[::2, ::2] / 2, 0.5)
+    assert (half[32:68, 22:58] == 2).all() and (half[:, 62:98] == 0).all()
+
+
+def test_a_missed_region_needs_its_motion_its_tracks_and_a_residual_above_the_floor() -> None:
+    from mosegpipe.masks import missed_movers
+
+    mask, (xy, xy_next), labels, flow, residual = _slow_mover()
+    # the region's flow is not its tracks' motion (they step -0.8 px in y, it moves +0.8 px in x)
+    other = flow.copy()
+    other[30:70, 20:60] = (0.8, 0.0)
+    assert missed_movers(mask, (xy, xy_next), labels, other, residual, 1.0) is mask
+    # the region's residual under the moving pixels' floor (0.5 px by default): noise, not a mover
+    assert missed_movers(mask, (xy, xy_next), labels, flow, residual * np.float32(0.5), 1.0) is mask
+    # its tracks are the world's but for two (below missed_tracks, 3), or unlabelled
+    few = labels.copy()
+    few[22:40] = 0
+    assert missed_movers(mask, (xy, xy_next), few, flow, residual, 1.0) is mask
+    few[22:40] = -1
+    assert missed_movers(mask, (xy, xy_next), few, flow, residual, 1.0) is mask
+    # the world's own tracks there outnumber the mover's
+    world = labels.copy()
+    world[20:32] = 0
+    assert missed_movers(mask, (xy, xy_next), world, flow, residual, 1.0) is mask
+    # the world's tracks moving as much (the camera fit misses them all): the floor rises above the region's residual
+    loud = residual.copy()
+    loud[80:120] = 2.0
+    assert missed_movers(mask, (xy, xy_next), labels, flow, loud, 1.0) is mask
+
+
+def test_a_mover_the_mask_shows_or_a_flow_mostly_the_cameras_is_not_missed() -> None:
+    from mosegpipe.masks import missed_movers
+
+    mask, (xy, xy_next), labels, flow, residual = _slow_mover()
+    shown = mask.copy()
+    shown[30:70, 20:50] = 2  # most of motion 2's tracks lie on its own pixels: the moving pixels did not miss it
+    assert missed_movers(shown, (xy, xy_next), labels, flow, residual, 1.0) is shown
+    # the region and its tracks step 5 px in x, 4.2 px of it the camera's (the residual 0.8 px): the world's flow
+    # a little off (parallax, the camera fit's error), not a mover
+    panned = flow.copy()
+    panned[30:70, 20:60] = (5.0, -0.8)
+    step = (xy, xy_next + np.where(labels[:, None] == 2, np.float32([5.0, 0.0]), np.float32([0.0, 0.0])))
+    assert missed_movers(mask, step, labels, panned, residual, 1.0) is mask
+
+
+def test_a_motion_whose_tracks_lie_mostly_outside_the_region_is_not_a_missed_mover() -> None:
+    from mosegpipe.masks import missed_movers
+
+    mask, (xy, xy_next), labels, flow, residual = _slow_mover()
+    # 25 more tracks of motion 2 scattered over the still part of the frame: the region holds 20 of its 45
+    rng = np.random.default_rng(4)
+    scattered = np.stack([rng.uniform(0, 160, 25), rng.uniform(80, 120, 25)], axis=1).astype(np.float32)
+    xy = np.concatenate([xy, scattered])
+    xy_next = np.concatenate([xy_next, scattered + np.float32([0.0, -0.8])])
+    labels = np.concatenate([labels, np.full(25, 2, np.int64)])
+    assert missed_movers(mask, (xy, xy_next), labels, flow, residual, 1.0) is mask

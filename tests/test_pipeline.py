@@ -306,3 +306,16 @@ def test_samples_are_small_documented_and_reproducible() -> None:
         for ims in (frames.images, clip.frames)
     ]
     assert np.abs(grey[0] - grey[1]).mean() < 2.0
+
+
+@pytest.mark.slow
+def test_the_quick_start_sample_writes_each_mover_with_a_label_of_its_own() -> None:
+    # The README's quick start (static camera, 3 objects; the slowest one's flow is under the frame's threshold of
+    # moving pixels, set by the two fast ones): each object's most written label is a moving one, all three differ.
+    result = segment_clip(SAMPLES / "rendered" / "frames", PipelineConfig(frames=5))
+    gt = np.stack([read_palette_png(SAMPLES / "rendered" / "gt" / f"{t:06d}.png") for t in range(5)])
+    written = []
+    for obj in (1, 2, 3):
+        values, counts = np.unique(result.masks[gt == obj], return_counts=True)
+        written.append(int(values[counts.argmax()]))
+    assert 0 not in written and len(set(written)) == 3, written

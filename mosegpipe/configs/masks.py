@@ -221,6 +221,8 @@ class MaskConfig:
         unexplained_area: smallest such region, as a share of the frame's pixels.
         unexplained_rigid: ... and the share of its pixels its own homography must explain (0 = no such test).
         reassign_ratio: a moving pixel takes the moving motion whose affine step misses its flow by < this x its own's (`reassign_by_flow`; 0 = off).
+        missed_tracks: "motion"/"learned": a static region holding this many tracks of a moving motion the mask misses, whose flow the motion explains, takes it (`compose.missed_movers`; 0 = off).
+        missed_ratio: ... when its affine step misses a pixel's flow by < this x the camera's miss, itself >= this x the flow.
         world_regions: "motion"/"learned": a moving region with world_region_tracks+ tracks, this share the world's, stays the world's (0 = off).
         world_region_tracks: that least number of tracks.
         which: "motion"/"learned" masks, frames with 2+ moving motions: "tracks" (nearest track, watershed) or "learned" (the per-motion network).
@@ -242,6 +244,8 @@ class MaskConfig:
     unexplained_area: float = 0.002
     unexplained_rigid: float = 0.8
     reassign_ratio: float = 0.5
+    missed_tracks: int = 3
+    missed_ratio: float = 0.5
     world_regions: float = 0.0
     world_region_tracks: int = 5
     which: str = "tracks"
@@ -270,6 +274,8 @@ _MASK_CHECKS: tuple[Check, ...] = (
     ("unexplained_area", lambda v: 0 < v <= 1, "lie in (0, 1]"),
     ("unexplained_rigid", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
     ("reassign_ratio", lambda v: 0 <= v < 1, "lie in [0, 1) (0 = off)"),
+    ("missed_tracks", lambda v: v >= 0, "be >= 0 (0 = off)"),
+    ("missed_ratio", lambda v: 0 < v < 1, "lie in (0, 1)"),
     ("world_regions", lambda v: 0 <= v <= 1, "lie in [0, 1] (0 = off)"),
     ("world_region_tracks", lambda v: v >= 1, "be >= 1"),
     ("which", lambda v: v in WHICH_METHODS, f"be one of {', '.join(WHICH_METHODS)}"),

@@ -35,6 +35,7 @@ from mosegpipe.colours import WORLD
 from mosegpipe.masks.compose import (
     carry_unclustered,
     label_moving_pixels,
+    missed_movers,
     motion_masks,
     moving_to_labels,
     reassign_along,
@@ -66,6 +67,7 @@ __all__ = [
     "label_moving_pixels",
     "labels_to_mask",
     "labels_to_masks",
+    "missed_movers",
     "motion_masks",
     "moving_to_labels",
     "draw_legend",

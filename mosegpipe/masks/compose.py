@@ -1,8 +1,9 @@
 """The mask sequence (`MaskSequence`), used by clips, whole videos and live, and its steps after the moving pixels:
 moving pixels labelled by the nearest track of a moving motion (`moving_to_labels`), given the motion whose step
 explains their flow (`reassign_by_flow`), a moving region that no moving motion's tracks explain split off as a
-motion of its own (`split_unexplained`), an unclustered region given its label in the frame before
-(`carry_unclustered`); `motion_masks`, a clip's "motion" or "learned" masks."""
+motion of its own (`split_unexplained`), static pixels that a moving motion's tracks hold and whose flow it explains
+given to it (`missed_movers`), an unclustered region given its label in the frame before (`carry_unclustered`);
+`motion_masks`, a clip's "motion" or "learned" masks."""
 
 from __future__ import annotations
 
@@ -216,7 +217,8 @@ class MaskSequence:
     `learned_moving`) -> labelled by the tracks (`moving_to_labels`, by the caller, which also makes the other
     methods' masks) -> `finish`: the per-motion network's choice (`which_motion`), each moving pixel given the
     motion whose step explains its flow (`reassign_by_flow`), then in clips the regions no motion explains split
-    off (`split_unexplained`), in videos the unclustered regions given their label in the frame before
+    off (`split_unexplained`), in both the static regions a moving motion's tracks hold and whose flow it explains
+    given to it (`missed_movers`), in videos the unclustered regions given their label in the frame before
     (`carry_unclustered`).
 
     A clip makes one per clip (`motion_masks`); a whole video one for the video (`segment_video`), whose colour
@@ -336,6 +338,8 @@ class MaskSequence:
                 mask = reassign_by_flow(mask, step, labels[here], flow, motion.scale, cfg.reassign_ratio)
             if not self.video and cfg.unexplained_px > 0 and moving is not None:
                 mask = split_unexplained(mask, moving, step, labels[here], WORLD, flow, motion.scale, cfg)
+            if cfg.missed_tracks > 0 and here.size:
+                mask = missed_movers(mask, step, labels[here], flow, motion.residual[at], motion.scale, cfg)
         if self.video:
             mask = carry_unclustered(mask, self.last_mask)
             self.last_mask = mask
@@ -533,6 +537,101 @@ def reassign_by_flow(
     smooth = cv2.medianBlur(out, 5)
     take = judged & np.isin(smooth, names)
     out[take] = smooth[take]
+    return out
+
+
+def missed_movers(
+    mask: npt.NDArray[np.uint8],
+    step: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]],
+    labels: npt.NDArray[np.int64],
+    flow: npt.NDArray[np.float32],
+    residual: npt.NDArray[np.float32],
+    scale: float,
+    cfg: MaskConfig = MaskConfig(),
+) -> npt.NDArray[np.uint8]:
+    """One frame's mask with the world's pixels that a moving motion's tracks hold and whose flow that motion
+    explains given to that motion: a mover the moving pixels missed (one frame threshold for all movers: a slow
+    one beside fast ones falls under it) is not written as the world.
+
+    Each moving motion with at least cfg.missed_tracks tracks on world pixels, and more of its tracks there than
+    on the other pixels (a motion the mask shows is not missed; REASSIGN_MIN_TRACKS in all), gets the affine map
+    of its tracks' step to the neighbour frame (RANSAC, 2 px). A world pixel is a candidate of the motion whose
+    map predicts its flow best when its camera residual is clear: above the floor of the moving pixels
+    (cfg.motion.min_residual_px, cfg.motion.noise_factor x the frame's median residual), twice the 90th
+    percentile of the world's tracks' residuals (the camera fit's own error) and cfg.missed_ratio x the pixel's
+    flow (the camera's motion explains less than the rest of it: not the world's flow a little off, parallax),
+    and when that map misses its flow by under cfg.missed_ratio x the residual (the motion explains it better
+    than the camera does). The connected regions of one motion's candidates (after a 3 x 3 opening) that hold
+    at least cfg.missed_tracks of its tracks, more than the world's, take the motion when together they hold
+    most of its tracks in the frame.
+
+    Args:
+        mask: (H, W) uint8 labels of the frame (`moving_to_labels`).
+        step: (N, 2) float32 positions of the labelled tracks in this frame and (N, 2) in the neighbour frame.
+        labels: (N,) int64 their labels.
+        flow: (h, w, 2) float32 flow from this frame to the neighbour frame at the flow's scale.
+        residual: (h, w) float32 the frame's camera residual at the flow's scale, in its pixels.
+        scale: the flow's scale (h / H).
+        cfg: missed_tracks, missed_ratio and the moving pixels' floor (cfg.motion).
+
+    Returns:
+        (H, W) uint8 labels (`mask` itself when nothing changes).
+    """
+    height, width = mask.shape
+    xy, xy_next = step
+    ij = np.round(xy).astype(np.int64)
+    inside = (ij[:, 0] >= 0) & (ij[:, 0] < width) & (ij[:, 1] >= 0) & (ij[:, 1] < height)
+    world = mask == WORLD
+    on_world = np.zeros(len(xy), bool)
+    on_world[inside] = world[ij[inside, 1], ij[inside, 0]]
+    models = {}
+    for m in np.unique(labels[on_world]):
+        of = labels == m
+        missed = (of & on_world).sum()
+        if m < 0 or m in (WORLD, UNKNOWN, MOVING_UNCLUSTERED) or missed < cfg.missed_tracks:
+            continue
+        if of.sum() < REASSIGN_MIN_TRACKS or 2 * missed <= (of & inside).sum():  # the mask shows it: not missed
+            continue
+        affine = cv2.estimateAffine2D(xy[of], xy_next[of], method=cv2.RANSAC, ransacReprojThreshold=2.0)[0]
+        if affine is not None:
+            models[int(m)] = affine
+    if not models:
+        return mask
+    res = _full_size(residual, scale, (height, width))
+    floor = max(cfg.motion.min_residual_px, cfg.motion.noise_factor * float(np.median(res)))
+    still = inside & (labels == WORLD)
+    if still.any():
+        floor = max(floor, 2.0 * float(np.percentile(res[ij[still, 1], ij[still, 0]], 90)))
+    flow = _full_size(flow, scale, (height, width))
+    clear = res >= np.maximum(floor, cfg.missed_ratio * np.linalg.norm(flow, axis=2))
+    ys, xs = np.nonzero(world & clear)
+    if not ys.size:
+        return mask
+    names = np.array(sorted(models), np.uint8)
+    points = np.stack([xs, ys], axis=1).astype(np.float32)
+    ends = points + flow[ys, xs]
+    miss = np.stack([np.linalg.norm(ends - points @ models[m][:, :2].T - models[m][:, 2], axis=1) for m in names])
+    best = miss.argmin(axis=0)
+    take = miss[best, np.arange(ys.size)] < cfg.missed_ratio * res[ys, xs]
+    out = mask
+    opening = np.ones((3, 3), np.uint8)
+    for k, m in enumerate(names):
+        chosen = np.zeros((height, width), np.uint8)
+        pick = take & (best == k)
+        chosen[ys[pick], xs[pick]] = 1
+        num, regions = cv2.connectedComponents(cv2.morphologyEx(chosen, cv2.MORPH_OPEN, opening), connectivity=8)
+        if num <= 1:
+            continue
+        where = regions[ij[inside, 1], ij[inside, 0]]
+        own = np.bincount(where[labels[inside] == m], minlength=num)
+        others = np.bincount(where[labels[inside] == WORLD], minlength=num)
+        held = (own >= cfg.missed_tracks) & (own > others)
+        held[0] = False
+        # one object the mask missed holds most of its motion's tracks; a few of a group's tracks scattered over
+        # the world's flow (a piece of the background the grouping split off) do not make a mover
+        if 2 * own[held].sum() > own.sum():
+            out = mask.copy() if out is mask else out
+            out[held[regions]] = m
     return out
 
 
