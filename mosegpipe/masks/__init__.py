@@ -24,24 +24,16 @@ Every method but "motion" and "learned" leaves pixels farther than `max_distance
 unknown (255). What each method and step measured: docs/RESULTS.md ("Real video", "Rendered clips").
 
 Modules: labels (the mask values, MaskConfig, the track-only methods), moving_pixels (which pixels move),
-compose (the mask sequence), learned (the mask networks' inference) and overlays (overlay_mask, overlay_image,
+compose (the mask sequence), by_flow (the steps the flow decides), learned (the mask networks' inference) and overlays (overlay_mask, overlay_image,
 overlay_with_legend).
-Every public name of labels, compose and overlays is re-exported here.
+Every public name of labels, compose, by_flow and overlays is re-exported here.
 """
 
 from __future__ import annotations
 
 from mosegpipe.colours import WORLD
-from mosegpipe.masks.compose import (
-    carry_unclustered,
-    label_moving_pixels,
-    missed_movers,
-    motion_masks,
-    moving_to_labels,
-    reassign_along,
-    reassign_by_flow,
-    split_unexplained,
-)
+from mosegpipe.masks.by_flow import missed_movers, reassign_along, reassign_by_flow, split_unexplained
+from mosegpipe.masks.compose import carry_unclustered, label_moving_pixels, motion_masks, moving_to_labels
 from mosegpipe.masks.labels import (
     MAX_LABEL,
     MOVING_UNCLUSTERED,
