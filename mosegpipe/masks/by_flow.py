@@ -153,8 +153,7 @@ def reassign_by_flow(
     judged = np.isin(mask, names)
     ys, xs = np.nonzero(judged)
     points = np.stack([xs, ys], axis=1).astype(np.float32)
-    ends = points + flow[ys, xs]
-    miss = np.stack([np.linalg.norm(ends - points @ models[m][:, :2].T - models[m][:, 2], axis=1) for m in names])
+    miss = _affine_misses(points, points + flow[ys, xs], models, names)
     own = miss[np.searchsorted(names, mask[ys, xs]), np.arange(ys.size)]
     best = miss.argmin(axis=0)
     change = miss[best, np.arange(ys.size)] < ratio * own
@@ -166,6 +165,16 @@ def reassign_by_flow(
     take = judged & np.isin(smooth, names)
     out[take] = smooth[take]
     return out
+
+
+def _affine_misses(
+    points: npt.NDArray[np.float32],
+    ends: npt.NDArray[np.float32],
+    models: dict[int, npt.NDArray[np.float64]],
+    names: npt.NDArray[np.uint8],
+) -> npt.NDArray[np.float64]:
+    """(len(names), P): how far each motion's affine map of `points` lands from where their flow takes them."""
+    return np.stack([np.linalg.norm(ends - points @ models[m][:, :2].T - models[m][:, 2], axis=1) for m in names])
 
 
 def missed_movers(
@@ -224,8 +233,7 @@ def missed_movers(
         return mask
     names = np.array(sorted(models), np.uint8)
     points = np.stack([xs, ys], axis=1).astype(np.float32)
-    ends = points + flow[ys, xs]
-    miss = np.stack([np.linalg.norm(ends - points @ models[m][:, :2].T - models[m][:, 2], axis=1) for m in names])
+    miss = _affine_misses(points, points + flow[ys, xs], models, names)
     best = miss.argmin(axis=0)
     take = miss[best, np.arange(ys.size)] < cfg.missed_ratio * res[ys, xs]
     out = mask
