@@ -221,7 +221,7 @@ class MaskConfig:
         unexplained_area: smallest such region, as a share of the frame's pixels.
         unexplained_rigid: ... and the share of its pixels its own homography must explain (0 = no such test).
         reassign_ratio: a moving pixel takes the moving motion whose affine step misses its flow by < this x its own's (`reassign_by_flow`; 0 = off).
-        missed_tracks: "motion"/"learned": a static region holding this many tracks of a moving motion the mask misses, whose flow the motion explains, takes it (`compose.missed_movers`; 0 = off).
+        missed_tracks: "motion"/"learned": a static region holding this many tracks of a moving motion the mask misses, whose flow the motion explains, takes it (`by_flow.missed_movers`; 0 = off).
         missed_ratio: ... when its affine step misses a pixel's flow by < this x the camera's miss, itself >= this x the flow.
         world_regions: "motion"/"learned": a moving region with world_region_tracks+ tracks, this share the world's, stays the world's (0 = off).
         world_region_tracks: that least number of tracks.
