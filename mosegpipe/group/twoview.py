@@ -261,6 +261,22 @@ def shared_depth_residual(
     return g, np.sqrt(np.asarray(sq, np.float64))
 
 
+def near_sign(depths: npt.NDArray[np.float64]) -> float:
+    """+1 or -1: the sign of the near side of the reference plane among projective depths (the side whose depths
+    reach farthest from the plane: points in front of it can come arbitrarily near the camera, those behind it
+    only as far as infinity)."""
+    lo, hi = np.percentile(depths, [1, 99])
+    return 1.0 if abs(hi) >= abs(lo) else -1.0
+
+
+def farthest_depth(static: npt.NDArray[np.float64]) -> float:
+    """The farthest depth a static point may have, from the static points' signed depths (near side positive):
+    their 2nd percentile less a tenth of their spread (-inf without any); farther is not the static world's."""
+    if not static.size:
+        return -np.inf
+    return float(np.percentile(static, 2) - 0.1 * np.ptp(static))
+
+
 def depth_scale(
     parallax: npt.NDArray[np.float64], basis: npt.NDArray[np.float64], reference: npt.NDArray[np.float64]
 ) -> float:

@@ -88,11 +88,10 @@ class RigidTracks:
 
     def of(self, ids: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
         """(known, static) of the tracks `ids` (unknown where this verdict has no such track)."""
-        order = np.argsort(self.ids)
-        pos = np.clip(np.searchsorted(self.ids, ids, sorter=order), 0, max(self.ids.size - 1, 0))
-        row = order[pos] if self.ids.size else pos
-        hit = (self.ids[row] == ids) if self.ids.size else np.zeros(ids.shape, bool)
-        return hit & self.known[row], hit & self.static[row]
+        known, static = np.zeros(ids.shape, bool), np.zeros(ids.shape, bool)
+        _, here, there = np.intersect1d(ids, self.ids, assume_unique=True, return_indices=True)
+        known[here], static[here] = self.known[there], self.static[there]
+        return known, static
 
 
 def _positions(ids: npt.NDArray[np.int64], seen: Seen) -> npt.NDArray[np.float64]:
@@ -152,8 +151,9 @@ def judge(
             return known, static
         plane = twoview.compatible_homography(fun, hom, p[use], q[use])
         mapped, basis = twoview.parallax_basis(plane, twoview.epipole(fun), p)
+        # a track absent from a partner frame: no parallax and no direction there, so that frame says nothing
         par.append(np.where(both[:, None], np.nan_to_num(q) - mapped, 0.0))
-        bas.append(basis)
+        bas.append(np.where(both[:, None], basis, 0.0))
         seen.append(both)
         tol.append(px)
     # one scale per frame against the longest gap's depths (its F's inliers)
@@ -164,18 +164,13 @@ def judge(
     for u in range(len(par)):
         use = inliers_far & seen[u]
         scales.append(1.0 if u == far else twoview.depth_scale(par[u][use], bas[u][use], g_far[use]))
-    num = sum(c * np.sum(r * v, axis=1) * s for c, r, v, s in zip(scales, par, bas, seen))
-    den = sum(c**2 * np.sum(v * v, axis=1) * s for c, v, s in zip(scales, bas, seen))
-    g = np.asarray(num, np.float64) / np.maximum(np.asarray(den, np.float64), 1e-12)
+    g, _ = twoview.shared_depth_residual(par, bas, scales)
     within = np.ones(n, bool)
-    for c, r, v, s, px in zip(scales, par, bas, seen, tol):
-        off = np.linalg.norm(r - (g * c)[:, None] * v, axis=1)
-        within &= ~s | (off <= px)
-    # not beyond the world's farthest depth (the sign of the near side: `scene3d`'s rule)
-    lo, hi = np.percentile(g[inliers_far], [1, 99])
-    sign = 1.0 if abs(hi) >= abs(lo) else -1.0
-    world_depths = sign * g[world & inliers_far & within]
-    farthest = float(np.percentile(world_depths, 2) - 0.1 * np.ptp(world_depths)) if world_depths.size else -np.inf
+    for c, r, v, px in zip(scales, par, bas, tol):
+        within &= np.linalg.norm(r - (g * c)[:, None] * v, axis=1) <= px
+    # not beyond the world's farthest depth
+    sign = twoview.near_sign(g[inliers_far])
+    farthest = twoview.farthest_depth(sign * g[world & inliers_far & within])
     known = seen[far].copy()
     static = known & within & (sign * g >= farthest)
     return known, static

@@ -128,13 +128,6 @@ def _nearest_side(
     return held
 
 
-def _depth_sign(depths: npt.NDArray[np.float64]) -> float:
-    """+1 or -1: the sign of the near side (the one whose depths reach farthest from the plane: points in
-    front of it can come arbitrarily near the camera, those behind it only as far as infinity)."""
-    lo, hi = np.percentile(depths, [1, 99])
-    return 1.0 if abs(hi) >= abs(lo) else -1.0
-
-
 def rigid_residual(
     motion: FrameMotion,
     xy: npt.NDArray[np.float32],
@@ -226,10 +219,8 @@ def _track_depths(
         twoview.depth_scale(r[far.inliers], b[far.inliers], ref[far.inliers]) for r, b in zip(par[1:], bas[1:])
     ]
     depth, _ = twoview.shared_depth_residual(par, bas, scales)
-    sign = _depth_sign(depth[far.inliers])
-    static = sign * depth[world & far.inliers]
-    farthest = float(np.percentile(static, 2) - 0.1 * np.ptp(static)) if static.size else -np.inf
-    return scales, sign, farthest
+    sign = twoview.near_sign(depth[far.inliers])
+    return scales, sign, twoview.farthest_depth(sign * depth[world & far.inliers])
 
 
 def judging_flows(

@@ -498,8 +498,9 @@ def _window_pixels(
     anchors = [(item[3], lab, WORLD, shown) for item, lab in zip(window[skip:], labs)]
     # the world's 3D structure: its parallax is not motion
     parallax = (found.xy, found.labels, cfg.world) if found.track_ids.size else None
-    seen = [(ids, xy) for _, _, ids, xy in window]
-    tracks = WindowTracks(indices, seen, labs[-1], found.track_ids) if labs else None
+    tracks = None
+    if labs and run.masks.history is not None:  # the long-span test (MaskConfig.rigid) follows the tracks back
+        tracks = WindowTracks(indices, [(ids, xy) for _, _, ids, xy in window], labs[-1], found.track_ids)
     moving, motion = run.masks.moving(images, motion, first=skip, parallax=parallax, anchors=anchors, tracks=tracks)
     stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
     run.frame_before = indices[-2]
