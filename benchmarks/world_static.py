@@ -31,6 +31,7 @@ import numpy as np
 
 from mosegpipe.apps.video_outputs import write_video_outputs
 from mosegpipe.embed.numpy_net import load_embedder
+from mosegpipe.evaluation.metrics import jaccard
 from mosegpipe.io.read import read_palette_png
 from mosegpipe.pipeline import PipelineConfig
 from mosegpipe.runtime import set_threads
@@ -96,14 +97,9 @@ def main() -> None:
         written = (masks != 0) & (masks != 255)
         moving_share = float(written[static].mean())
         truth = ~static
-        inter = np.logical_and(written, truth).sum(axis=(1, 2))
-        union = np.logical_or(written, truth).sum(axis=(1, 2))
-        j = float(np.mean(np.where(union > 0, inter / np.maximum(union, 1), 1.0)))
-        followed = clip.masks == 1
-        seen = followed.any(axis=(1, 2))
-        f_inter = np.logical_and(written, followed).sum(axis=(1, 2))[seen]
-        f_union = np.logical_or(written, followed).sum(axis=(1, 2))[seen]
-        followed_j = float(np.mean(f_inter / np.maximum(f_union, 1))) if seen.any() else float("nan")
+        j = float(np.mean([jaccard(w, g) for w, g in zip(written, truth)]))
+        followed = [(w, g) for w, g in zip(written, clip.masks == 1) if g.any()]  # the frames that show it
+        followed_j = float(np.mean([jaccard(w, g) for w, g in followed])) if followed else float("nan")
         # frames in which the label covering most of the static pixels (255 aside) is not 0
         off = float(np.mean([np.bincount(m[s], minlength=256)[:255].argmax() != 0 for m, s in zip(masks, static)]))
         rows.append((moving_share, j, off, followed_j))
