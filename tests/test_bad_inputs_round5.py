@@ -323,7 +323,11 @@ def test_batch_workers_are_born_ignoring_ctrl_c(tmp_path: Path) -> None:
     from helpers import tiny_model
 
     pool = WorkerPool(1, tiny_model(5), Job(PipelineConfig(), False, "h", segment_clip))
+    manager = pool.executor._executor_manager_thread
     pool.kill()
+    # The executor's thread has closed its wake-up pipe before kill returns: left running, it raced the
+    # interpreter's exit, which writes to that pipe ("Exception ignored ... Bad file descriptor" on stderr).
+    assert manager is not None and not manager.is_alive()
     # A process the forkserver forks, before any code of ours runs in it: Ctrl-C does nothing there.
     child = mp_context().Process(target=signal.raise_signal, args=(signal.SIGINT,))
     child.start()

@@ -281,11 +281,17 @@ class WorkerPool:
         for p in procs:
             with contextlib.suppress(Exception):
                 p.kill()
+        # The executor's manager thread closes its wake-up pipe once it sees the workers gone, while the
+        # interpreter's exit writes to that pipe: the two raced ("Exception ignored ... Bad file descriptor"
+        # after the error line). The thread is let finish first (shutdown forgets it: taken before).
+        manager = getattr(self.executor, "_executor_manager_thread", None)
         self.executor.shutdown(wait=False, cancel_futures=True)
         self.lifeline.close()
         for p in procs:
             with contextlib.suppress(Exception):
                 p.join(5)
+        if manager is not None and manager is not threading.current_thread():
+            manager.join(5)
         with contextlib.suppress(Exception):
             self.ready.close()
             self.ready.join_thread()
