@@ -134,15 +134,16 @@ def match_labels(
 ) -> npt.NDArray[np.int64]:
     """Maps this window's clusters to global labels through the tracks shared with the previous window.
 
-    1. Clusters and previous labels are paired by the Hungarian method on their overlap counts (one-to-one).
-       A pair is kept only when half of the cluster's shared tracks carried that label and a quarter of its
-       tracks carried a label at all (the few tracks that survive a camera cut say nothing of the new shot).
+    1. Clusters and previous labels are paired by the Hungarian method on their overlap counts
+       (maximum total overlap, one-to-one). A pair is kept only when at least half of the cluster's
+       shared tracks carried that label and at least a quarter of its tracks carried a label at all
+       (across a camera cut the few tracks that survive it say nothing about the new shot).
     2. A cluster left over whose tracks are known (that quarter carried labels) is a piece of the
        motions they carried: K-means split a motion (over-segmentation) or joined two. It takes the
-       label most of its shared tracks carried and becomes a split candidate; only when it splits off
-       again in the next window (half of its shared tracks were one candidate's) does it get a new label,
-       so a split that comes and goes never does. A piece that is a motion of its own (`own_motion`) or
-       lies on another part of the label's last mask (`_apart`) is another object at once (steps 3-4).
+       label most of its shared tracks carried, as in the window before, and becomes a split
+       candidate. Only when a candidate splits off again in the next window (at least half of the
+       cluster's shared tracks were one candidate's) does it get a new label: a motion that
+       separates from another is labelled one window late, a split that comes and goes never.
     With `world`, cluster 0 is the world's motion (`mosegpipe.group.world`): it takes label 0 whatever its
     tracks carried, and no other cluster continues label 0 in step 1 (a cluster most of whose tracks
     were the world is a piece of it, step 2: it stays 0 until it splits off twice). Without it, the
@@ -151,8 +152,8 @@ def match_labels(
        tracks, takes back a moving label that this window does not continue but `book` remembers
        (`LabelConfig`): the one most of its tracks held lately, else (new tracks only) the one whose last
        motion carries it to where the cluster lies (`xy`). A motion that merged into another for a window
-       and splits off again, or that was hidden, keeps its label. With LabelConfig.carry_masks the labels
-       travel with the masks too (`_known_labels`, `_predicted_share`).
+       and splits off again, or that was hidden, keeps its label.
+       With LabelConfig.carry_masks the labels travel with the masks too (`_known_labels`, `_predicted_share`).
     4. The remaining clusters are new tracks (objects entering the view, a new shot): a new label,
        unless the cluster is too small to trust (fewer than LabelConfig.new_tracks tracks, or a quarter of
        the window's, and under LabelConfig.new_share of the window's), which stays unlabelled (-1). The clusters
@@ -170,7 +171,8 @@ def match_labels(
             matches by shared tracks only, and remembers no position).
         frame: the source index of this window's first frame.
         supported: clusters exempt from the size guard (`small_guard`).
-        own_motion: of the clusters given, those that are a motion of their own (None: splits wait a window).
+        own_motion: of the clusters given, those that are a motion of their own (`joint.geometry_supported`);
+            None: every split waits a window.
 
     Returns:
         (N,) int64 global labels.
@@ -188,12 +190,15 @@ def match_labels(
         mapping[c] = lab
         splits.pop(c, None)
     book.pending = {int(i): int(c) for i, c in zip(ids, clusters) if int(c) in splits}
-    # The world takes 0 (with `world`: cluster 0); without it, the dominant motion when none carries 0 on.
+    # The world takes label 0 (with `world`: cluster 0, always); without it, the dominant motion takes 0
+    # when no cluster carries 0 on, e.g. after a camera cut.
     if world or (0 not in mapping and 0 not in mapping.values() and book.next_label > 0):
         mapping[0] = 0
         book.next_label = max(book.next_label, 1)
     _new_labels(mapping, sizes, small, book, set(mapping.values()) | set(prev.values()))
-    book.last_window.update({lab: window for lab in mapping.values() if lab >= 0})
+    for lab in mapping.values():
+        if lab >= 0:
+            book.last_window[lab] = window
     labels = np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
     _remember(book, ids, labels, window, xy, frame)
     return labels
