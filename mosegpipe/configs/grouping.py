@@ -325,9 +325,6 @@ class LabelConfig:
         new_share: ... and one under this share of the window's tracks too (RESULTS.md "Several movers").
         carry_masks: new tracks take the label under them in the last mask; a lost label returns on its moved mask.
         mask_share: ... where at least this share of a cluster's tracks start on that predicted mask.
-        split_parts: with carry_masks, a cluster on another part of a label's last mask is another object.
-        part_gap_px: ... pieces of a label's mask closer than about twice this are one part, pixels.
-        split_by_motion: a cluster split off a label that is a rigid motion of its own takes a label at once.
     """
 
     memory_windows: int = 4
@@ -338,9 +335,6 @@ class LabelConfig:
     new_share: float = 0.05
     carry_masks: bool = False
     mask_share: float = 0.5
-    split_parts: bool = True
-    part_gap_px: int = 8
-    split_by_motion: bool = False
 
     def __post_init__(self) -> None:
         check_fields(self, _LABEL_CHECKS)
@@ -354,6 +348,5 @@ _LABEL_CHECKS: tuple[Check, ...] = (
     ("new_tracks", lambda v: 0 <= v <= 100_000, "lie in 0..100000"),
     ("new_share", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
     ("mask_share", lambda v: 0 < v <= 1, "lie in (0, 1]"),
-    ("part_gap_px", lambda v: 0 <= v <= 1000, "lie in 0..1000"),
 )
 """LabelConfig's checks: (field, test, what it must be)."""

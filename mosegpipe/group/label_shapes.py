@@ -1,8 +1,7 @@
 """Where a whole video's labels lie in its masks, for the window-to-window label matching
 (`mosegpipe.group.labels`, LabelConfig.carry_masks): the labels under each track in the last labelled frame's
 mask (`labels_under`), and each moving label's last mask (`LabelShape`, `label_shapes`), moved on by its
-motion to predict where a label that is missing from some windows is (`shape_holds`), and the separate pieces
-each label covers (`label_parts`: two objects that one label held while they were merged)."""
+motion to predict where a label that is missing from some windows is (`shape_holds`)."""
 
 from __future__ import annotations
 
@@ -94,45 +93,4 @@ def shape_holds(
     inside = (local[:, 0] >= 0) & (local[:, 0] < w) & (local[:, 1] >= 0) & (local[:, 1] < h)
     out = np.zeros(local.shape[0], dtype=bool)
     out[inside] = shape.crop[local[inside, 1], local[inside, 0]]
-    return out
-
-
-def label_parts(mask: npt.NDArray[np.uint8], gap_px: int) -> npt.NDArray[np.int32]:
-    """The separate pieces of each moving label in a frame's mask: its connected regions once every region is
-    grown by `gap_px` (pieces of one object that the mask broke up stay one part). A part never spans two labels.
-
-    Args:
-        mask: (H, W) uint8 the frame's final labels.
-        gap_px: regions of one label closer than about twice this stay one part, pixels.
-
-    Returns:
-        (H, W) int32 part id (0, 1, ...) of each pixel within gap_px of a moving label; -1 elsewhere. A label's
-        grown region never takes another moving label's pixels; where two grown regions meet off both labels,
-        the larger label value's part is kept (of little consequence: a track's part counts only when it
-        carried that part's label, `match_labels`).
-    """
-    import cv2  # on first use: see runtime.import_ahead
-
-    parts = np.full(mask.shape, -1, np.int32)
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * gap_px + 1, 2 * gap_px + 1)) if gap_px else None
-    first, labels = 0, moving_values(mask)
-    others = np.isin(mask, labels)
-    for lab in labels.tolist():
-        region = (mask == lab).astype(np.uint8)
-        if kernel is not None:
-            region = cv2.dilate(region, kernel)
-        count, comp = cv2.connectedComponents(region, connectivity=8)
-        on = (comp > 0) & ((mask == lab) | ~others)
-        parts[on] = comp[on] - 1 + first
-        first += count - 1
-    return parts
-
-
-def parts_under(parts: npt.NDArray[np.int32], points_xy: npt.NDArray[np.floating]) -> npt.NDArray[np.int64]:
-    """(N,) int64 the part (`label_parts`) at each point's nearest pixel; -1 outside the frame or off every part."""
-    h, w = parts.shape
-    xy = np.rint(np.asarray(points_xy, dtype=np.float64)).astype(np.int64).reshape(-1, 2)
-    inside = (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
-    out = np.full(xy.shape[0], -1, np.int64)
-    out[inside] = parts[xy[inside, 1], xy[inside, 0]]
     return out

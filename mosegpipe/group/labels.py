@@ -5,7 +5,7 @@ a motion that was missing for a few windows takes its label back: `LabelConfig`)
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -13,14 +13,7 @@ import numpy.typing as npt
 
 from mosegpipe.configs import LabelConfig
 from mosegpipe.errors import InputError
-from mosegpipe.group.label_shapes import (
-    LabelShape,
-    label_parts,
-    label_shapes,
-    labels_under,
-    parts_under,
-    shape_holds,
-)
+from mosegpipe.group.label_shapes import LabelShape, label_shapes, labels_under, shape_holds
 from mosegpipe.masks import MAX_LABEL
 
 _MIN_SHARE = 0.5  # a cluster continues a global label only if most of its shared tracks carried it
@@ -65,7 +58,6 @@ class LabelBook:
             in `memory` only).
         last_mask: (H, W) uint8 the last labelled frame's final mask (with cfg.carry_masks), or None.
         mask_frame: that frame's source index (-1: none).
-        last_parts: (H, W) int32 the separate parts of each label in last_mask (`label_parts`), or None.
     """
 
     next_label: int = 0
@@ -78,14 +70,13 @@ class LabelBook:
     shapes: dict[int, LabelShape] = field(default_factory=dict)
     last_mask: npt.NDArray[np.uint8] | None = None
     mask_frame: int = -1
-    last_parts: npt.NDArray[np.int32] | None = None
 
     def forget(self) -> None:
         """Forgets every remembered label (a shot cut: no motion of the new shot continues one before it)."""
         self.memory.clear()
         self.pending.clear()
         self.shapes.clear()
-        self.last_mask, self.mask_frame, self.last_parts = None, -1, None
+        self.last_mask, self.mask_frame = None, -1
 
     def remember_mask(self, mask: npt.NDArray[np.uint8], frame: int) -> None:
         """Keeps a window's last labelled frame's final mask: the next window (which starts on that frame)
@@ -99,7 +90,6 @@ class LabelBook:
         if not self.cfg.carry_masks:
             return
         self.last_mask, self.mask_frame = mask, frame
-        self.last_parts = label_parts(mask, self.cfg.part_gap_px) if self.cfg.split_parts else None
         self.shapes.update(label_shapes(mask, frame))
         self.shapes = {lab: shape for lab, shape in self.shapes.items() if lab in self.memory}
 
@@ -130,7 +120,6 @@ def match_labels(
     xy: npt.NDArray[np.float32] | None = None,
     frame: int = 0,
     supported: Collection[int] = (),
-    own_motion: Callable[[list[int]], list[int]] | None = None,
 ) -> npt.NDArray[np.int64]:
     """Maps this window's clusters to global labels through the tracks shared with the previous window.
 
@@ -171,17 +160,15 @@ def match_labels(
             matches by shared tracks only, and remembers no position).
         frame: the source index of this window's first frame.
         supported: clusters exempt from the size guard (`small_guard`).
-        own_motion: of the clusters given, those that are a motion of their own (`joint.geometry_supported`);
-            None: every split waits a window.
 
     Returns:
         (N,) int64 global labels.
     """
-    old, parts = _known_labels(prev, ids, book, xy, frame)
+    old = _known_labels(prev, ids, book, xy, frame)
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     sizes = np.bincount(clusters, minlength=k)
     small = np.where(np.isin(np.arange(k), list(supported)), 0.0, small_guard(book.cfg, clusters.size))
-    mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world, parts, own_motion)
+    mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world)
     takes_zero = world or (0 not in mapping and 0 not in mapping.values())
     reopen = [
         c for c in range(k) if (c not in mapping or c in splits) and sizes[c] >= small[c] and (c or not takes_zero)
@@ -210,18 +197,15 @@ def _known_labels(
     book: LabelBook,
     xy: npt.NDArray[np.float32] | None,
     frame: int,
-) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64] | None]:
-    """((N,) int64 the label each track carried in the previous window (-1: none), (N,) int64 the part of the
-    last mask under each track or None). With LabelConfig.carry_masks, a track that carried none takes the
-    moving label under its first position in the last labelled frame's mask when that frame is this window's
-    first (`LabelBook.remember_mask`; windows share their boundary frame): new tracks on a labelled object
-    count as that object's in match_labels' steps 1-2. The parts (`label_parts`, -1: none) come with
-    LabelConfig.split_parts."""
+) -> npt.NDArray[np.int64]:
+    """(N,) int64 the label each track carried in the previous window (-1: none). With LabelConfig.carry_masks,
+    a track that carried none takes the moving label under its first position in the last labelled frame's
+    mask when that frame is this window's first (`LabelBook.remember_mask`; windows share their boundary
+    frame): new tracks on a labelled object count as that object's in match_labels' steps 1-2."""
     old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
-    if not (book.cfg.carry_masks and book.last_mask is not None and book.mask_frame == frame and xy is not None):
-        return old, None
-    parts = None if book.last_parts is None else parts_under(book.last_parts, xy[:, 0])
-    return np.where(old >= 0, old, labels_under(book.last_mask, xy[:, 0])), parts
+    if book.cfg.carry_masks and book.last_mask is not None and book.mask_frame == frame and xy is not None:
+        old = np.where(old >= 0, old, labels_under(book.last_mask, xy[:, 0]))
+    return old
 
 
 def small_guard(cfg: LabelConfig, num_tracks: int) -> float:
@@ -371,15 +355,10 @@ def _continued_labels(
     sizes: npt.NDArray[np.int64],
     small: npt.NDArray[np.float64],
     world: bool,
-    parts: npt.NDArray[np.int64] | None = None,
-    own_motion: Callable[[list[int]], list[int]] | None = None,
 ) -> tuple[dict[int, int], dict[int, int]]:
     """Steps 1 and 2 of match_labels: (cluster -> the previous label it continues, cluster -> the label
     it split off), from the labels its tracks carried (`old`, -1: none) and the split candidates they
-    were (`candidate`, -1: none). With `parts` (the part of the last mask under each track, -1: none), a
-    leftover cluster on another part of the label than the cluster continuing it is another object that the
-    label covered while the two were merged: no split piece, it is left to steps 3-4 (`_apart`); so is a split
-    piece that `own_motion` shows to be a motion of its own."""
+    were (`candidate`, -1: none)."""
     shared = old >= 0
     mapping: dict[int, int] = {}
     splits: dict[int, int] = {}  # cluster -> the label it split off (it keeps that label for now)
@@ -414,33 +393,7 @@ def _continued_labels(
     for r in range(k):
         if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
             continue
-        label = int(olds[int(carried[r].argmax())])
-        if parts is not None and _apart(r, label, mapping, old, clusters, parts):
-            continue
-        mapping[r] = label
+        mapping[r] = int(olds[int(carried[r].argmax())])
         if sizes[r] >= small[r]:
             splits[r] = mapping[r]
-    for r in own_motion(sorted(splits)) if own_motion is not None and splits else ():
-        del mapping[r], splits[r]
     return mapping, splits
-
-
-def _apart(
-    r: int,
-    label: int,
-    mapping: dict[int, int],
-    old: npt.NDArray[np.int64],
-    clusters: npt.NDArray[np.int64],
-    parts: npt.NDArray[np.int64],
-) -> bool:
-    """Whether cluster r's tracks that carried `label` lie mostly (_MIN_SHARE) off the parts of the last mask
-    where the clusters continuing `label` lie (each part holding _MIN_CONTINUED of those clusters' tracks)."""
-    holders = [c for c, lab in mapping.items() if lab == label]
-    on = (old == label) & (parts >= 0)
-    theirs = parts[on & np.isin(clusters, holders)]
-    mine = parts[on & (clusters == r)]
-    if not holders or theirs.size == 0 or mine.size == 0:
-        return False
-    vals, counts = np.unique(theirs, return_counts=True)
-    main = vals[counts >= _MIN_CONTINUED * theirs.size]
-    return bool(np.mean(np.isin(mine, main)) < _MIN_SHARE)

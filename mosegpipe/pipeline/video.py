@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -383,7 +383,6 @@ def _cluster_window(
         xy=xy_all[kept],
         frame=window[0][0],
         supported=small_rigid(clustering.labels[kept], traj.data[kept], cfg),
-        own_motion=_own_motion(clustering.labels[kept], traj.data[kept], cfg),
     )
     keep = glob >= 0
     found = _WindowLabels(
@@ -405,16 +404,6 @@ def small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], 
     guard = small_guard(cfg.labels, labels.size)
     small = [c for c in range(1, sizes.size) if least <= sizes[c] < guard]
     return geometry_supported(points, labels, small, cfg.joint) if small else []
-
-
-def _own_motion(
-    labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig
-) -> Callable[[list[int]], list[int]] | None:
-    """Method "joint" with cfg.labels.split_by_motion: match_labels' test of a split piece, a motion of its own
-    (`joint.geometry_supported`: another object at once). Else None (every split waits a window)."""
-    if cfg.method != "joint" or not cfg.labels.split_by_motion:
-        return None
-    return lambda clusters: geometry_supported(points, labels, clusters, cfg.joint)
 
 
 def _label_window(
