@@ -168,7 +168,8 @@ def match_labels(
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     sizes = np.bincount(clusters, minlength=k)
     small = np.where(np.isin(np.arange(k), list(supported)), 0.0, small_guard(book.cfg, clusters.size))
-    mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world)
+    pieces = old if book.cfg.mask_splits else np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
+    mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world, pieces)
     takes_zero = world or (0 not in mapping and 0 not in mapping.values())
     reopen = [
         c for c in range(k) if (c not in mapping or c in splits) and sizes[c] >= small[c] and (c or not takes_zero)
@@ -355,6 +356,7 @@ def _continued_labels(
     sizes: npt.NDArray[np.int64],
     small: npt.NDArray[np.float64],
     world: bool,
+    pieces: npt.NDArray[np.int64] | None = None,
 ) -> tuple[dict[int, int], dict[int, int]]:
     """Steps 1 and 2 of match_labels: (cluster -> the previous label it continues, cluster -> the label
     it split off), from the labels its tracks carried (`old`, -1: none) and the split candidates they
@@ -390,6 +392,14 @@ def _continued_labels(
             continue
         if known[r] and overlap[r, c] > 0 and overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
             mapping[int(r)] = int(olds[c])
+    if pieces is not None and pieces is not old:
+        # step 2 from the tracks' own labels only
+        on = pieces >= 0
+        carried = np.zeros((k, olds.size), dtype=np.int64)
+        np.add.at(carried, (clusters[on], np.searchsorted(olds, pieces[on])), 1)
+        carried[list(confirmed)] = 0
+        per_cluster = carried.sum(axis=1)
+        known = per_cluster >= _MIN_CONTINUED * sizes
     for r in range(k):
         if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
             continue
