@@ -296,6 +296,8 @@ class RenderedTracksConfig:
         boundary_px: a track closer than this to a change of mask label (in its first or last
             frame) stays unlabelled: KLT windows straddling two surfaces follow either.
         seed: mixed into every clip's seed.
+        near_static: (min, max) still boxes 1.5-3 m from the camera per clip, part of the static world (label 0).
+        follow_prob: chance that the camera follows the first object (RenderConfig.follow).
     """
 
     num_clips: int = 400
@@ -307,6 +309,8 @@ class RenderedTracksConfig:
     noise_std: tuple[float, float] = (0.0, 3.0)
     boundary_px: int = 3
     seed: int = 0
+    near_static: tuple[int, int] = (0, 0)
+    follow_prob: float = 0.0
 
 
 PhotoLoader = Callable[[], list[tuple[str, npt.NDArray[np.uint8]]]]
@@ -386,6 +390,15 @@ def label_rendered_tracks(
     return labels.astype(np.int64)
 
 
+def _near_scene(cfg: RenderedTracksConfig, rng: np.random.Generator) -> dict[str, Any]:
+    """The near static structure and camera following of one rendered clip (none by default: the draws of
+    the default clips are left as they were)."""
+    if cfg.near_static == (0, 0) and cfg.follow_prob == 0:
+        return {}
+    near = int(rng.integers(cfg.near_static[0], cfg.near_static[1] + 1))
+    return {"near_static": near, "follow": bool(rng.random() < cfg.follow_prob)}
+
+
 def rendered_own_clips(
     data_root: str | Path,
     frames: int = 5,
@@ -430,6 +443,7 @@ def rendered_own_clips(
                 object_speed_px=cfg.object_speed_px,
                 ground=bool(rng.random() < cfg.ground_prob),
                 noise_std=float(rng.uniform(*cfg.noise_std)),
+                **_near_scene(cfg, rng),
             )
             clip = render_clip(render_cfg, images)
             tracks = track_klt(clip.to_frames(), track)

@@ -115,6 +115,16 @@ RECIPES: dict[str, Recipe] = {
             init="base-f5",
         ),
         Recipe(
+            "clip-f5-near",
+            "clip-f5 with our own KLT tracks of rendered clips whose static world stands near a trucking camera "
+            "(boxes 1.5-3 m away, the wall beyond; half of them following a mover) added, so that a static 3D "
+            "scene stays one group (an experiment, not shipped)",
+            TrainConfig(frames=5, steps=1500, batch_size=8, lr=1e-3, max_points=1000),
+            _F5,
+            (("kt3d-own", 0.4), ("rendered-near-own", 0.2), ("hopkins", 0.2), ("synthetic", 0.2)),
+            init="base-f5",
+        ),
+        Recipe(
             "clip-f5-composites",
             "clip-f5 with a quarter of its clips from composite-own instead (KT3DMoSeg's share kept at a half, no "
             "rendered clips; an experiment, not shipped)",
@@ -257,6 +267,13 @@ def _rendered_own(data_root: Path, frames: int, exclude: Collection[str]) -> lis
     return rendered_own_clips(data_root, frames, exclude=exclude)
 
 
+def _rendered_near_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
+    from mosegpipe.training.own_tracks import RenderedTracksConfig, rendered_own_clips
+
+    near = RenderedTracksConfig(num_clips=200, camera_motions=("truck",), near_static=(1, 4), follow_prob=0.5, seed=54)
+    return rendered_own_clips(data_root, frames, exclude=exclude, cfg=near)
+
+
 def _adelaide_own(data_root: Path, frames: int, exclude: Collection[str]) -> list[LabeledClip]:
     from mosegpipe.training.own_tracks import adelaide_own_clips
 
@@ -350,6 +367,13 @@ SOURCES: dict[str, Source] = {
             "our KLT tracks of rendered clips textured with real photographs (AdelaideRMF images, OpenCV "
             "samples; never KT3DMoSeg frames), labels from the rendered masks",
             clips=_rendered_own,
+            augment=TRACK_AUGMENT,
+        ),
+        Source(
+            "rendered-near-own",
+            "rendered-own's clips under a camera trucking sideways past 1-4 still boxes 1.5-3 m away (the static "
+            "world, label 0), half of them following the first mover; seed 54, 200 clips",
+            clips=_rendered_near_own,
             augment=TRACK_AUGMENT,
         ),
         Source(
