@@ -67,6 +67,7 @@ RecipeName = Literal[
     "clip-f5-davis",
     "clip-f5-variety",
     "clip-f5-composites",
+    "clip-f5-near",
     "base-f5",
     "synthetic-f5",
     "pair-f2",
