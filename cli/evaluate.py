@@ -72,7 +72,9 @@ def train(
         TrainPresetChoice,
         typer.Option(
             "--preset",
-            help="Named recipe: clip-f5 (the shipped 5-frame model), base-f5 (its starting point), synthetic-f5, "
+            help="Named recipe: clip-f5 (the shipped 5-frame model), clip-f5-rendered, clip-f5-davis, "
+            "clip-f5-variety, clip-f5-composites, clip-f5-near (clip-f5 with other sources mixed in: experiments, "
+            "docs/TRAINING.md), base-f5 (its starting point), synthetic-f5, "
             "pair-f2 (the shipped two-view model), synthetic-f2, lce (the paper's LCE study); masknet (the shipped "
             "mask network of --mask-method learned; --steps, --batch-size, --lr, --seed apply), whichnet (the shipped "
             "per-motion network of --set mask.which=learned; the same options apply).",

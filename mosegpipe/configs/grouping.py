@@ -325,7 +325,6 @@ class LabelConfig:
         new_share: ... and one under this share of the window's tracks too (RESULTS.md "Several movers").
         carry_masks: new tracks take the label under them in the last mask; a lost label returns on its moved mask.
         mask_share: ... where at least this share of a cluster's tracks start on that predicted mask.
-        mask_splits: the labels read off the mask make a leftover cluster a split piece too.
     """
 
     memory_windows: int = 4
@@ -334,9 +333,8 @@ class LabelConfig:
     min_radius_px: float = 16.0
     new_tracks: int = 15
     new_share: float = 0.05
-    carry_masks: bool = False
+    carry_masks: bool = True
     mask_share: float = 0.5
-    mask_splits: bool = True
 
     def __post_init__(self) -> None:
         check_fields(self, _LABEL_CHECKS)

@@ -164,12 +164,11 @@ def match_labels(
     Returns:
         (N,) int64 global labels.
     """
-    old = _known_labels(prev, ids, book, xy, frame)
+    old, tracked = _known_labels(prev, ids, book, xy, frame)
     candidate = np.array([book.pending.get(int(i), -1) for i in ids], dtype=np.int64)
     sizes = np.bincount(clusters, minlength=k)
     small = np.where(np.isin(np.arange(k), list(supported)), 0.0, small_guard(book.cfg, clusters.size))
-    pieces = old if book.cfg.mask_splits else np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
-    mapping, splits = _continued_labels(old, candidate, clusters, k, sizes, small, world, pieces)
+    mapping, splits = _continued_labels(old, tracked, candidate, clusters, k, sizes, small, world)
     takes_zero = world or (0 not in mapping and 0 not in mapping.values())
     reopen = [
         c for c in range(k) if (c not in mapping or c in splits) and sizes[c] >= small[c] and (c or not takes_zero)
@@ -198,15 +197,16 @@ def _known_labels(
     book: LabelBook,
     xy: npt.NDArray[np.float32] | None,
     frame: int,
-) -> npt.NDArray[np.int64]:
-    """(N,) int64 the label each track carried in the previous window (-1: none). With LabelConfig.carry_masks,
-    a track that carried none takes the moving label under its first position in the last labelled frame's
-    mask when that frame is this window's first (`LabelBook.remember_mask`; windows share their boundary
-    frame): new tracks on a labelled object count as that object's in match_labels' steps 1-2."""
-    old = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """The labels the tracks are known by: ((N,) int64 known, (N,) int64 carried by the tracks themselves in the
+    previous window), -1: none. With LabelConfig.carry_masks, a track that carried none is known by the moving
+    label under its first position in the last labelled frame's mask when that frame is this window's first
+    (`LabelBook.remember_mask`; windows share their boundary frame): new tracks on a labelled object count as
+    that object's in match_labels' step 1. Without it, both arrays are the tracks' own labels."""
+    tracked = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
     if book.cfg.carry_masks and book.last_mask is not None and book.mask_frame == frame and xy is not None:
-        old = np.where(old >= 0, old, labels_under(book.last_mask, xy[:, 0]))
-    return old
+        return np.where(tracked >= 0, tracked, labels_under(book.last_mask, xy[:, 0])), tracked
+    return tracked, tracked
 
 
 def small_guard(cfg: LabelConfig, num_tracks: int) -> float:
@@ -350,17 +350,20 @@ def _remember(
 
 def _continued_labels(
     old: npt.NDArray[np.int64],
+    tracked: npt.NDArray[np.int64],
     candidate: npt.NDArray[np.int64],
     clusters: npt.NDArray[np.int64],
     k: int,
     sizes: npt.NDArray[np.int64],
     small: npt.NDArray[np.float64],
     world: bool,
-    pieces: npt.NDArray[np.int64] | None = None,
 ) -> tuple[dict[int, int], dict[int, int]]:
     """Steps 1 and 2 of match_labels: (cluster -> the previous label it continues, cluster -> the label
-    it split off), from the labels its tracks carried (`old`, -1: none) and the split candidates they
-    were (`candidate`, -1: none)."""
+    it split off), from the labels its tracks are known by (`old`, -1: none), the split candidates they
+    were (`candidate`, -1: none) and, for step 2, the labels the tracks themselves carried (`tracked`, a
+    subset of `old`): a label read off the mask continues a motion, but never makes a split piece (two
+    objects merged under one label and then apart are two; the new tracks on the second would keep it
+    on both for a window)."""
     shared = old >= 0
     mapping: dict[int, int] = {}
     splits: dict[int, int] = {}  # cluster -> the label it split off (it keeps that label for now)
@@ -368,8 +371,7 @@ def _continued_labels(
     if not shared.any():
         return mapping, splits
     olds = np.unique(old[shared])
-    overlap = np.zeros((k, olds.size), dtype=np.int64)
-    np.add.at(overlap, (clusters[shared], np.searchsorted(olds, old[shared])), 1)
+    overlap = _overlap(old, clusters, k, olds)
     per_cluster = overlap.sum(axis=1)
     known = per_cluster >= _MIN_CONTINUED * sizes
     for r in range(k):
@@ -379,7 +381,6 @@ def _continued_labels(
     if world:
         confirmed.discard(0)
     overlap[list(confirmed)] = 0  # a recurring split continues none of the labels
-    carried = overlap.copy()
     if world:  # the world continues label 0, and only it
         mapping[0] = 0
         overlap[0] = 0
@@ -392,14 +393,10 @@ def _continued_labels(
             continue
         if known[r] and overlap[r, c] > 0 and overlap[r, c] >= _MIN_SHARE * per_cluster[r]:
             mapping[int(r)] = int(olds[c])
-    if pieces is not None and pieces is not old:
-        # step 2 from the tracks' own labels only
-        on = pieces >= 0
-        carried = np.zeros((k, olds.size), dtype=np.int64)
-        np.add.at(carried, (clusters[on], np.searchsorted(olds, pieces[on])), 1)
-        carried[list(confirmed)] = 0
-        per_cluster = carried.sum(axis=1)
-        known = per_cluster >= _MIN_CONTINUED * sizes
+    carried = _overlap(tracked, clusters, k, olds)
+    carried[list(confirmed)] = 0
+    per_cluster = carried.sum(axis=1)
+    known = per_cluster >= _MIN_CONTINUED * sizes
     for r in range(k):
         if r in mapping or r in confirmed or not known[r] or per_cluster[r] == 0:
             continue
@@ -407,3 +404,13 @@ def _continued_labels(
         if sizes[r] >= small[r]:
             splits[r] = mapping[r]
     return mapping, splits
+
+
+def _overlap(
+    labels: npt.NDArray[np.int64], clusters: npt.NDArray[np.int64], k: int, olds: npt.NDArray[np.int64]
+) -> npt.NDArray[np.int64]:
+    """(k, olds.size) int64 how many of each cluster's tracks carry each label of `olds` (-1s not counted)."""
+    on = labels >= 0
+    out = np.zeros((k, olds.size), dtype=np.int64)
+    np.add.at(out, (clusters[on], np.searchsorted(olds, labels[on])), 1)
+    return out
