@@ -55,10 +55,11 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=25, help="frames per clip")
     parser.add_argument("--scene", choices=("depth", "near"), default="depth", help="what to render (docstring)")
     parser.add_argument("--set", action="append", default=[], help="a pipeline setting, dotted.path=value")
+    parser.add_argument("--model", default=None, help="a checkpoint of cfg.frames frames (default: the shipped one)")
     args = parser.parse_args()
     set_threads(1)
     cfg = PipelineConfig().with_settings(args.set)
-    model = load_embedder(cfg.frames)
+    model = load_embedder(cfg.frames, args.model)
     rows = []
     near = args.scene == "near"
     print(
