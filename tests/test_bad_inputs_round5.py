@@ -322,6 +322,7 @@ def test_batch_workers_are_born_ignoring_ctrl_c(tmp_path: Path) -> None:
 
     from helpers import tiny_model
 
+    before = signal.getsignal(signal.SIGINT)  # SIG_IGN where the suite runs as a background job
     pool = WorkerPool(1, tiny_model(5), Job(PipelineConfig(), False, "h", segment_clip))
     manager = pool.executor._executor_manager_thread
     pool.kill()
@@ -333,7 +334,7 @@ def test_batch_workers_are_born_ignoring_ctrl_c(tmp_path: Path) -> None:
     child.start()
     child.join(60)
     assert child.exitcode == 0  # 1: a KeyboardInterrupt (and its traceback on stderr)
-    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # this process's handler is back
+    assert signal.getsignal(signal.SIGINT) is before  # this process's handler is back
 
 
 def test_ctrl_c_while_the_workers_start_waits_until_they_are_all_recorded() -> None:
@@ -346,12 +347,16 @@ def test_ctrl_c_while_the_workers_start_waits_until_they_are_all_recorded() -> N
 
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("signal handlers are the main thread's")
-    before = signal.getsignal(signal.SIGINT)
-    reached = []
-    with pytest.raises(KeyboardInterrupt), stops_deferred():
-        signal.raise_signal(signal.SIGINT)
-        reached.append("the start went on")
-    assert reached == ["the start went on"] and signal.getsignal(signal.SIGINT) is before
+    # Python's own Ctrl-C handler, as in a terminal (a suite run as a background job inherits SIGINT ignored)
+    outer = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        reached = []
+        with pytest.raises(KeyboardInterrupt), stops_deferred():
+            signal.raise_signal(signal.SIGINT)
+            reached.append("the start went on")
+        assert reached == ["the start went on"] and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, outer)
 
 
 def test_live_serve_server_has_a_session_of_its_own(monkeypatch: pytest.MonkeyPatch) -> None:
