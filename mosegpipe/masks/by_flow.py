@@ -137,13 +137,12 @@ def reassign_by_flow(
         (H, W) uint8 labels (`mask` itself when fewer than two motions can be fitted).
     """
     height, width = mask.shape
-    xy, xy_next = step
     models = {}
     for m in np.unique(mask):
         of = labels == m
         if m in (WORLD, UNKNOWN, MOVING_UNCLUSTERED) or of.sum() < REASSIGN_MIN_TRACKS:
             continue
-        affine = cv2.estimateAffine2D(xy[of], xy_next[of], method=cv2.RANSAC, ransacReprojThreshold=2.0)[0]
+        affine = _step_affine(step, of)
         if affine is not None:
             models[int(m)] = affine
     if len(models) < 2:
@@ -165,6 +164,16 @@ def reassign_by_flow(
     take = judged & np.isin(smooth, names)
     out[take] = smooth[take]
     return out
+
+
+def _step_affine(
+    step: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]], of: npt.NDArray[np.bool_]
+) -> npt.NDArray[np.float64] | None:
+    """The (2, 3) affine map of the tracks `of` from this frame to the neighbour frame (RANSAC, 2 px), or None."""
+    affine: npt.NDArray[np.float64] | None = cv2.estimateAffine2D(
+        step[0][of], step[1][of], method=cv2.RANSAC, ransacReprojThreshold=2.0
+    )[0]
+    return affine
 
 
 def _affine_misses(
@@ -269,8 +278,7 @@ def _missed_models(
     """`missed_movers`' candidates: label -> the (2, 3) affine map of its tracks' step (RANSAC, 2 px), for each
     moving motion with `least` or more tracks on the world's pixels (`world`), more of its tracks there than on the
     other pixels (a motion the mask shows is not missed) and REASSIGN_MIN_TRACKS in all."""
-    xy, xy_next = step
-    on_world = np.zeros(len(xy), bool)
+    on_world = np.zeros(len(step[0]), bool)
     on_world[inside] = world[ij[inside, 1], ij[inside, 0]]
     models = {}
     for m in np.unique(labels[on_world]):
@@ -280,7 +288,7 @@ def _missed_models(
             continue
         if of.sum() < REASSIGN_MIN_TRACKS or 2 * missed <= (of & inside).sum():  # the mask shows it: not missed
             continue
-        affine = cv2.estimateAffine2D(xy[of], xy_next[of], method=cv2.RANSAC, ransacReprojThreshold=2.0)[0]
+        affine = _step_affine(step, of)
         if affine is not None:
             models[int(m)] = affine
     return models

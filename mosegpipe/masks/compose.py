@@ -16,7 +16,14 @@ from mosegpipe.colours import WORLD
 from mosegpipe.configs.grouping import WorldConfig
 from mosegpipe.group.world import explain_parallax
 from mosegpipe.masks.by_flow import common_step, missed_movers, reassign_by_flow, split_unexplained
-from mosegpipe.masks.labels import MOVING_UNCLUSTERED, UNKNOWN, MaskConfig, labels_to_mask, nearest_labels
+from mosegpipe.masks.labels import (
+    MOVING_UNCLUSTERED,
+    UNKNOWN,
+    MaskConfig,
+    labels_to_mask,
+    nearest_labels,
+    without_held_regions,
+)
 from mosegpipe.masks.learned.probability import learned_moving
 from mosegpipe.masks.learned.which import which_motion, window_features
 from mosegpipe.masks.moving_pixels import Anchors, ColourMemory, moving_from_motion, moving_masks, stack_motion
@@ -99,16 +106,7 @@ def world_held(
     # a frame whose clustering found no mover of its own is left to the flow (a mover merged into the world)
     if ok.sum() < min_tracks or not (labels[ok] == background).any() or movers.sum() < min_tracks:
         return moving
-    num, regions = cv2.connectedComponents(moving.astype(np.uint8), connectivity=8)
-    where = regions[ij[ok, 1], ij[ok, 0]]
-    total = np.bincount(where, minlength=num)
-    world = np.bincount(where[labels[ok] == background], minlength=num)
-    held = (total >= min_tracks) & (world >= share * np.maximum(total, 1))
-    held[0] = False
-    if not held.any():
-        return moving
-    out: npt.NDArray[np.bool_] = moving & ~held[regions]
-    return out
+    return without_held_regions(moving, ij[ok], labels[ok] == background, share, min_tracks)
 
 
 def carry_unclustered(

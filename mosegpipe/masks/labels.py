@@ -228,3 +228,35 @@ def labels_to_masks(
         image = None if images is None else images[t]
         masks[t] = labels_to_mask(tracks.xy[track_ids[seen], t], labels[seen], (height, width), cfg, image)
     return masks
+
+
+def without_held_regions(
+    moving: npt.NDArray[np.bool_],
+    points_ij: npt.NDArray[np.int64],
+    held: npt.NDArray[np.bool_],
+    share: float,
+    min_points: int,
+) -> npt.NDArray[np.bool_]:
+    """`moving` less its connected regions in which at least `min_points` of the points lie and `share` of those
+    are `held` (tracks that say the region is the world's: `compose.world_held`, `rigid_tracks.static_held`).
+
+    Args:
+        moving: (H, W) bool moving pixels.
+        points_ij: (M, 2) int64 (x, y) pixels of the points that count, each on a moving pixel.
+        held: (M,) bool the points that hold their region.
+        share: least share of a region's points that are held.
+        min_points: least number of points in the region.
+
+    Returns:
+        (H, W) bool (`moving` itself when nothing changes).
+    """
+    num, regions = cv2.connectedComponents(moving.astype(np.uint8), connectivity=8)
+    where = regions[points_ij[:, 1], points_ij[:, 0]]
+    total = np.bincount(where, minlength=num)
+    still = np.bincount(where[held], minlength=num)
+    taken = (total >= min_points) & (still >= share * np.maximum(total, 1))
+    taken[0] = False
+    if not taken.any():
+        return moving
+    out: npt.NDArray[np.bool_] = moving & ~taken[regions]
+    return out

@@ -31,13 +31,13 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import numpy.typing as npt
 
 from mosegpipe.colours import WORLD
 from mosegpipe.configs.masks import RigidTracksConfig
 from mosegpipe.group import twoview
+from mosegpipe.masks.labels import without_held_regions
 
 Seen = tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]
 """One frame's tracks: (M,) int64 ids and (M, 2) float32 positions, pixels."""
@@ -217,13 +217,4 @@ def static_held(
     on = moving[ij[:, 1], ij[:, 0]]
     if on.sum() < min_tracks:
         return moving
-    num, regions = cv2.connectedComponents(moving.astype(np.uint8), connectivity=8)
-    where = regions[ij[on, 1], ij[on, 0]]
-    total = np.bincount(where, minlength=num)
-    still = np.bincount(where[static[ok][on]], minlength=num)
-    held = (total >= min_tracks) & (still >= share * np.maximum(total, 1))
-    held[0] = False
-    if not held.any():
-        return moving
-    out: npt.NDArray[np.bool_] = moving & ~held[regions]
-    return out
+    return without_held_regions(moving, ij[on], static[ok][on], share, min_tracks)
