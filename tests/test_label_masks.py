@@ -140,6 +140,32 @@ def test_a_new_object_entering_gets_a_new_label() -> None:
     assert _run(windows)[2] == {0: 0, 1: 2}
 
 
+def test_a_mover_the_masks_named_is_continued_by_the_cluster_on_it() -> None:
+    # window 0 finds only the world; the dense stage named the moving region it saw (LabelBook.dense_label)
+    body = Body((200, 200), (8, 0), (60, 30))
+    old, new = Patch(body, 100, 5), Patch(body, 200, 30, (0.4, 1.0))  # most of its tracks are new
+    ids0 = np.concatenate([WORLD.ids(), old.ids()])
+    xy0 = np.concatenate([WORLD.xy(0), old.xy(0)])
+    ids1 = np.concatenate([WORLD.ids(), old.ids(), new.ids()])
+    xy1 = np.concatenate([WORLD.xy(1), old.xy(1), new.xy(1)])
+    clusters = np.concatenate([np.zeros(WORLD.n, np.int64), np.ones(old.n + new.n, np.int64)])
+
+    def second_window(where: Body) -> tuple[set[int], LabelBook]:
+        book, mask = LabelBook(cfg=CARRY), np.zeros(SIZE_HW, np.uint8)
+        first = match_labels({}, ids0, np.zeros(ids0.size, np.int64), 1, book, 0, world=True, xy=xy0, frame=0)
+        where.paint(mask, F - 1, book.dense_label())
+        book.remember_mask(mask, F - 1)
+        prev = dict(zip(ids0.tolist(), first.tolist()))  # the object's old tracks were the world's
+        labels = match_labels(prev, ids1, clusters, 2, book, 1, world=True, xy=xy1, frame=F - 1)
+        return set(labels[clusters == 1].tolist()), book
+
+    named, book = second_window(body)
+    assert named == {1} and not book.dense and book.next_label == 2  # continued: a motion's label like any other
+    # a name painted elsewhere (another mover) is not this object's: a new label, the name stays the dense stage's
+    elsewhere, book = second_window(Body((500, 100), (0, 0), (30, 30)))
+    assert elsewhere == {2} and book.dense == {1}
+
+
 def test_shapes_and_the_labels_under_points() -> None:
     mask = np.zeros((4, 6), np.uint8)
     mask[1:3, 2:4] = 7

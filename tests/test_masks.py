@@ -175,6 +175,35 @@ def test_carry_unclustered_gives_an_anonymous_mover_the_label_it_had_in_the_fram
     assert (carry_unclustered(mask, np.zeros_like(previous)) == mask).all()
 
 
+def test_name_unclustered_gives_each_large_anonymous_mover_a_label_of_its_own() -> None:
+    from mosegpipe.group.labels import LabelBook
+    from mosegpipe.masks import MOVING_UNCLUSTERED, name_unclustered
+
+    mask = np.zeros((40, 60), np.uint8)
+    mask[5:20, 5:20] = MOVING_UNCLUSTERED  # 225 px: the larger mover
+    mask[5:20, 21:23] = MOVING_UNCLUSTERED  # a limb 1 px off it: the same region
+    mask[25:35, 40:50] = MOVING_UNCLUSTERED  # 100 px, far off
+    mask[38, 5] = MOVING_UNCLUSTERED  # one pixel: speckle, stays anonymous
+    mask[0:3, 50:60] = 4  # a clustered motion
+    book = LabelBook(next_label=9)
+    out = name_unclustered(mask, book, 0.02)  # 48 px of 2400 at least
+    assert (out[5:20, 5:20] == 9).all() and (out[5:20, 21:23] == 9).all() and (out[25:35, 40:50] == 10).all()
+    assert out[38, 5] == MOVING_UNCLUSTERED and (out[0:3, 50:60] == 4).all() and (out[mask == 0] == 0).all()
+    assert (mask[5:20, 5:20] == MOVING_UNCLUSTERED).all() and book.dense == {9, 10}  # a copy; the labels known
+    # nothing large enough: the mask itself, no label handed out
+    assert name_unclustered(mask, book, 0.5) is mask and book.next_label == 11
+    # a named mover that jumped off its mask of the frame before (the carry lost it) takes its label back
+    jumped = np.zeros_like(mask)
+    jumped[5:20, 24:36] = MOVING_UNCLUSTERED
+    again = name_unclustered(jumped, book, 0.02, previous=out)
+    assert (again[5:20, 24:36] == 9).all() and book.next_label == 11  # 9 is nearer than 10
+    # ... but not from across the frame (beyond the gate), and never a label this frame shows already
+    assert (name_unclustered(jumped, book, 0.02, previous=out, gate=0.1)[5:20, 24:36] == 11).all()
+    shown = jumped.copy()
+    shown[0:2, 0:2] = 9
+    assert name_unclustered(shown, book, 0.02, previous=out)[10, 30] == 12  # 9 shown, 10 beyond the gate: new
+
+
 def _two_movers(b_flow: np.ndarray) -> tuple:
     """A 120x160 frame: region A (tracked, motion 1, moving +3 px in x) and region B (no tracks, flow
     `b_flow`), both labelled 1 as the nearest-track rule labels them; background tracks static."""

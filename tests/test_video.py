@@ -88,6 +88,13 @@ def test_label_book_reuses_the_least_recently_used_label() -> None:
     assert book.new_label(busy={1}) == 2 and book.num_reused == 1
     with pytest.raises(InputError, match="more than 3 motions live at once"):
         book.new_label(busy={0, 1, 2})
+    # a video's labels stop below the unclustered mover's mask value
+    from mosegpipe.masks import MOVING_UNCLUSTERED
+
+    full = LabelBook()
+    assert max(full.new_label(set()) for _ in range(MOVING_UNCLUSTERED)) == MOVING_UNCLUSTERED - 1
+    full.last_window = {0: 0}
+    assert full.new_label(set()) == 0 and full.num_reused == 1
 
 
 def _window(i: int, n: int) -> WindowResult:

@@ -325,6 +325,7 @@ class LabelConfig:
         new_share: ... and one under this share of the window's tracks too (RESULTS.md "Several movers").
         carry_masks: new tracks take the label under them in the last mask; a lost label returns on its moved mask.
         mask_share: ... where at least this share of a cluster's tracks start on that predicted mask.
+        name_unclustered: a moving region no clustered motion reaches, of this share of the frame, takes a label (0 = off).
     """
 
     memory_windows: int = 4
@@ -335,6 +336,7 @@ class LabelConfig:
     new_share: float = 0.05
     carry_masks: bool = True
     mask_share: float = 0.5
+    name_unclustered: float = 0.002  # 820 px of 854x480: a far rider, not the flow's speckle
 
     def __post_init__(self) -> None:
         check_fields(self, _LABEL_CHECKS)
@@ -348,5 +350,6 @@ _LABEL_CHECKS: tuple[Check, ...] = (
     ("new_tracks", lambda v: 0 <= v <= 100_000, "lie in 0..100000"),
     ("new_share", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
     ("mask_share", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("name_unclustered", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
 )
 """LabelConfig's checks: (field, test, what it must be)."""

@@ -49,7 +49,8 @@ class LabelBook:
         next_label: the next never-used label.
         last_window: label -> the last window that used it.
         num_reused: how many times a label was handed out again (only after 255 labels).
-        max_label: largest label a mask can hold (mask value = label <= 254; 255 = unknown).
+        max_label: largest label a mask can hold (mask value = label <= 253; 254 = a moving region no clustered
+            motion reaches, 255 = unknown).
         pending: track id -> split candidate of the last window: the tracks of a cluster that
             split off a known motion, which kept that motion's label (see match_labels).
         cfg: how labels are remembered.
@@ -58,22 +59,26 @@ class LabelBook:
             in `memory` only).
         last_mask: (H, W) uint8 the last labelled frame's final mask (with cfg.carry_masks), or None.
         mask_frame: that frame's source index (-1: none).
+        dense: the labels the dense stage gave to moving regions no clustered motion reached
+            (`dense_label`) that no cluster has continued yet.
     """
 
     next_label: int = 0
     last_window: dict[int, int] = field(default_factory=dict)
     num_reused: int = 0
-    max_label: int = MAX_LABEL
+    max_label: int = MAX_LABEL - 1  # MAX_LABEL is the unclustered mover's value (masks.MOVING_UNCLUSTERED)
     pending: dict[int, int] = field(default_factory=dict)
     cfg: LabelConfig = field(default_factory=LabelConfig)
     memory: dict[int, LabelTrace] = field(default_factory=dict)
     shapes: dict[int, LabelShape] = field(default_factory=dict)
     last_mask: npt.NDArray[np.uint8] | None = None
     mask_frame: int = -1
+    dense: set[int] = field(default_factory=set)
 
     def forget(self) -> None:
         """Forgets every remembered label (a shot cut: no motion of the new shot continues one before it)."""
         self.memory.clear()
+        self.dense.clear()
         self.pending.clear()
         self.shapes.clear()
         self.last_mask, self.mask_frame = None, -1
@@ -92,6 +97,13 @@ class LabelBook:
         self.last_mask, self.mask_frame = mask, frame
         self.shapes.update(label_shapes(mask, frame))
         self.shapes = {lab: shape for lab, shape in self.shapes.items() if lab in self.memory}
+
+    def dense_label(self) -> int:
+        """A new label for a moving region of the masks that no clustered motion reaches
+        (`masks.compose.name_unclustered`); new tracks on it in the next window count as its (`_known_labels`)."""
+        label = self.new_label(self.dense)
+        self.dense.add(label)
+        return label
 
     def new_label(self, busy: set[int]) -> int:
         """A label for a motion that continues none seen before: the next unused one, else the least
@@ -183,9 +195,8 @@ def match_labels(
         mapping[0] = 0
         book.next_label = max(book.next_label, 1)
     _new_labels(mapping, sizes, small, book, set(mapping.values()) | set(prev.values()))
-    for lab in mapping.values():
-        if lab >= 0:
-            book.last_window[lab] = window
+    book.last_window.update({lab: window for lab in mapping.values() if lab >= 0})
+    book.dense -= set(mapping.values())  # a name a cluster continues is a motion's label like any other
     labels = np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
     _remember(book, ids, labels, window, xy, frame)
     return labels
@@ -202,7 +213,8 @@ def _known_labels(
     previous window), -1: none. With LabelConfig.carry_masks, a track that carried none is known by the moving
     label under its first position in the last labelled frame's mask when that frame is this window's first
     (`LabelBook.remember_mask`; windows share their boundary frame): new tracks on a labelled object count as
-    that object's in match_labels' step 1. Without it, both arrays are the tracks' own labels."""
+    that object's in match_labels' step 1 (a region the dense stage named too, `LabelBook.dense_label`). Without
+    it, both arrays are the tracks' own labels."""
     tracked = np.array([prev.get(int(i), -1) for i in ids], dtype=np.int64)
     if book.cfg.carry_masks and book.last_mask is not None and book.mask_frame == frame and xy is not None:
         return np.where(tracked >= 0, tracked, labels_under(book.last_mask, xy[:, 0])), tracked

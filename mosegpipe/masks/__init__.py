@@ -33,7 +33,13 @@ from __future__ import annotations
 
 from mosegpipe.colours import WORLD
 from mosegpipe.masks.by_flow import missed_movers, reassign_along, reassign_by_flow, split_unexplained
-from mosegpipe.masks.compose import carry_unclustered, label_moving_pixels, motion_masks, moving_to_labels
+from mosegpipe.masks.compose import (
+    carry_unclustered,
+    label_moving_pixels,
+    motion_masks,
+    moving_to_labels,
+    name_unclustered,
+)
 from mosegpipe.masks.labels import (
     MAX_LABEL,
     MOVING_UNCLUSTERED,
@@ -56,6 +62,7 @@ __all__ = [
     "WORLD",
     "MaskConfig",
     "carry_unclustered",
+    "name_unclustered",
     "label_moving_pixels",
     "labels_to_mask",
     "labels_to_masks",

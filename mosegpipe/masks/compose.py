@@ -5,8 +5,10 @@ moving pixels labelled by the nearest track of a moving motion (`moving_to_label
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -153,6 +155,95 @@ def carry_unclustered(
     return out
 
 
+def follow_flow(mask: npt.NDArray[np.uint8], backward: npt.NDArray[np.float32], scale: float) -> npt.NDArray[np.uint8]:
+    """The frame before's mask moved to this frame along the flow: each pixel takes the label at the end of its
+    backward flow (nearest pixel; off the frame, the nearest border pixel).
+
+    Args:
+        mask: (H, W) uint8 labels of the frame before.
+        backward: (h, w, 2) float32 flow from this frame to the one before, at the flow's scale.
+        scale: the flow's scale (h / H).
+    """
+    height, width = mask.shape
+    flow = cv2.resize(backward, (width, height), interpolation=cv2.INTER_LINEAR) / np.float32(scale)
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
+    moved: npt.NDArray[np.uint8] = cv2.remap(
+        mask, xs + flow[..., 0], ys + flow[..., 1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
+    )
+    return moved
+
+
+class Namer(Protocol):
+    """Hands out the labels of the moving regions no clustered motion reaches (`group.labels.LabelBook`)."""
+
+    dense: set[int]
+
+    def dense_label(self) -> int: ...
+
+
+def name_unclustered(
+    mask: npt.NDArray[np.uint8],
+    namer: Namer,
+    min_share: float,
+    previous: npt.NDArray[np.uint8] | None = None,
+    gap: float = 0.02,
+    gate: float = 0.25,
+) -> npt.NDArray[np.uint8]:
+    """A whole video's frame mask with each MOVING_UNCLUSTERED region left after `carry_unclustered` given a label of
+    its own: a mover the flow shows but no clustered motion reaches (the window found only the world, or its
+    cluster was too small to start a label) becomes an identity the next frames carry (`carry_unclustered`) and the
+    next window's cluster continues (the new tracks on it read its label off the mask, `group.labels`), instead of
+    an anonymous mover that turns into a label of its own a window later.
+
+    Pieces closer than `gap` of the frame's diagonal are one region (a person's limbs). A region takes back a label
+    named before that the frame before showed and the carry lost (a mover that jumped further than its size), the
+    nearest within `gate` of the diagonal; else a new label.
+
+    Args:
+        mask: (H, W) uint8 label image of the frame, after `carry_unclustered`.
+        namer: hands out a label no motion holds and knows those it handed out (`LabelBook.dense_label`).
+        min_share: the smallest region named, as a share of the frame's pixels (smaller ones stay unclustered).
+        previous: (H, W) uint8 the frame before's mask (as `carry_unclustered` saw it), or None.
+        gap, gate: shares of the frame's diagonal.
+
+    Returns:
+        (H, W) uint8: `mask` itself when nothing changes, else a relabelled copy.
+    """
+    unclustered = mask == MOVING_UNCLUSTERED
+    if not unclustered.any():
+        return mask
+    diagonal = math.hypot(*mask.shape)
+    radius = max(int(round(gap * diagonal / 2)), 1)
+    joined = cv2.dilate(
+        unclustered.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
+    )
+    num, regions = cv2.connectedComponents(joined, connectivity=8)
+    regions[~unclustered] = 0
+    sizes = np.bincount(regions.ravel(), minlength=num)
+    big = [r for r in np.argsort(-sizes) if r > 0 and sizes[r] >= min_share * mask.size]
+    if not big:
+        return mask
+    lost: dict[int, npt.NDArray[np.float64]] = {}  # named label -> its centre in the frame before
+    if previous is not None:
+        here = set(np.flatnonzero(np.bincount(mask.ravel(), minlength=256)).tolist())
+        for lab in namer.dense - here:
+            ys, xs = np.nonzero(previous == lab)
+            if xs.size:
+                lost[lab] = np.array([xs.mean(), ys.mean()])
+    out = mask.copy()
+    for r in big:  # the largest region first
+        on = regions == r
+        ys, xs = np.nonzero(on)
+        centre = np.array([xs.mean(), ys.mean()])
+        near = min(lost, key=lambda lab: float(np.linalg.norm(lost[lab] - centre)), default=None)
+        if near is not None and np.linalg.norm(lost[near] - centre) <= gate * diagonal:
+            out[on] = near
+            del lost[near]
+        else:
+            out[on] = namer.dense_label()
+    return out
+
+
 def moving_to_labels(
     moving: npt.NDArray[np.bool_],
     xy: npt.NDArray[np.float32],
@@ -206,7 +297,7 @@ class MaskSequence:
     motion whose step explains its flow (`reassign_by_flow`), then in clips the regions no motion explains split
     off (`split_unexplained`), in both the static regions a moving motion's tracks hold and whose flow it explains
     given to it (`missed_movers`), in videos the unclustered regions given their label in the frame before
-    (`carry_unclustered`).
+    (`carry_unclustered`) or, where they had none, a label of their own (`name_unclustered`).
 
     A clip makes one per clip (`motion_masks`); a whole video one for the video (`segment_video`), whose colour
     model of the shot and last final mask go from window to window.
@@ -217,6 +308,9 @@ class MaskSequence:
         colour: the motion masks' colour model of the shot's windows so far (None = each stack alone).
         last_mask: the last finished frame's mask (None at the start of a shot).
         history: whole videos with MaskConfig.rigid: the tracks of the shot's last frames (`rigid_tracks`).
+        namer: whole videos with LabelConfig.name_unclustered: hands out the label of an unclustered moving
+            region (`name_unclustered`), None = such regions stay MOVING_UNCLUSTERED.
+        name_share: the smallest region named so, as a share of the frame.
     """
 
     cfg: MaskConfig
@@ -224,6 +318,8 @@ class MaskSequence:
     colour: ColourMemory | None = None
     last_mask: npt.NDArray[np.uint8] | None = None
     history: TrackHistory | None = None
+    namer: Namer | None = None
+    name_share: float = 0.0
 
     def __post_init__(self) -> None:
         if self.video and self.cfg.rigid.enabled and self.history is None:
@@ -328,7 +424,12 @@ class MaskSequence:
             if cfg.missed_tracks > 0 and here.size:
                 mask = missed_movers(mask, step, labels[here], flow, motion.residual[at], motion.scale, cfg)
         if self.video:
-            mask = carry_unclustered(mask, self.last_mask)
+            before = self.last_mask
+            if before is not None and motion is not None and motion.backward is not None and at >= 1:
+                before = follow_flow(before, motion.backward[at - 1], motion.scale)  # a fast mover has moved on
+            mask = carry_unclustered(mask, before)
+            if self.namer is not None:
+                mask = name_unclustered(mask, self.namer, self.name_share, before)
             self.last_mask = mask
         return mask
 

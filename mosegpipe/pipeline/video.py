@@ -160,9 +160,9 @@ def segment_video(
             f"{path}: frames of {width}x{height} px are too small to track "
             f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
-    memory = cfg.mask.motion.colour_memory
-    colour = ColourMemory(memory) if memory > 0 else None
-    run = _VideoRun(book=LabelBook(cfg=cfg.labels), masks=MaskSequence(cfg.mask, video=True, colour=colour))
+    memory, book = cfg.mask.motion.colour_memory, LabelBook(cfg=cfg.labels)
+    colour, named = (ColourMemory(memory) if memory > 0 else None), cfg.labels.name_unclustered
+    run = _VideoRun(book, masks=MaskSequence(cfg.mask, True, colour, namer=book if named else None, name_share=named))
     with contextlib.ExitStack() as stack:
         # The motion masks' flows start as each frame is read (FlowStream's threads), and reading runs a
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
