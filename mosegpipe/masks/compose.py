@@ -425,8 +425,9 @@ class MaskSequence:
                 mask = missed_movers(mask, step, labels[here], flow, motion.residual[at], motion.scale, cfg)
         if self.video:
             before = self.last_mask
-            if before is not None and motion is not None and motion.backward is not None and at >= 1:
-                before = follow_flow(before, motion.backward[at - 1], motion.scale)  # a fast mover has moved on
+            back = None if motion is None or motion.backward is None or at < 1 else motion.backward[at - 1]
+            if before is not None and back is not None and motion is not None and (mask == MOVING_UNCLUSTERED).any():
+                before = follow_flow(before, back, motion.scale)  # what carry_unclustered reads: a fast mover moved on
             mask = carry_unclustered(mask, before)
             if self.namer is not None:
                 mask = name_unclustered(mask, self.namer, self.name_share, before)
