@@ -74,6 +74,17 @@ def test_summary_and_table_leave_unscored_rows_out() -> None:
     assert "| **mean** | 15.0 | 2.5 | 2.0 | 20.00 | 375 |" in table
     assert "1 not scored" in table
     assert report.format_rows([]) == "(no rows)\n"
+    # kt3d-video's rows also count the motions that enough scored tracks carry
+    seen = [{**r, "k_true_5": k} for r, k in zip(rows, (2, 2, 0))]
+    assert report.summarize_rows(seen)["correct_k_5"] == 1.0 and "correct_k_5" not in s
+    assert "against the motions of 5 scored tracks or more 100.0 %" in report.format_rows(seen)
+
+
+def test_motions_seen_counts_the_motions_enough_scored_tracks_carry() -> None:
+    from mosegpipe.evaluation.e2e import motions_seen
+
+    gt = np.array([0] * 40 + [1] * 5 + [2] * 2 + [3] * 1)  # the last two: a far car, a stray transfer
+    assert motions_seen(gt) == 2 and motions_seen(gt, least=1) == 4 and motions_seen(np.zeros(0, np.int64)) == 0
 
 
 def test_protocol_registry() -> None:
