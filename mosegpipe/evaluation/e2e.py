@@ -170,14 +170,8 @@ def kt3d_video_rows(
     for n, name in enumerate(names if names is not None else list_kt3d_sequences(data_root)):
         seq = read_kt3d_sequence(data_root, name)
         paths = kt3d_frame_paths(data_root, name)[:f]
-        row: dict[str, Any] = {
-            "name": seq.name,
-            "num_tracks": 0,
-            "num_scored": 0,
-            "k_true": 0,
-            "k_true_5": 0,
-            "k_pred": 0,
-        }
+        zero = dict.fromkeys(("num_tracks", "num_scored", "k_true", "k_true_5", "k_pred"), 0)
+        row: dict[str, Any] = {"name": seq.name, **zero}
         if len(paths) < f or seq.num_frames < f:
             log.warning("%s: only %d frames, need %d; not scored", name, min(len(paths), seq.num_frames), f)
             rows.append({**row, "error": float("nan"), "seconds": 0.0})
