@@ -237,6 +237,13 @@ def test_a_viewer_gets_frames_masks_and_k_in_order(tmp_path: Path, video: Path) 
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         code, stdout, stderr = moseg("live", video, "--realtime", "--connect", url, "--out", out, "--no-rrd")
         assert code == 0, stderr
+        # the sink may still be writing what it received last (under load): stop it once its file holds still
+        size, still_since, deadline = -1, time.monotonic(), time.monotonic() + 15
+        while time.monotonic() < deadline and time.monotonic() - still_since < 1.0:
+            now = saved.stat().st_size if saved.exists() else -1
+            if now != size:
+                size, still_since = now, time.monotonic()
+            time.sleep(0.1)
     finally:
         sink.terminate()
         sink.wait(timeout=30)
