@@ -173,6 +173,11 @@ def follow_flow(mask: npt.NDArray[np.uint8], backward: npt.NDArray[np.float32], 
     return moved
 
 
+def _values(mask: npt.NDArray[np.uint8]) -> set[int]:
+    """The values a uint8 mask holds."""
+    return set(np.flatnonzero(np.bincount(mask.ravel(), minlength=256)).tolist())
+
+
 class Namer(Protocol):
     """Hands out the labels of the moving regions no clustered motion reaches (`group.labels.LabelBook`)."""
 
@@ -225,11 +230,9 @@ def name_unclustered(
         return mask
     lost: dict[int, npt.NDArray[np.float64]] = {}  # named label -> its centre in the frame before
     if previous is not None:
-        here = set(np.flatnonzero(np.bincount(mask.ravel(), minlength=256)).tolist())
-        for lab in namer.dense - here:
+        for lab in (namer.dense & _values(previous)) - _values(mask):  # only the names the frame before showed
             ys, xs = np.nonzero(previous == lab)
-            if xs.size:
-                lost[lab] = np.array([xs.mean(), ys.mean()])
+            lost[lab] = np.array([xs.mean(), ys.mean()])
     out = mask.copy()
     for r in big:  # the largest region first
         on = regions == r
@@ -424,15 +427,19 @@ class MaskSequence:
             if cfg.missed_tracks > 0 and here.size:
                 mask = missed_movers(mask, step, labels[here], flow, motion.residual[at], motion.scale, cfg)
         if self.video:
-            before = self.last_mask
-            back = None if motion is None or motion.backward is None or at < 1 else motion.backward[at - 1]
-            if before is not None and back is not None and motion is not None and (mask == MOVING_UNCLUSTERED).any():
-                before = follow_flow(before, back, motion.scale)  # what carry_unclustered reads: a fast mover moved on
-            mask = carry_unclustered(mask, before)
-            if self.namer is not None:
-                mask = name_unclustered(mask, self.namer, self.name_share, before)
+            if (mask == MOVING_UNCLUSTERED).any():  # nothing to carry or name otherwise
+                mask = self._unclustered(mask, at, motion)
             self.last_mask = mask
         return mask
+
+    def _unclustered(self, mask: npt.NDArray[np.uint8], at: int, motion: FrameMotion | None) -> npt.NDArray[np.uint8]:
+        """A video frame's unclustered movers given the label they had in the frame before, whose mask is first
+        moved along the flow (a fast mover has moved on), else, with a namer, a label of their own."""
+        before = self.last_mask
+        if before is not None and motion is not None and motion.backward is not None and at >= 1:
+            before = follow_flow(before, motion.backward[at - 1], motion.scale)
+        mask = carry_unclustered(mask, before)
+        return mask if self.namer is None else name_unclustered(mask, self.namer, self.name_share, before)
 
 
 def motion_masks(
