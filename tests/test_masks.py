@@ -204,6 +204,32 @@ def test_name_unclustered_gives_each_large_anonymous_mover_a_label_of_its_own() 
     assert name_unclustered(shown, book, 0.02, previous=out)[10, 30] == 12  # 9 shown, 10 beyond the gate: new
 
 
+def test_name_unclustered_gives_a_remembered_motion_back_its_label_where_it_was_last_seen() -> None:
+    """A motion the grouping lost for a few windows (LabelBook.memory, its last mask in LabelBook.shapes) and
+    that comes back as an unclustered mover near where it was last seen takes its label back."""
+    from mosegpipe.group.label_shapes import label_shapes
+    from mosegpipe.group.labels import LabelBook, LabelTrace
+    from mosegpipe.masks import MOVING_UNCLUSTERED, name_unclustered
+
+    last = np.zeros((40, 60), np.uint8)
+    last[5:15, 5:15] = 3  # where motion 3 was last seen, windows ago
+    book = LabelBook(next_label=5)
+    book.memory[3] = LabelTrace({}, 0, 4, np.array([10.0, 10.0]), np.zeros(2), 16.0)
+    book.shapes = label_shapes(last, 4)
+    assert set(book.remembered()) == {3} and np.allclose(book.remembered()[3], [9.5, 9.5])
+    back = np.zeros((40, 60), np.uint8)
+    back[8:18, 10:20] = MOVING_UNCLUSTERED
+    assert (name_unclustered(back, book, 0.02)[8:18, 10:20] == 3).all() and book.next_label == 5
+    # beyond the gate, or while the frame shows motion 3 elsewhere: a new label
+    assert (name_unclustered(back, book, 0.02, gate=0.05)[8:18, 10:20] == 5).all()
+    back[30:35, 50:55] = 3
+    assert (name_unclustered(back, book, 0.02)[8:18, 10:20] == 6).all()
+    # forgotten (no longer in memory): never taken back
+    del book.memory[3]
+    back[30:35, 50:55] = 0
+    assert book.remembered() == {} and (name_unclustered(back, book, 0.02)[8:18, 10:20] == 7).all()
+
+
 def _two_movers(b_flow: np.ndarray) -> tuple:
     """A 120x160 frame: region A (tracked, motion 1, moving +3 px in x) and region B (no tracks, flow
     `b_flow`), both labelled 1 as the nearest-track rule labels them; background tracks static."""

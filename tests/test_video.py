@@ -215,13 +215,16 @@ def test_memory_holds_one_window_of_frames(
 
     monkeypatch.setattr(video_module, "iter_video", tracked)
     model3 = SubspaceNet.from_checkpoint(motion_checkpoint(tmp_path / "m3.pt", 3))
-    write_video_outputs(frames_dir, tmp_path / "out", PipelineConfig(frames=3, k=3), model3, rrd=False)
+    held = 1  # windows held back for the labels that merge back (pipeline.merge_back)
+    cfg = PipelineConfig(frames=3, k=3).with_settings([f"labels.merge_back_windows={held}"])
+    write_video_outputs(frames_dir, tmp_path / "out", cfg, model3, rrd=False)
     assert len(alive) == T
     # The window being tracked, the full window held until the next frame's flows give its last frame
-    # both directions (the motion masks), the windows queued for the writer, the one being written and
-    # the frame being read: a bound set by the window length, never the video (T frames). (Without the
-    # held window the bound is one window lower; a slow writer fills the queue and reaches it.)
-    assert most <= (3 - 1) * (WINDOWS_AHEAD + 3) + 2 < T
+    # both directions (the motion masks), the windows held back for the merged labels, the windows queued for
+    # the writer, the one being written and the frame being read: a bound set by the window length, never the
+    # video (T frames). (Without the held window the bound is one window lower; a slow writer fills the queue
+    # and reaches it.)
+    assert most <= (3 - 1) * (WINDOWS_AHEAD + 3 + held) + 2 < T
 
 
 def test_failures_leave_nothing(tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path) -> None:

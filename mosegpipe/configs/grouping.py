@@ -326,6 +326,7 @@ class LabelConfig:
         carry_masks: new tracks take the label under them in the last mask; a lost label returns on its moved mask.
         mask_share: ... where at least this share of a cluster's tracks start on that predicted mask.
         name_unclustered: a moving region no clustered motion reaches, of this share of the frame, takes a label (0 = off).
+        merge_back_windows: a label born within this many windows that merges back into a motion beside it is that motion's from its start (0 = off; the output lags as many windows).
     """
 
     memory_windows: int = 4
@@ -337,6 +338,7 @@ class LabelConfig:
     carry_masks: bool = True
     mask_share: float = 0.5
     name_unclustered: float = 0.002  # 820 px of 854x480: a far rider, not the flow's speckle
+    merge_back_windows: int = 2
 
     def __post_init__(self) -> None:
         check_fields(self, _LABEL_CHECKS)
@@ -351,5 +353,6 @@ _LABEL_CHECKS: tuple[Check, ...] = (
     ("new_share", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
     ("mask_share", lambda v: 0 < v <= 1, "lie in (0, 1]"),
     ("name_unclustered", lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    ("merge_back_windows", lambda v: 0 <= v <= 100, "lie in 0..100"),
 )
 """LabelConfig's checks: (field, test, what it must be)."""

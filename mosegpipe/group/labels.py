@@ -61,6 +61,7 @@ class LabelBook:
         mask_frame: that frame's source index (-1: none).
         dense: the labels the dense stage gave to moving regions no clustered motion reached
             (`dense_label`) that no cluster has continued yet.
+        born: moving label -> the window that first gave it to a cluster (`pipeline.merge_back`).
     """
 
     next_label: int = 0
@@ -74,6 +75,7 @@ class LabelBook:
     last_mask: npt.NDArray[np.uint8] | None = None
     mask_frame: int = -1
     dense: set[int] = field(default_factory=set)
+    born: dict[int, int] = field(default_factory=dict)
 
     def forget(self) -> None:
         """Forgets every remembered label (a shot cut: no motion of the new shot continues one before it)."""
@@ -98,6 +100,25 @@ class LabelBook:
         self.shapes.update(label_shapes(mask, frame))
         self.shapes = {lab: shape for lab, shape in self.shapes.items() if lab in self.memory}
 
+    def retire(self, label: int, into: int) -> None:
+        """`label` merged back into `into` (`pipeline.merge_back`): it is remembered no more, and the last mask
+        shows `into` where it showed `label`."""
+        for store in (self.memory, self.shapes, self.born):
+            store.pop(label, None)
+        self.dense.discard(label)
+        if self.last_mask is not None and label < 256 and (self.last_mask == label).any():
+            self.last_mask = np.where(self.last_mask == label, np.uint8(into), self.last_mask)
+
+    def remembered(self) -> dict[int, npt.NDArray[np.float64]]:
+        """The moving labels remembered from the last windows (`memory`) -> the centre (x, y) of their last mask,
+        pixels (those whose shape is known: with cfg.carry_masks)."""
+        out = {}
+        for lab, shape in self.shapes.items():
+            if lab in self.memory:
+                ys, xs = np.nonzero(shape.crop)
+                out[lab] = shape.origin_xy + np.array([xs.mean(), ys.mean()])
+        return out
+
     def dense_label(self) -> int:
         """A new label for a moving region of the masks that no clustered motion reaches
         (`masks.compose.name_unclustered`); new tracks on it in the next window count as its (`_known_labels`)."""
@@ -116,8 +137,8 @@ class LabelBook:
             raise InputError(f"more than {self.max_label + 1} motions live at once; masks cannot hold them")
         self.num_reused += 1
         label = min(free, key=lambda lab: self.last_window[lab])
-        self.memory.pop(label, None)
-        self.shapes.pop(label, None)
+        for store in (self.memory, self.shapes, self.born):
+            store.pop(label, None)
         return label
 
 
@@ -196,6 +217,7 @@ def match_labels(
         book.next_label = max(book.next_label, 1)
     _new_labels(mapping, sizes, small, book, set(mapping.values()) | set(prev.values()))
     book.last_window.update({lab: window for lab in mapping.values() if lab >= 0})
+    book.born.update({lab: window for lab in mapping.values() if lab > 0 and lab not in book.born})
     book.dense -= set(mapping.values())  # a name a cluster continues is a motion's label like any other
     labels = np.array([mapping[int(c)] for c in clusters], dtype=np.int64)
     _remember(book, ids, labels, window, xy, frame)

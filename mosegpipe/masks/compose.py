@@ -185,6 +185,8 @@ class Namer(Protocol):
 
     def dense_label(self) -> int: ...
 
+    def remembered(self) -> dict[int, npt.NDArray[np.float64]]: ...
+
 
 def name_unclustered(
     mask: npt.NDArray[np.uint8],
@@ -201,12 +203,15 @@ def name_unclustered(
     an anonymous mover that turns into a label of its own a window later.
 
     Pieces closer than `gap` of the frame's diagonal are one region (a person's limbs). A region takes back a label
-    named before that the frame before showed and the carry lost (a mover that jumped further than its size), the
-    nearest within `gate` of the diagonal; else a new label.
+    that went missing, the nearest within `gate` of the diagonal: a name the frame before showed and the carry lost
+    (a mover that jumped further than its size), or a motion the namer remembers from its last windows that this
+    frame does not show (`Namer.remembered`: a rider the grouping gave to the world for a few windows, back in
+    view); else a new label.
 
     Args:
         mask: (H, W) uint8 label image of the frame, after `carry_unclustered`.
-        namer: hands out a label no motion holds and knows those it handed out (`LabelBook.dense_label`).
+        namer: hands out a label no motion holds, knows those it handed out (`LabelBook.dense_label`) and where
+            the motions it remembers were last seen (`LabelBook.remembered`).
         min_share: the smallest region named, as a share of the frame's pixels (smaller ones stay unclustered).
         previous: (H, W) uint8 the frame before's mask (as `carry_unclustered` saw it), or None.
         gap, gate: shares of the frame's diagonal.
@@ -228,9 +233,11 @@ def name_unclustered(
     big = [r for r in np.argsort(-sizes) if r > 0 and sizes[r] >= min_share * mask.size]
     if not big:
         return mask
-    lost: dict[int, npt.NDArray[np.float64]] = {}  # named label -> its centre in the frame before
+    shown = _values(mask)
+    # missing label -> where it was last seen: a motion remembered from the last windows, or a name the frame before showed
+    lost = {lab: centre for lab, centre in namer.remembered().items() if lab not in shown}
     if previous is not None:
-        for lab in (namer.dense & _values(previous)) - _values(mask):  # only the names the frame before showed
+        for lab in (namer.dense & _values(previous)) - shown:
             ys, xs = np.nonzero(previous == lab)
             lost[lab] = np.array([xs.mean(), ys.mean()])
     out = mask.copy()

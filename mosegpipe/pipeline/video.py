@@ -49,6 +49,7 @@ from mosegpipe.pipeline.common import (
     frames_text,
 )
 from mosegpipe.pipeline.config import PipelineConfig
+from mosegpipe.pipeline.merge_back import Aliases, WindowLabels, held_back, merged_back
 from mosegpipe.pipeline.resize import shrunk_stream
 from mosegpipe.pipeline.window import FrameTracks, VideoFrame, WindowResult, at_input_size, frame_mask
 from mosegpipe.points.flow import FlowStream, FrameMotion, flow_fits
@@ -146,6 +147,9 @@ def segment_video(
     warning that its choice is ambiguous is logged once, after the last window
     ("K was ambiguous in 3 of 40 windows: ..."), not per window; each window keeps its note
     (WindowResult.k_note, summary.json `windows[].k_ambiguous`).
+
+    Each window is yielded cfg.labels.merge_back_windows windows after it is labelled: a label born in them
+    that merges back into a motion beside it is written as that motion's throughout (`pipeline.merge_back`).
     """
     check_video_settings(cfg, max_frames)
     model = model or load_model(cfg.frames)
@@ -170,11 +174,24 @@ def segment_video(
         windows = stack.enter_context(
             contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
         )
-        for window, first_labelled, after in windows:
-            result = _label_window(window, first_labelled, cfg, model, run, masks, stream, after)
-            yield at_input_size(result, run.originals) if run.originals is not None else result
-            del window, result  # from here on its frames live only in the result: a few windows' frames are held
+        labelled = _labelled(windows, cfg, model, run, masks, stream)
+        yield from held_back(labelled, cfg.labels.merge_back_windows, run.aliases)
     _report_video_end(path, cfg, info, run, max_frames)
+
+
+def _labelled(
+    windows: Iterable[tuple[list[FrameTracks], bool, int | None]],
+    cfg: PipelineConfig,
+    model: Embedder,
+    run: _VideoRun,
+    masks: bool,
+    stream: FlowStream | None,
+) -> Iterator[WindowResult]:
+    """Each window read (`_read_windows`) labelled and masked (`_label_window`), at the input's size."""
+    for window, first_labelled, after in windows:
+        result = _label_window(window, first_labelled, cfg, model, run, masks, stream, after)
+        yield at_input_size(result, run.originals) if run.originals is not None else result
+        del window, result  # from here on its frames live only in the result: a few windows' frames are held
 
 
 @dataclass
@@ -197,6 +214,8 @@ class _VideoRun:
             reached take the label they had there) and the motion masks' colour model of the shot so far.
         frame_before: the frame before the last motion-masked window's last frame (whose flows the stream
             keeps: the next window's first frame takes its flow back to it), or None.
+        last: the shot's last labelled window's labels (None: none yet).
+        aliases: the labels merged back into others (`pipeline.merge_back`).
     """
 
     book: LabelBook = field(default_factory=LabelBook)
@@ -211,35 +230,8 @@ class _VideoRun:
     masks: MaskSequence = field(default_factory=lambda: MaskSequence(MaskConfig(), video=True))
     frame_before: int | None = None
     originals: dict[int, npt.NDArray[np.uint8]] | None = None
-
-
-def _no_labels() -> npt.NDArray[np.int64]:
-    return np.zeros(0, dtype=np.int64)
-
-
-@dataclass(frozen=True)
-class _WindowLabels:
-    """One window's clusters as global labels (k = 0: the window was left unlabelled).
-
-    Attributes:
-        k: motions found (after the rigid-motion check).
-        note: automatic K's note.
-        scores: automatic K's score per candidate K.
-        track_ids: (N,) int64 ids of the labelled tracks.
-        labels: (N,) int64 their global labels (>= 0).
-        xy: (N, T, 2) float32 their positions in the window's frames, pixels.
-    """
-
-    k: int = 0
-    note: str = ""
-    scores: dict[int, float] = field(default_factory=dict)
-    track_ids: npt.NDArray[np.int64] = field(default_factory=_no_labels)
-    labels: npt.NDArray[np.int64] = field(default_factory=_no_labels)
-    xy: npt.NDArray[np.float32] = field(default_factory=lambda: np.zeros((0, 0, 2), np.float32))
-
-    def by_id(self) -> dict[int, int]:
-        """Track id -> global label."""
-        return {int(i): int(g) for i, g in zip(self.track_ids, self.labels)}
+    last: WindowLabels | None = None
+    aliases: Aliases = field(default_factory=Aliases)
 
 
 def _read_windows(
@@ -334,7 +326,7 @@ def _window_sweep(cfg: PipelineConfig, prev_k: int) -> ClusterConfig:
 
 def _cluster_window(
     window: list[FrameTracks], cfg: PipelineConfig, model: Embedder, run: _VideoRun, motion: FrameMotion | None = None
-) -> tuple[npt.NDArray[np.int64], _WindowLabels]:
+) -> tuple[npt.NDArray[np.int64], WindowLabels]:
     """Clusters the tracks live through the whole window (by cfg.method) and maps the clusters to global labels,
     the world's motion to 0 (told by where its tracks lie, the window's dense flow `motion` when given, and
     which tracks were the world in the window before: `mosegpipe.group.world`).
@@ -348,10 +340,10 @@ def _cluster_window(
     common = row_ids[traj.track_ids]  # tracker ids of the tracks live through the whole window
     if len(window) < 2:
         log.info("frame %d: a shot of one frame; left unlabelled", window[0][0])
-        return common, _WindowLabels()
+        return common, WindowLabels()
     if common.size < max(cfg.min_tracks, 2):
         log.warning("frames %d-%d: only %d tracks; left unlabelled", window[0][0], window[-1][0], common.size)
-        return common, _WindowLabels()
+        return common, WindowLabels()
     forced = None if cfg.k is None else min(cfg.k, common.size)
     before = np.array([run.prev.get(int(i), -1) for i in common], np.int64)
     # automatic K's ambiguity warnings are reported once for the video, not per window
@@ -385,12 +377,26 @@ def _cluster_window(
         supported=small_rigid(clustering.labels[kept], traj.data[kept], cfg),
     )
     keep = glob >= 0
-    found = _WindowLabels(
-        clustering.k, clustering.note, dict(clustering.scores), common[keep], glob[keep], xy_all[keep]
-    )
-    run.prev, run.prev_k = found.by_id(), sweep_k
+    found = WindowLabels(clustering.k, clustering.note, dict(clustering.scores), common[keep], glob[keep], xy_all[keep])
+    _merge_back(window, found, cfg, run)
+    run.prev, run.prev_k, run.last = found.by_id(), sweep_k, found
     run.num_labelled += 1
     return common, found
+
+
+def _merge_back(window: list[FrameTracks], found: WindowLabels, cfg: PipelineConfig, run: _VideoRun) -> None:
+    """The labels of the window before, born within the windows held back, that merged back into another motion
+    in `found` (`pipeline.merge_back`) are that motion's from their start: aliased for the held windows, forgotten
+    by the label book and the carried mask."""
+    held = cfg.labels.merge_back_windows
+    if held <= 0 or run.last is None:
+        return
+    merged = merged_back(run.last, found.track_ids, found.labels, run.book.born, run.num_windows - held, cfg.joint)
+    for lab, into in merged.items():
+        log.info("frames %d-%d: label %d merged back into %d", window[0][0], window[-1][0], lab, into)
+        run.aliases.add(lab, into)
+        run.book.retire(lab, into)
+        run.masks.last_mask = run.aliases.relabel_mask(run.masks.last_mask)
 
 
 def small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
@@ -425,7 +431,7 @@ def _label_window(
     if not first_labelled:  # a shot starts here: no mask to carry over, its colours are new, no motion returns
         run.book.forget()
         run.masks.new_shot()
-        run.frame_before = None
+        run.frame_before, run.last = None, None
     motion = None
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
         # a window that starts on the one before's last frame gives that frame the flow back to the frame before it too
@@ -483,7 +489,7 @@ def _window_pixels(
     run: _VideoRun,
     stream: FlowStream | None,
     motion: FrameMotion | None,
-    found: _WindowLabels,
+    found: WindowLabels,
 ) -> tuple[npt.NDArray[np.bool_] | list[None], npt.NDArray[np.float32] | None, FrameMotion | None]:
     """The moving pixels of frames skip.. of a window (None each without the motion masks' flows), the per-motion
     network's inputs when it has something to choose (`window_features`), and the window's flow evidence (the

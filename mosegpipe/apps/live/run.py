@@ -307,7 +307,8 @@ def run_live(
 
     Args:
         source: what to read (parse_source).
-        cfg: pipeline settings; cfg.frames is the window length.
+        cfg: pipeline settings; cfg.frames is the window length. No window is held back for labels that merge
+            back (LabelConfig.merge_back_windows is 0 here): the view would lag by as many.
         model: the embedding model for cfg.frames.
         view: where each frame, mask and K goes as soon as it is ready (None: nowhere).
         out_dir: also write the output folder of a whole-video run there (None: none).
@@ -334,6 +335,8 @@ def run_live(
     if out_dir is not None:
         check_output_dir(out_dir, overwrite)
     check_mask_networks(cfg.mask)
+    # no window is held back for labels that merge back (pipeline.merge_back): the view would lag by as many
+    cfg = replace(cfg, labels=replace(cfg.labels, merge_back_windows=0))
     stop = stop or threading.Event()
     capture = open_source(source, timeout_s=stall_timeout_s, stdin=stdin)
     fps = source.fps or capture.fps or DEFAULT_FPS
