@@ -65,14 +65,28 @@ def test_only_labels_born_within_the_held_windows_merge_back() -> None:
 
 def test_aliases_resolve_chains_and_relabel_masks_and_tracks() -> None:
     aliases = Aliases()
-    aliases.add(3, 2)
-    aliases.add(2, 1)
-    assert aliases.resolve(3) == 1 and aliases.resolve(2) == 1 and aliases.resolve(4) == 4
+    aliases.add(3, 2, 8)
+    aliases.add(2, 1, 12)
+    assert aliases.resolve(3, 4) == 1 and aliases.resolve(2, 4) == 1 and aliases.resolve(4, 4) == 4
     mask = np.array([[0, 1, 2], [3, 254, 255]], np.uint8)
-    assert aliases.relabel_mask(mask).tolist() == [[0, 1, 1], [1, 254, 255]]
+    assert aliases.relabel_mask(mask, 4).tolist() == [[0, 1, 1], [1, 254, 255]]
     untouched = np.array([[0, 4]], np.uint8)
-    assert aliases.relabel_mask(untouched) is untouched
-    assert aliases.relabel(np.array([3, -1, 0, 2, 5])).tolist() == [1, -1, 0, 1, 5]
+    assert aliases.relabel_mask(untouched, 4) is untouched
+    assert aliases.relabel(np.array([3, -1, 0, 2, 5]), 4).tolist() == [1, -1, 0, 1, 5]
+
+
+def test_a_merged_label_handed_out_again_later_is_the_new_motions() -> None:
+    """A label merges at frame 8 and the label book hands the number out again at frame 20 (labels are reused
+    once the mask range is spent): the windows up to frame 8 show the label it joined, the later ones keep it."""
+    aliases = Aliases()
+    aliases.add(3, 1, 8)
+    assert aliases.resolve(3, 8) == 1 and aliases.resolve(3, 20) == 3
+    mask = np.array([[3, 0]], np.uint8)
+    assert aliases.relabel_mask(mask, 4).tolist() == [[1, 0]]
+    assert aliases.relabel_mask(mask, 20) is mask
+    assert aliases.relabel(np.array([3, 0]), 20).tolist() == [3, 0]
+    aliases.drop_before(9)  # every window up to frame 8 has left
+    assert aliases.to == {} and aliases.resolve(3, 4) == 3
 
 
 def _result(start: int, label: int) -> WindowResult:
@@ -90,7 +104,7 @@ def test_held_back_windows_are_relabelled_by_a_merge_found_later() -> None:
         def results(aliases: Aliases = aliases) -> object:
             yield _result(0, 2)
             yield _result(4, 2)
-            aliases.add(2, 1)  # found while labelling the third window
+            aliases.add(2, 1, 8)  # found while labelling the third window
             yield _result(8, 1)
 
         out = list(held_back(results(), windows, aliases))  # type: ignore[arg-type]

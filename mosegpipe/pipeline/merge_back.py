@@ -28,54 +28,64 @@ _MIN_SHARE = 0.5  # ... and most of those must carry the one label it joins
 
 @dataclass
 class Aliases:
-    """Labels merged back into others: label -> the label it is now (resolved through chains)."""
+    """Labels merged back into others: label -> (the label it joined, the first frame of the window that merged it).
 
-    to: dict[int, int] = field(default_factory=dict)
+    A label stands for the one it joined only in the windows that start at or before that frame: once it has
+    merged, no later window gives it (the label book forgets it), and should the book hand the number out again to
+    a new motion (`LabelBook` reuses labels once the mask range is spent), that motion's windows keep it.
+    """
 
-    def add(self, label: int, into: int) -> None:
-        """`label` is `into` from now on, and was from its start."""
-        self.to[label] = self.resolve(into)
-        self.to = {a: self.resolve(b) for a, b in self.to.items()}
+    to: dict[int, tuple[int, int]] = field(default_factory=dict)
 
-    def resolve(self, label: int) -> int:
-        """The label `label` stands for now."""
+    def add(self, label: int, into: int, frame: int) -> None:
+        """`label` is `into` in every window that starts at or before `frame`."""
+        self.to[label] = (into, frame)
+
+    def resolve(self, label: int, start: int) -> int:
+        """The label `label` stands for in a window starting at frame `start` (chains followed)."""
         seen = set()
-        while label in self.to and label not in seen:
+        while label in self.to and label not in seen and start <= self.to[label][1]:
             seen.add(label)
-            label = self.to[label]
+            label = self.to[label][0]
         return label
 
-    def table(self) -> npt.NDArray[np.uint8]:
-        """(256,) uint8 lookup table of mask values."""
-        lut = np.arange(256, dtype=np.uint8)
-        for a in self.to:
-            if a < 256:
-                lut[a] = self.resolve(a)
-        return lut
+    def _live(self, start: int) -> list[int]:
+        return [a for a, (_, until) in self.to.items() if start <= until]
 
-    def relabel_mask(self, mask: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.uint8] | None:
-        """The mask with every merged label written as the one it joined (the mask itself when none shows)."""
-        if mask is None or not self.to or not np.isin(mask, list(self.to)).any():
+    def relabel_mask(self, mask: npt.NDArray[np.uint8] | None, start: int) -> npt.NDArray[np.uint8] | None:
+        """The mask of a window starting at frame `start` with every merged label written as the one it joined (the
+        mask itself when none shows)."""
+        live = [a for a in self._live(start) if a < 256]
+        if mask is None or not live or not np.isin(mask, live).any():
             return mask
-        return self.table()[mask]
+        lut = np.arange(256, dtype=np.uint8)
+        for a in live:
+            lut[a] = self.resolve(a, start)
+        return lut[mask]
 
-    def relabel(self, labels: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
-        """Track labels with every merged label replaced."""
-        if not self.to or labels.size == 0:
+    def relabel(self, labels: npt.NDArray[np.int64], start: int) -> npt.NDArray[np.int64]:
+        """Track labels of a window starting at frame `start` with every merged label replaced."""
+        live = self._live(start)
+        if not live or labels.size == 0:
             return labels
         out = labels.copy()
-        for a in self.to:
-            out[labels == a] = self.resolve(a)
+        for a in live:
+            out[labels == a] = self.resolve(a, start)
         return out
 
     def window(self, result: WindowResult) -> WindowResult:
         """A window's result with every merged label replaced (masks and tracks)."""
-        if not self.to:
+        at = result.start
+        if not self._live(at):
             return result
         frames = tuple(
-            replace(fr, labels=self.relabel(fr.labels), mask=self.relabel_mask(fr.mask)) for fr in result.frames
+            replace(fr, labels=self.relabel(fr.labels, at), mask=self.relabel_mask(fr.mask, at)) for fr in result.frames
         )
-        return replace(result, labels=self.relabel(result.labels), frames=frames)
+        return replace(result, labels=self.relabel(result.labels, at), frames=frames)
+
+    def drop_before(self, start: int) -> None:
+        """Forgets the aliases no window starting at `start` or later needs (those windows have left)."""
+        self.to = {a: v for a, v in self.to.items() if v[1] >= start}
 
 
 def _no_labels() -> npt.NDArray[np.int64]:
@@ -114,6 +124,7 @@ def held_back(results: Iterable[WindowResult], windows: int, aliases: Aliases) -
         held.append(result)
         while len(held) > windows:
             yield aliases.window(held.popleft())
+            aliases.drop_before(held[0].start if held else result.start + 1)
     while held:
         yield aliases.window(held.popleft())
 

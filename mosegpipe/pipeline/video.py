@@ -394,9 +394,9 @@ def _merge_back(window: list[FrameTracks], found: WindowLabels, cfg: PipelineCon
     merged = merged_back(run.last, found.track_ids, found.labels, run.book.born, run.num_windows - held, cfg.joint)
     for lab, into in merged.items():
         log.info("frames %d-%d: label %d merged back into %d", window[0][0], window[-1][0], lab, into)
-        run.aliases.add(lab, into)
+        run.aliases.add(lab, into, window[0][0])
         run.book.retire(lab, into)
-        run.masks.last_mask = run.aliases.relabel_mask(run.masks.last_mask)
+        run.masks.last_mask = run.aliases.relabel_mask(run.masks.last_mask, window[0][0])
 
 
 def small_rigid(labels: npt.NDArray[np.int64], points: npt.NDArray[np.float32], cfg: PipelineConfig) -> list[int]:
