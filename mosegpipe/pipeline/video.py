@@ -396,6 +396,7 @@ def _merge_back(window: list[FrameTracks], found: WindowLabels, cfg: PipelineCon
         log.info("frames %d-%d: label %d merged back into %d", window[0][0], window[-1][0], lab, into)
         run.aliases.add(lab, into, window[0][0])
         run.book.retire(lab, into)
+    if merged:
         run.masks.last_mask = run.aliases.relabel_mask(run.masks.last_mask, window[0][0])
 
 
