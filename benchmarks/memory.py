@@ -1,6 +1,6 @@
 """Peak memory of whole-video mode against video length: it should stay flat.
 
-    python benchmarks/memory.py [--lengths 50 200 400] [--size 1280x720] [--rrd] [--model PATH]
+    python benchmarks/memory.py [--lengths 50 200 400] [--size 1280x720] [--rrd] [--model PATH] [--max-side N]
     python benchmarks/memory.py --minutes 10 [--size 1920x1080] [--fps 30] [--video PATH] [--rrd]
 
 Length sweep (the default): writes one synthetic video (a textured background panning back and
@@ -98,7 +98,7 @@ def make_h264_video(path: Path, frames: int, size_wh: tuple[int, int], fps: floa
     return path
 
 
-def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
+def child(video: Path, frames: int, rrd: bool, model_path: Path | None, max_side: int | None = None) -> None:
     """Runs in the subprocess: segments the first `frames` frames, prints one JSON line."""
     from mosegpipe.apps.video_outputs import write_video_outputs
     from mosegpipe.embed.numpy_net import load_embedder
@@ -115,7 +115,7 @@ def child(video: Path, frames: int, rrd: bool, model_path: Path | None) -> None:
     with tempfile.TemporaryDirectory(prefix="moseg_mem_") as tmp:
         t0 = time.perf_counter()
         summary = write_video_outputs(
-            video, Path(tmp) / "out", PipelineConfig(frames=5), model, rrd=rrd, max_frames=frames
+            video, Path(tmp) / "out", PipelineConfig(frames=5, max_side=max_side), model, rrd=rrd, max_frames=frames
         )
         seconds = time.perf_counter() - t0
     tracks = [w["num_tracks"] for w in summary["windows"]]
@@ -251,6 +251,7 @@ def long_video(args: argparse.Namespace) -> None:
         out = work / "out"
         cmd = [moseg, "run", str(video), "--whole", "--frames", "5", "--out", str(out), "--threads", "1"]
         cmd += [] if args.rrd else ["--no-rrd"]
+        cmd += [] if args.max_side is None else ["--max-side", str(args.max_side)]
         print(f"# whole-video peak memory over a long video: {w}x{h}, {frames} frames\n")
         print(
             f"machine: {platform.processor() or platform.machine()}, nproc {len(os.sched_getaffinity(0))}, "
@@ -296,11 +297,12 @@ def main(argv: list[str] | None = None) -> None:
         "--deadline-min", type=float, default=None, help="long-video mode: stop the run after this many minutes"
     )
     ap.add_argument("--work", type=Path, default=None, help="long-video mode: folder for the temporary files")
+    ap.add_argument("--max-side", type=int, default=None, help="segment frames shrunk to this longer side (--max-side)")
     ap.add_argument("--child", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--frames", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
-        child(args.child, args.frames, args.rrd, args.model)
+        child(args.child, args.frames, args.rrd, args.model, args.max_side)
         return
     if args.minutes is not None:
         if args.size == "1280x720" and "--size" not in (argv if argv is not None else sys.argv[1:]):
@@ -327,6 +329,7 @@ def main(argv: list[str] | None = None) -> None:
             cmd = [sys.executable, __file__, "--child", str(video), "--frames", str(n)]
             cmd += ["--rrd"] if args.rrd else []
             cmd += ["--model", str(args.model)] if args.model else []
+            cmd += [] if args.max_side is None else ["--max-side", str(args.max_side)]
             out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
             if out.returncode != 0:
                 sys.exit(f"memory.py: the run on {n} frames failed:\n{out.stderr}")

@@ -218,8 +218,13 @@ _T = TypeVar("_T")
 _DONE = object()
 
 
-def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Generator[_T, None, None]:
+def run_ahead(
+    items: Iterator[_T], depth: int, name: str = "moseg-ahead", strict: bool = False
+) -> Generator[_T, None, None]:
     """Runs the iterator `items` on a background thread, at most `depth` items ahead of the consumer.
+
+    With `strict`, the item being made counts too: the thread starts the next item only once the consumer
+    has taken one (memory: `depth` items ahead, not `depth` + 1); else it makes the next while the queue is full.
 
     Whole-video mode spends its time in OpenCV, PyAV and BLAS calls that release the GIL, so its
     stages run as a chain of these: reading + KLT tracking, then embedding + clustering, then masks,
@@ -230,6 +235,13 @@ def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Gen
     """
     q: queue.Queue[Any] = queue.Queue(maxsize=depth)
     stop = threading.Event()
+    slots = threading.Semaphore(depth) if strict else None  # strict: one per item made and not yet taken
+
+    def start() -> bool:
+        while slots is not None and not slots.acquire(timeout=0.1):
+            if stop.is_set():
+                return False
+        return not stop.is_set()
 
     def put(item: Any) -> bool:
         while not stop.is_set():
@@ -242,10 +254,10 @@ def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Gen
 
     def run() -> None:
         try:
-            for item in items:
-                if not put(item):
+            while start():
+                item = next(items, _DONE)
+                if not put(item) or item is _DONE:
                     return
-            put(_DONE)
         except BaseException as exc:  # handed to the consumer, raised there
             put(exc)
         finally:
@@ -258,6 +270,8 @@ def run_ahead(items: Iterator[_T], depth: int, name: str = "moseg-ahead") -> Gen
     try:
         while True:
             item = q.get()
+            if slots is not None:
+                slots.release()
             if item is _DONE:
                 return
             if isinstance(item, BaseException):

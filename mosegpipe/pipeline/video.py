@@ -172,7 +172,7 @@ def segment_video(
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
         stream = stack.enter_context(FlowStream(cfg.flow)) if cfg.mask.method in FLOW_MASK_METHODS else None
         windows = stack.enter_context(
-            contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read"))
+            contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read", strict=True))
         )
         labelled = _labelled(windows, cfg, model, run, masks, stream)
         yield from held_back(labelled, cfg.labels.merge_back_windows, run.aliases)
@@ -437,6 +437,8 @@ def _label_window(
     if stream is not None and len(window) >= 2 and flow_fits(window[0][1].shape[:2], stream.cfg):
         # a window that starts on the one before's last frame gives that frame the flow back to the frame before it too
         motion = stream.motion([t for t, _, _, _ in window], after=after, before=run.frame_before)
+        # the next window starts on this one's last frame and takes the pair before it: the rest is in `motion`
+        stream.forget(window[-2][0])
     common, found = _cluster_window(window, cfg, model, run, motion)
     note = found.note
     log.info(
@@ -509,7 +511,6 @@ def _window_pixels(
     if labs and run.masks.history is not None:  # the long-span test (MaskConfig.rigid) follows the tracks back
         tracks = WindowTracks(indices, [(ids, xy) for _, _, ids, xy in window], labs[-1], found.track_ids)
     moving, motion = run.masks.moving(images, motion, first=skip, parallax=parallax, anchors=anchors, tracks=tracks)
-    stream.forget(indices[-2])  # the next window starts on this one's last frame, and takes the pair before it
     run.frame_before = indices[-2]
     which = window_features(images, motion, cfg.mask, labs, skip)
     return moving, which, motion
