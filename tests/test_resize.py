@@ -3,7 +3,7 @@ back at the input's size with nothing but the labels found on the small grid."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +12,7 @@ import pytest
 from mosegpipe.errors import ConfigError
 from mosegpipe.io.read import read_palette_png
 from mosegpipe.pipeline import PipelineConfig, segment_frames
-from mosegpipe.pipeline.resize import shrink_factor, snap_labels, upscale_labels, upscale_mask, upscale_xy
+from mosegpipe.pipeline.resize import dense_sized, shrink_factor, snap_labels, upscale_labels, upscale_mask, upscale_xy
 from mosegpipe.types import Frames
 
 from helpers import moseg, render_scene, write_avi
@@ -84,3 +84,49 @@ def test_a_whole_video_with_max_side_writes_full_size_masks(tmp_path: Path) -> N
     masks = [read_palette_png(p) for p in sorted((tmp_path / "out" / "masks").glob("*.png"))]
     assert len(masks) == 9 and all(m.shape == (240, 320) for m in masks)
     assert any(((m > 0) & (m < 255)).any() for m in masks)  # something moves
+
+
+def test_the_dense_stage_of_a_large_frame_runs_at_max_side_px() -> None:
+    cfg = PipelineConfig()  # flow at 1.0, mask steps at 0.75, at most 1280 px
+    hd = dense_sized(cfg, (1080, 1920))
+    assert hd.mask.motion.flow.scale == pytest.approx(2 / 3) and hd.mask.motion.work_scale == pytest.approx(0.5)
+    assert hd.mask.motion.flow.patch_stride == cfg.mask.motion.flow.patch_stride  # only the scales change
+    assert dense_sized(cfg, (720, 1280)) is cfg and dense_sized(cfg, (480, 854)) is cfg
+    off = cfg.with_settings(["mask.motion.max_side_px=null"])
+    assert dense_sized(off, (2160, 3840)) is off
+    old = asdict(cfg)
+    del old["mask"]["motion"]["max_side_px"]  # a summary from before the limit replays without it
+    assert PipelineConfig.from_dict(old) == off and PipelineConfig.from_dict(asdict(cfg)) == cfg
+    with pytest.raises(ConfigError, match="max_side_px"):
+        cfg.with_settings(["mask.motion.max_side_px=10"])
+
+
+@pytest.mark.parametrize("whole", [False, True])
+def test_clips_and_videos_compute_their_flow_at_max_side_px(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, whole: bool
+) -> None:
+    from mosegpipe.points import flow as flow_module
+
+    scales: list[float] = []
+    start = flow_module.FlowStream.__init__
+
+    def recorded(self: flow_module.FlowStream, cfg: flow_module.FlowConfig = flow_module.FlowConfig()) -> None:
+        scales.append(cfg.scale)
+        start(self, cfg)
+
+    monkeypatch.setattr(flow_module.FlowStream, "__init__", recorded)
+    scene = render_scene(9)
+    cfg = PipelineConfig().with_settings(["mask.motion.max_side_px=160"])  # 320x240 frames: flow at half size
+    if whole:
+        from mosegpipe.pipeline import segment_video
+
+        video = write_avi(tmp_path / "clip.avi", scene.frames)
+        masks = [fr.mask for w in segment_video(video, cfg) for fr in w.frames]
+    else:
+        masks = list(segment_frames(Frames(scene.frames[:5]), cfg).masks)
+    assert scales and set(scales) == {0.5}
+    assert all(m is not None and m.shape == (240, 320) for m in masks)
+    for obj in (1, 2):  # the objects are still found, at the frame's size
+        inside = masks[0][scene.masks[0] == obj]
+        values, counts = np.unique(inside, return_counts=True)
+        assert values[counts.argmax()] not in (0, 255) and counts.max() > 0.6 * inside.size

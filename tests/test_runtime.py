@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -51,6 +52,23 @@ def test_run_ahead_stops_and_closes_the_stage_when_the_consumer_stops() -> None:
     out.close()  # the consumer gives up: the worker must not run on forever
     assert closed.wait(5.0)
     assert not any(t.name == "endless" and t.is_alive() for t in threading.enumerate())
+
+
+@pytest.mark.parametrize("strict", [False, True])
+def test_run_ahead_starts_an_item_only_when_its_depth_allows(strict: bool) -> None:
+    started: list[int] = []
+
+    def items() -> Iterator[int]:
+        for i in range(6):
+            started.append(i)  # the stage starts making item i (a window's frames, its flows)
+            yield i
+
+    out = run_ahead(items(), depth=1, strict=strict)
+    assert next(out) == 0
+    time.sleep(0.3)  # the consumer is busy with item 0: the stage runs ahead as far as it may
+    # strict: item 1 is made and waits; without: item 1 waits in the queue and item 2 is being made
+    assert started == ([0, 1] if strict else [0, 1, 2])
+    assert list(out) == [1, 2, 3, 4, 5]
 
 
 def test_import_ahead_imports_on_its_own_thread_and_skips_what_is_loaded(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 import tracemalloc
 import weakref
 from collections.abc import Iterator
@@ -225,6 +226,37 @@ def test_memory_holds_one_window_of_frames(
     # video (T frames). (Without the held window the bound is one window lower; a slow writer fills the queue
     # and reaches it.)
     assert most <= (3 - 1) * (WINDOWS_AHEAD + 3 + held) + 2 < T
+
+
+def test_flows_held_for_at_most_two_windows(tmp_path: Path, frames_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mosegpipe.points import flow as flow_module
+
+    pairs: list[weakref.ref[Any]] = []
+    most = 0
+    make_pair, label_window = flow_module.FlowStream._pair, video_module._label_window
+
+    def tracked_pair(self: Any, *args: Any) -> Any:
+        pair = make_pair(self, *args)
+        pairs.append(weakref.ref(pair))
+        return pair
+
+    def slow_label(*args: Any, **kwargs: Any) -> Any:
+        nonlocal most
+        time.sleep(0.2)  # a slow window: reading and the flows run as far ahead as they are let
+        most = max(most, sum(r() is not None for r in pairs))
+        result = label_window(*args, **kwargs)
+        most = max(most, sum(r() is not None for r in pairs))
+        return result
+
+    monkeypatch.setattr(flow_module.FlowStream, "_pair", tracked_pair)
+    monkeypatch.setattr(video_module, "_label_window", slow_label)
+    model3 = SubspaceNet.from_checkpoint(motion_checkpoint(tmp_path / "m3.pt", 3))
+    windows = list(video_module.segment_video(frames_dir, PipelineConfig(frames=3, k=3), model3, masks=True))
+    assert sum(len(w.frames) for w in windows) == T and len(pairs) == T - 1
+    # The window labelled (its 2 pairs, the pair before it, the one after it) and the next window read
+    # (its second pair and the one after it), each pair its two flows and their evidence: about 30 MB at
+    # 1280x720. Reading further ahead held 3 windows' pairs (13 at 5 frames a window).
+    assert most <= 2 + 1 + 1 + 2 < T - 1
 
 
 def test_failures_leave_nothing(tmp_path: Path, frames_dir: Path, scene: RenderedClip, model_path: Path) -> None:

@@ -22,6 +22,7 @@ class MotionMaskConfig:
     Attributes:
         flow: dense flow and camera fit (DIS medium, patch stride 4, 1 refinement iteration).
         work_scale: the mask steps run on images resized by this factor; masks are resized back (nearest).
+        max_side_px: frames longer than this take both scales times max_side_px / their longer side (None = off).
         eps_px: residuals are compared as log(residual + eps_px), full-resolution pixels.
         min_residual_px: a pixel whose residual is below this (full-resolution pixels) is never moving.
         noise_factor: nor one whose residual is below this many times the frame's median residual.
@@ -50,6 +51,7 @@ class MotionMaskConfig:
 
     flow: FlowConfig = field(default_factory=lambda: FlowConfig(patch_stride=4, refinement_iterations=1))
     work_scale: float = 0.75
+    max_side_px: int | None = 1280
     eps_px: float = 1.0
     min_residual_px: float = 0.5
     noise_factor: float = 3.0
@@ -81,6 +83,7 @@ class MotionMaskConfig:
 
 _MOTION_CHECKS: tuple[Check, ...] = (
     ("work_scale", lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    ("max_side_px", lambda v: v is None or v >= 64, "be at least 64 pixels (or None: no limit)"),
     ("noise_factor", lambda v: v >= 0, "be >= 0"),
     ("eps_px", lambda v: v > 0, "be > 0"),
     ("min_residual_px", lambda v: v >= 0, "be >= 0"),

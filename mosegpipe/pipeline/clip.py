@@ -28,7 +28,7 @@ from mosegpipe.pipeline.common import (
     model_or_default,
 )
 from mosegpipe.pipeline.config import PipelineConfig
-from mosegpipe.pipeline.resize import shrink_factor, shrink_image, shrink_images, upscale_mask, upscale_xy
+from mosegpipe.pipeline.resize import dense_sized, shrink_factor, shrink_image, shrink_images, upscale_mask, upscale_xy
 from mosegpipe.points.flow import FrameMotion, flow_fits
 from mosegpipe.points.flow_grid import combine_tracks, track_flow
 from mosegpipe.points.klt import spread_corners, track_klt, track_points
@@ -171,9 +171,10 @@ def full_size(result: ClipResult, frames: Frames, scale: float, resize_s: float 
 
 
 def _segment_frames(frames: Frames, cfg: PipelineConfig, model: Embedder | None) -> ClipResult:
-    """segment_frames at the frames' own size."""
+    """segment_frames at the frames' own size (the dense stage at most at mask.motion.max_side_px: `dense_sized`)."""
     timings: dict[str, float] = {}
     check_images(frames.images, f"{frames.source or 'frames'}: images", stack=True)
+    cfg = dense_sized(cfg, frames.images.shape[1:3])
     check_mask_networks(cfg.mask)
     model = model_or_default(model, frames.num_frames, timings)
     t0 = time.perf_counter()

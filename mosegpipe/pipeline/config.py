@@ -73,6 +73,7 @@ OLDER_SUMMARIES: tuple[tuple[str, dict[str, Any]], ...] = (
     ("mask.motion.smooth_lambda", {"mask.motion.smooth_lambda": 0.0}),  # before their global smoother
     ("mask.motion.flow.camera_fit", {"mask.motion.flow.camera_fit": "magsac"}),  # before the camera's fit by RANSAC
     ("joint.merge_most_pairs", {"joint.merge_most_pairs": False}),  # before merges counted tracks in most pairs
+    ("mask.motion.max_side_px", {"mask.motion.max_side_px": None}),  # before the dense stage's size limit
 )
 """The compatibility of `PipelineConfig.from_dict` with summaries written before a step existed, in one table:
 (a field whose absence marks such a summary, the settings it then replays with: the step off, or the choice of

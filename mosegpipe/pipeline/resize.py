@@ -11,6 +11,8 @@ and the frames themselves are the input's, so that overlays and recordings show 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, MutableMapping
+from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -18,9 +20,13 @@ import numpy.typing as npt
 
 from mosegpipe.settings import MIN_MAX_SIDE_PX
 
+if TYPE_CHECKING:
+    from mosegpipe.pipeline.config import PipelineConfig
+
 __all__ = [
     "MIN_MAX_SIDE_PX",
     "SNAP_RADIUS_PX",
+    "dense_sized",
     "shrink_factor",
     "shrink_image",
     "shrunk_stream",
@@ -45,6 +51,20 @@ def shrink_factor(size_hw: tuple[int, int], max_side: int | None) -> float:
     if max_side is None or longer <= max_side:
         return 1.0
     return max_side / longer
+
+
+def dense_sized(cfg: PipelineConfig, size_hw: tuple[int, int]) -> PipelineConfig:
+    """`cfg` for frames of this (H, W), as segmented: with `mask.motion.max_side_px`, a frame whose longer side
+    exceeds it has its flow (`mask.motion.flow.scale`) and its mask steps (`mask.motion.work_scale`) at the scales
+    a frame of that longer side would have (both times max_side_px / the longer side): a 1920x1080 frame's dense
+    stage costs what a 1280x720 one's does, while its tracks and masks keep the frame's size."""
+    motion = cfg.mask.motion
+    factor = shrink_factor(size_hw, motion.max_side_px)
+    if factor >= 1.0:
+        return cfg
+    flow = replace(motion.flow, scale=motion.flow.scale * factor)
+    motion = replace(motion, flow=flow, work_scale=motion.work_scale * factor)
+    return replace(cfg, mask=replace(cfg.mask, motion=motion))
 
 
 def small_size(size_hw: tuple[int, int], scale: float) -> tuple[int, int]:

@@ -50,7 +50,7 @@ from mosegpipe.pipeline.common import (
 )
 from mosegpipe.pipeline.config import PipelineConfig
 from mosegpipe.pipeline.merge_back import Aliases, WindowLabels, held_back, merged_back
-from mosegpipe.pipeline.resize import shrunk_stream
+from mosegpipe.pipeline.resize import dense_sized, shrink_factor, shrunk_stream, small_size
 from mosegpipe.pipeline.window import FrameTracks, VideoFrame, WindowResult, at_input_size, frame_mask
 from mosegpipe.points.flow import FlowStream, FrameMotion, flow_fits
 from mosegpipe.points.klt import KLTTracker, tracks_from_steps
@@ -164,6 +164,8 @@ def segment_video(
             f"{path}: frames of {width}x{height} px are too small to track "
             f"(whole-video mode needs at least {MIN_VIDEO_SIDE_PX}x{MIN_VIDEO_SIDE_PX})"
         )
+    if size_hw is not None:  # the dense stage at most at mask.motion.max_side_px (a live stream's size is not known)
+        cfg = dense_sized(cfg, small_size(size_hw, shrink_factor(size_hw, cfg.max_side)))
     memory, book = cfg.mask.motion.colour_memory, LabelBook(cfg=cfg.labels)
     colour, named = (ColourMemory(memory) if memory > 0 else None), cfg.labels.name_unclustered
     run = _VideoRun(book, masks=MaskSequence(cfg.mask, True, colour, namer=book if named else None, name_share=named))
@@ -172,7 +174,9 @@ def segment_video(
         # window ahead of the clustering and masks (its own thread): the stages overlap on two cores.
         stream = stack.enter_context(FlowStream(cfg.flow)) if cfg.mask.method in FLOW_MASK_METHODS else None
         windows = stack.enter_context(
-            contextlib.closing(run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read", strict=True))
+            contextlib.closing(
+                run_ahead(_read_windows(path, cfg, run, max_frames, frames, stream), 1, "moseg-read", strict=True)
+            )
         )
         labelled = _labelled(windows, cfg, model, run, masks, stream)
         yield from held_back(labelled, cfg.labels.merge_back_windows, run.aliases)
