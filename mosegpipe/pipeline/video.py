@@ -132,21 +132,17 @@ def segment_video(
         TooFewTracksError: no window had cfg.min_tracks tracks through all its frames (raised once
             the video is exhausted).
 
-    Only the tracks live through a whole window are clustered; one that ends inside it (leaving the
-    view, occluded) keeps the label it had in the window before for its last frames, so an object
-    leaving the view keeps its label while its tracks last.
+    Only the tracks live through a whole window are clustered; one that ends inside it (leaving the view,
+    occluded) keeps the label it had in the window before for its last frames.
 
     A shot cut (fewer than cfg.video_cut_survival of a frame's tracks survive into the next frame)
     ends the window on the frame before it, however short; tracking restarts on the cut frame
     (`KLTTracker.restart`), which starts the next window (WindowResult.shot_start), so no track and
     no window spans two shots. The motions of the new shot get labels of their own, the dominant one 0.
 
-    Automatic K keeps the previous window's K when that K scores within cfg.cluster.ambiguity_margin
-    of the best (`cluster_auto_k`'s prefer_k): a change of K needs clear evidence; and it tries K only
-    up to the previous window's K + cfg.video_k_step. Automatic K's
-    warning that its choice is ambiguous is logged once, after the last window
-    ("K was ambiguous in 3 of 40 windows: ..."), not per window; each window keeps its note
-    (WindowResult.k_note, summary.json `windows[].k_ambiguous`).
+    Automatic K keeps the previous window's K when that K scores within cfg.cluster.ambiguity_margin of the best
+    (`cluster_auto_k`'s prefer_k) and tries K only up to it + cfg.video_k_step. Its ambiguity warning is logged
+    once, after the last window ("K was ambiguous in 3 of 40 windows: ..."); each window keeps its note.
 
     Each window is yielded cfg.labels.merge_back_windows windows after it is labelled: a label born in them
     that merges back into a motion beside it is written as that motion's throughout (`pipeline.merge_back`).
