@@ -439,6 +439,7 @@ def _label_window(
         motion = stream.motion([t for t, _, _, _ in window], after=after, before=run.frame_before)
         # the next window starts on this one's last frame and takes the pair before it: the rest is in `motion`
         stream.forget(window[-2][0])
+        run.frame_before = window[-2][0]
     common, found = _cluster_window(window, cfg, model, run, motion)
     note = found.note
     log.info(
@@ -450,7 +451,7 @@ def _label_window(
     labs = [
         np.array([by_id.get(int(i), before.get(int(i), -1)) for i in ids], np.int64) for _, _, ids, _ in window[skip:]
     ]
-    moving, which, motion = _window_pixels(window, skip, labs, cfg, run, stream, motion, found)
+    moving, which, motion = _window_pixels(window, skip, labs, cfg, run, motion, found)
     labelled = []
     seen = [(ids, xy) for _, _, ids, xy in window]
     for at, (item, lab, moved) in enumerate(zip(window[skip:], labs, moving), start=skip):
@@ -490,7 +491,6 @@ def _window_pixels(
     labs: list[npt.NDArray[np.int64]],
     cfg: PipelineConfig,
     run: _VideoRun,
-    stream: FlowStream | None,
     motion: FrameMotion | None,
     found: WindowLabels,
 ) -> tuple[npt.NDArray[np.bool_] | list[None], npt.NDArray[np.float32] | None, FrameMotion | None]:
@@ -499,7 +499,7 @@ def _window_pixels(
     world's parallax explained for the "motion" masks)."""
     moving: npt.NDArray[np.bool_] | list[None] = [None] * (len(window) - skip)
     which = None
-    if stream is None or motion is None:
+    if motion is None:
         return moving, which, motion
     indices = [t for t, _, _, _ in window]
     images = np.stack([img for _, img, _, _ in window])
@@ -511,7 +511,6 @@ def _window_pixels(
     if labs and run.masks.history is not None:  # the long-span test (MaskConfig.rigid) follows the tracks back
         tracks = WindowTracks(indices, [(ids, xy) for _, _, ids, xy in window], labs[-1], found.track_ids)
     moving, motion = run.masks.moving(images, motion, first=skip, parallax=parallax, anchors=anchors, tracks=tracks)
-    run.frame_before = indices[-2]
     which = window_features(images, motion, cfg.mask, labs, skip)
     return moving, which, motion
 
